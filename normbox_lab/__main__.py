@@ -1,0 +1,3 @@
+from normbox_lab.cli import main
+
+raise SystemExit(main())

@@ -1,0 +1,79 @@
+"""The one error hierarchy of normbox-lab (DESIGN §4).
+
+    NormboxError
+    ├── InstrumentError
+    │   ├── InstrumentTimeout   no (complete) reply in time
+    │   ├── ProtocolError       bytes that make no sense; carries the raw bytes
+    │   ├── DeviceError         the device said no; carries its code and meaning
+    │   └── NotReady            the device cannot do this now (not homed, lamp warming, ...)
+    ├── ConfigError             a lab config problem; names file, line and field
+    ├── DataError               an imported data file is malformed; names file and location
+    ├── StoreError              the measurement store cannot do what was asked
+    └── OperatorAbort           the operator (or an abort request) stopped the run
+"""
+
+from __future__ import annotations
+
+
+class NormboxError(Exception):
+    """Base of every error normbox-lab raises on purpose."""
+
+
+class InstrumentError(NormboxError):
+    """Something went wrong talking to, or inside, an instrument."""
+
+    def __init__(self, message: str, *, instrument: str = "") -> None:
+        self.instrument = instrument
+        super().__init__(f"{instrument}: {message}" if instrument else message)
+
+
+class InstrumentTimeout(InstrumentError):
+    """The instrument did not answer (completely) within the allowed time."""
+
+
+class ProtocolError(InstrumentError):
+    """The instrument's bytes make no sense for the command sent."""
+
+    def __init__(self, message: str, *, raw: bytes = b"", instrument: str = "") -> None:
+        self.raw = bytes(raw)
+        super().__init__(f"{message} (raw={self.raw!r})", instrument=instrument)
+
+
+class DeviceError(InstrumentError):
+    """The device refused or failed a command and said why."""
+
+    def __init__(self, code: str | int, meaning: str, *, instrument: str = "") -> None:
+        self.code = code
+        self.meaning = meaning
+        super().__init__(f"device error {code}: {meaning}", instrument=instrument)
+
+
+class NotReady(InstrumentError):
+    """The device is not in a state where the request can be carried out."""
+
+
+class ConfigError(NormboxError):
+    """A lab config error; always names the file, the line (0 when unknown) and the field."""
+
+    def __init__(self, file: str, line: int, field: str, message: str) -> None:
+        self.file = str(file)
+        self.line = int(line)
+        self.field = field
+        super().__init__(f"{self.file}:{self.line}: {field}: {message}")
+
+
+class DataError(NormboxError):
+    """An input data file is malformed; names the file and where in it."""
+
+    def __init__(self, file: str, location: str, message: str) -> None:
+        self.file = str(file)
+        self.location = location
+        super().__init__(f"{self.file}: {location}: {message}")
+
+
+class StoreError(NormboxError):
+    """The store refused an operation (unknown run, duplicate key, newer schema...)."""
+
+
+class OperatorAbort(NormboxError):
+    """The operator aborted (or an abort was requested programmatically)."""

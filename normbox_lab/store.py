@@ -1,0 +1,480 @@
+"""The measurement store: one SQLite file, WAL, synchronous=FULL, one transaction per reading.
+
+Tables (schema version in ``PRAGMA user_version``; forward migrations in `MIGRATIONS`):
+
+- ``runs``        uuid, protocol, parameters, lab-config snapshot, code version, seeds, status,
+                  planned reading count, timestamps
+- ``run_events``  what happened to a run: started, paused, resumed (a new segment), faults,
+                  operator decisions, finished
+- ``readings``    (run, key) unique; kind, instrument, time, metadata JSON
+- ``arrays``      float64 blobs with their shape, owned by a reading or an artifact
+- ``instruments`` identity and calibration snapshot per run and role
+- ``artifacts``   fits, predictions, comparisons, reports (pipeline results are data too)
+
+Arrays are stored as little-endian float64 bytes with the shape as JSON: exact round trips,
+no pickle.
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+import threading
+import uuid as uuidlib
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from normbox_lab import __version__
+from normbox_lab.errors import StoreError
+from normbox_lab.types import BrdfReading, Colorimetry, SpectralReading
+
+DEFAULT_STORE = "normbox.sqlite"
+
+MIGRATIONS: list[str] = [
+    # version 1
+    """
+    CREATE TABLE runs (
+        id            INTEGER PRIMARY KEY,
+        uuid          TEXT NOT NULL UNIQUE,
+        protocol      TEXT NOT NULL,
+        parameters    TEXT NOT NULL DEFAULT '{}',
+        lab_config    TEXT NOT NULL DEFAULT '',
+        code_version  TEXT NOT NULL,
+        seeds         TEXT NOT NULL DEFAULT '{}',
+        status        TEXT NOT NULL,
+        planned       INTEGER NOT NULL DEFAULT 0,
+        created_s     REAL NOT NULL,
+        updated_s     REAL NOT NULL,
+        finished_s    REAL
+    );
+    CREATE TABLE run_events (
+        id      INTEGER PRIMARY KEY,
+        run_id  INTEGER NOT NULL REFERENCES runs(id),
+        time_s  REAL NOT NULL,
+        kind    TEXT NOT NULL,
+        detail  TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE TABLE readings (
+        id          INTEGER PRIMARY KEY,
+        run_id      INTEGER NOT NULL REFERENCES runs(id),
+        key         TEXT NOT NULL,
+        kind        TEXT NOT NULL,
+        instrument  TEXT NOT NULL DEFAULT '',
+        time_s      REAL NOT NULL,
+        metadata    TEXT NOT NULL DEFAULT '{}',
+        UNIQUE (run_id, key)
+    );
+    CREATE TABLE arrays (
+        owner     TEXT NOT NULL CHECK (owner IN ('reading', 'artifact')),
+        owner_id  INTEGER NOT NULL,
+        name      TEXT NOT NULL,
+        shape     TEXT NOT NULL,
+        data      BLOB NOT NULL,
+        PRIMARY KEY (owner, owner_id, name)
+    );
+    CREATE TABLE instruments (
+        id           INTEGER PRIMARY KEY,
+        run_id       INTEGER NOT NULL REFERENCES runs(id),
+        role         TEXT NOT NULL,
+        identity     TEXT NOT NULL,
+        calibration  TEXT NOT NULL DEFAULT '{}',
+        time_s       REAL NOT NULL
+    );
+    CREATE TABLE artifacts (
+        id         INTEGER PRIMARY KEY,
+        run_id     INTEGER REFERENCES runs(id),
+        kind       TEXT NOT NULL,
+        name       TEXT NOT NULL,
+        created_s  REAL NOT NULL,
+        metadata   TEXT NOT NULL DEFAULT '{}'
+    );
+    CREATE INDEX artifacts_kind ON artifacts(kind, name);
+    CREATE INDEX run_events_run ON run_events(run_id);
+    """,
+]
+SCHEMA_VERSION = len(MIGRATIONS)
+
+RUN_STATUSES = ("created", "running", "paused", "interrupted", "aborted", "failed", "done")
+
+
+@dataclass(frozen=True)
+class RunRecord:
+    id: int
+    uuid: str
+    protocol: str
+    parameters: dict[str, Any]
+    lab_config: str
+    code_version: str
+    seeds: dict[str, Any]
+    status: str
+    planned: int
+    done: int
+    created_s: float
+    updated_s: float
+    finished_s: float | None
+
+
+@dataclass(frozen=True)
+class StoredReading:
+    id: int
+    run_id: int
+    key: str
+    kind: str
+    instrument: str
+    time_s: float
+    metadata: dict[str, Any]
+    arrays: dict[str, np.ndarray]
+
+
+@dataclass(frozen=True)
+class Artifact:
+    id: int
+    run_id: int | None
+    kind: str
+    name: str
+    created_s: float
+    metadata: dict[str, Any]
+    arrays: dict[str, np.ndarray]
+
+
+def _encode(arr: Any) -> tuple[str, bytes]:
+    a = np.ascontiguousarray(np.asarray(arr, dtype="<f8"))
+    return json.dumps(list(a.shape)), a.tobytes()
+
+
+def _decode(shape: str, data: bytes) -> np.ndarray:
+    return np.frombuffer(data, dtype="<f8").reshape(json.loads(shape)).copy()
+
+
+def _json(obj: Any) -> str:
+    return json.dumps(obj, sort_keys=True, default=_json_default)
+
+
+def _json_default(obj: Any) -> Any:
+    if isinstance(obj, np.generic):
+        return obj.item()
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
+
+
+class Store:
+    """The SQLite store.  Safe to share between threads (one connection behind a lock)."""
+
+    def __init__(self, path: str | Path = DEFAULT_STORE, *, clock_wall_s=None) -> None:  # noqa: ANN001
+        import time
+
+        self.path = Path(path)
+        self._wall_s = clock_wall_s or time.time
+        self._lock = threading.RLock()
+        try:
+            self._db = sqlite3.connect(str(self.path), isolation_level=None,
+                                       check_same_thread=False, timeout=30.0)
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+        except sqlite3.DatabaseError as exc:
+            raise StoreError(f"{self.path}: not a normbox-lab store ({exc})") from exc
+        self._migrate()
+
+    # --- lifecycle -------------------------------------------------------------------------
+    def _migrate(self) -> None:
+        with self._lock:
+            try:
+                version = self._db.execute("PRAGMA user_version").fetchone()[0]
+            except sqlite3.DatabaseError as exc:
+                raise StoreError(f"{self.path}: not a normbox-lab store ({exc})") from exc
+            if version > SCHEMA_VERSION:
+                raise StoreError(f"{self.path}: schema version {version} is newer than this "
+                                 f"normbox-lab ({SCHEMA_VERSION}); upgrade normbox-lab")
+            for v in range(version, SCHEMA_VERSION):
+                self._db.execute("BEGIN IMMEDIATE")
+                try:
+                    for stmt in filter(str.strip, MIGRATIONS[v].split(";")):
+                        self._db.execute(stmt)
+                    self._db.execute(f"PRAGMA user_version={v + 1}")
+                    self._db.execute("COMMIT")
+                except sqlite3.DatabaseError:
+                    self._db.execute("ROLLBACK")
+                    raise
+
+    def close(self) -> None:
+        with self._lock:
+            self._db.close()
+
+    def __enter__(self) -> "Store":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def schema_version(self) -> int:
+        with self._lock:
+            return int(self._db.execute("PRAGMA user_version").fetchone()[0])
+
+    def integrity_check(self) -> str:
+        with self._lock:
+            return str(self._db.execute("PRAGMA integrity_check").fetchone()[0])
+
+    def _tx(self):  # noqa: ANN202 - context manager
+        store = self
+
+        class _Tx:
+            def __enter__(self_inner):  # noqa: N805, ANN204
+                store._lock.acquire()
+                store._db.execute("BEGIN IMMEDIATE")
+                return store._db
+
+            def __exit__(self_inner, exc_type, exc, tb):  # noqa: N805, ANN001, ANN204
+                try:
+                    store._db.execute("ROLLBACK" if exc_type else "COMMIT")
+                finally:
+                    store._lock.release()
+                return False
+
+        return _Tx()
+
+    # --- runs ----------------------------------------------------------------------------------
+    def create_run(self, protocol: str, *, parameters: Mapping[str, Any] | None = None,
+                   lab_config: str = "", seeds: Mapping[str, Any] | None = None,
+                   planned: int = 0, status: str = "created") -> RunRecord:
+        now = self._wall_s()
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT INTO runs (uuid, protocol, parameters, lab_config, code_version, seeds,"
+                " status, planned, created_s, updated_s) VALUES (?,?,?,?,?,?,?,?,?,?)",
+                (str(uuidlib.uuid4()), protocol, _json(dict(parameters or {})), lab_config,
+                 __version__, _json(dict(seeds or {})), status, int(planned), now, now))
+            run_id = cur.lastrowid
+        return self.get_run(run_id)
+
+    def set_run_status(self, run_ref: int | str, status: str, *, planned: int | None = None,
+                       detail: Mapping[str, Any] | None = None) -> None:
+        if status not in RUN_STATUSES:
+            raise StoreError(f"unknown run status {status!r}")
+        run_id = self.get_run(run_ref).id
+        now = self._wall_s()
+        with self._tx() as db:
+            db.execute("UPDATE runs SET status=?, updated_s=?, finished_s=? WHERE id=?",
+                       (status, now, now if status in ("done", "aborted", "failed") else None,
+                        run_id))
+            if planned is not None:
+                db.execute("UPDATE runs SET planned=? WHERE id=?", (int(planned), run_id))
+            db.execute("INSERT INTO run_events (run_id, time_s, kind, detail) VALUES (?,?,?,?)",
+                       (run_id, now, f"status:{status}", _json(dict(detail or {}))))
+
+    def add_event(self, run_ref: int | str, kind: str, detail: Mapping[str, Any] | None = None,
+                  ) -> None:
+        run_id = self.get_run(run_ref).id
+        with self._tx() as db:
+            db.execute("INSERT INTO run_events (run_id, time_s, kind, detail) VALUES (?,?,?,?)",
+                       (run_id, self._wall_s(), kind, _json(dict(detail or {}))))
+
+    def events(self, run_ref: int | str) -> list[tuple[float, str, dict[str, Any]]]:
+        run_id = self.get_run(run_ref).id
+        with self._lock:
+            rows = self._db.execute("SELECT time_s, kind, detail FROM run_events WHERE run_id=?"
+                                    " ORDER BY id", (run_id,)).fetchall()
+        return [(t, k, json.loads(d)) for t, k, d in rows]
+
+    _RUN_SELECT = ("SELECT r.id, r.uuid, r.protocol, r.parameters, r.lab_config, r.code_version,"
+                   " r.seeds, r.status, r.planned,"
+                   " (SELECT COUNT(*) FROM readings g WHERE g.run_id = r.id),"
+                   " r.created_s, r.updated_s, r.finished_s FROM runs r")
+
+    @staticmethod
+    def _run_row(row: tuple) -> RunRecord:
+        return RunRecord(row[0], row[1], row[2], json.loads(row[3]), row[4], row[5],
+                         json.loads(row[6]), row[7], row[8], row[9], row[10], row[11], row[12])
+
+    def get_run(self, run_ref: int | str) -> RunRecord:
+        """A run by integer id, or by uuid (a unique prefix of at least 4 characters is enough)."""
+        with self._lock:
+            if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isdigit()):
+                rows = self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
+                                        (int(run_ref),)).fetchall()
+            elif isinstance(run_ref, str) and len(run_ref) >= 4:
+                rows = self._db.execute(self._RUN_SELECT + " WHERE r.uuid LIKE ?",
+                                        (run_ref.lower() + "%",)).fetchall()
+            else:
+                rows = []
+        if len(rows) != 1:
+            what = "no run" if not rows else "more than one run"
+            raise StoreError(f"{what} matches {run_ref!r} in {self.path}")
+        return self._run_row(rows[0])
+
+    def runs(self) -> list[RunRecord]:
+        with self._lock:
+            rows = self._db.execute(self._RUN_SELECT + " ORDER BY r.id").fetchall()
+        return [self._run_row(r) for r in rows]
+
+    # --- readings --------------------------------------------------------------------------
+    def add_reading(self, run_ref: int | str, key: str, kind: str,
+                    arrays: Mapping[str, Any], *, instrument: str = "",
+                    metadata: Mapping[str, Any] | None = None,
+                    time_s: float | None = None) -> int:
+        """Commit one reading and its arrays in one durable transaction.
+
+        Raises `StoreError` if the run already has a reading with this key (nothing is taken
+        twice).
+        """
+        run_id = run_ref if isinstance(run_ref, int) else self.get_run(run_ref).id
+        encoded = [(name, *_encode(arr)) for name, arr in arrays.items()]
+        with self._tx() as db:
+            try:
+                cur = db.execute(
+                    "INSERT INTO readings (run_id, key, kind, instrument, time_s, metadata)"
+                    " VALUES (?,?,?,?,?,?)",
+                    (run_id, key, kind, instrument,
+                     self._wall_s() if time_s is None else float(time_s),
+                     _json(dict(metadata or {}))))
+            except sqlite3.IntegrityError as exc:
+                raise StoreError(f"run {run_id} already has a reading {key!r} "
+                                 f"(or the run does not exist): {exc}") from exc
+            rid = cur.lastrowid
+            db.executemany("INSERT INTO arrays (owner, owner_id, name, shape, data)"
+                           " VALUES ('reading',?,?,?,?)",
+                           [(rid, name, shape, data) for name, shape, data in encoded])
+            db.execute("UPDATE runs SET updated_s=? WHERE id=?", (self._wall_s(), run_id))
+        return int(rid)
+
+    def keys(self, run_ref: int | str) -> set[str]:
+        run_id = self.get_run(run_ref).id
+        with self._lock:
+            return {k for (k,) in self._db.execute("SELECT key FROM readings WHERE run_id=?",
+                                                    (run_id,))}
+
+    def _arrays(self, owner: str, owner_id: int) -> dict[str, np.ndarray]:
+        rows = self._db.execute("SELECT name, shape, data FROM arrays WHERE owner=? AND"
+                                " owner_id=? ORDER BY name", (owner, owner_id)).fetchall()
+        return {n: _decode(s, d) for n, s, d in rows}
+
+    def readings(self, run_ref: int | str, kind: str | None = None) -> Iterator[StoredReading]:
+        run_id = self.get_run(run_ref).id
+        sql = "SELECT id, run_id, key, kind, instrument, time_s, metadata FROM readings" \
+              " WHERE run_id=?" + (" AND kind=?" if kind else "") + " ORDER BY id"
+        with self._lock:
+            rows = self._db.execute(sql, (run_id, kind) if kind else (run_id,)).fetchall()
+        for r in rows:
+            with self._lock:
+                arrays = self._arrays("reading", r[0])
+            yield StoredReading(r[0], r[1], r[2], r[3], r[4], r[5], json.loads(r[6]), arrays)
+
+    def reading(self, run_ref: int | str, key: str) -> StoredReading:
+        run_id = self.get_run(run_ref).id
+        with self._lock:
+            r = self._db.execute("SELECT id, run_id, key, kind, instrument, time_s, metadata"
+                                 " FROM readings WHERE run_id=? AND key=?",
+                                 (run_id, key)).fetchone()
+            if r is None:
+                raise StoreError(f"run {run_id} has no reading {key!r}")
+            arrays = self._arrays("reading", r[0])
+        return StoredReading(r[0], r[1], r[2], r[3], r[4], r[5], json.loads(r[6]), arrays)
+
+    # typed helpers ------------------------------------------------------------------------------
+    def add_spectral(self, run_ref: int | str, key: str, reading: SpectralReading,
+                     metadata: Mapping[str, Any] | None = None) -> int:
+        meta = dict(reading.metadata)
+        meta.update(metadata or {})
+        meta["integration_time_s"] = reading.integration_time_s
+        if reading.colorimetry is not None:
+            meta["colorimetry"] = reading.colorimetry.as_dict()
+        return self.add_reading(run_ref, key, "spectral",
+                                {"wavelength_nm": reading.wavelength_nm,
+                                 "radiance_W_sr_m2_nm": reading.radiance_W_sr_m2_nm},
+                                instrument=reading.instrument_id, metadata=meta,
+                                time_s=reading.timestamp_s)
+
+    def add_brdf(self, run_ref: int | str, key: str, reading: BrdfReading,
+                 metadata: Mapping[str, Any] | None = None) -> int:
+        meta = dict(reading.metadata)
+        meta.update(metadata or {})
+        meta.update(theta_i_deg=reading.theta_i_deg, theta_o_deg=reading.theta_o_deg,
+                    tilt_deg=reading.tilt_deg, blocked=reading.blocked,
+                    integration_time_s=reading.integration_time_s)
+        arrays = {"wavelength_nm": reading.wavelength_nm, "brdf_per_sr": reading.brdf_per_sr}
+        if reading.raw_counts is not None:
+            arrays["raw_counts"] = reading.raw_counts
+        return self.add_reading(run_ref, key, "brdf", arrays, instrument=reading.instrument_id,
+                                metadata=meta, time_s=reading.timestamp_s)
+
+    @staticmethod
+    def as_spectral(r: StoredReading) -> SpectralReading:
+        meta = dict(r.metadata)
+        colo = meta.pop("colorimetry", None)
+        return SpectralReading(r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"],
+                               Colorimetry.from_dict(colo) if colo else None,
+                               float(meta.pop("integration_time_s", 0.0)), r.time_s,
+                               r.instrument, meta)
+
+    @staticmethod
+    def as_brdf(r: StoredReading) -> BrdfReading:
+        m = dict(r.metadata)
+        return BrdfReading(float(m.pop("theta_i_deg")), float(m.pop("theta_o_deg")),
+                           float(m.pop("tilt_deg", 0.0)), r.arrays["wavelength_nm"],
+                           r.arrays["brdf_per_sr"], r.arrays.get("raw_counts"),
+                           float(m.pop("integration_time_s", 0.0)), r.time_s, r.instrument,
+                           bool(m.pop("blocked", False)), m)
+
+    # --- instruments -----------------------------------------------------------------------
+    def add_instrument(self, run_ref: int | str, role: str, identity: Mapping[str, Any],
+                       calibration: Mapping[str, Any] | None = None) -> None:
+        run_id = self.get_run(run_ref).id
+        with self._tx() as db:
+            db.execute("INSERT INTO instruments (run_id, role, identity, calibration, time_s)"
+                       " VALUES (?,?,?,?,?)", (run_id, role, _json(dict(identity)),
+                                               _json(dict(calibration or {})), self._wall_s()))
+
+    def instruments(self, run_ref: int | str) -> list[dict[str, Any]]:
+        run_id = self.get_run(run_ref).id
+        with self._lock:
+            rows = self._db.execute("SELECT role, identity, calibration, time_s FROM instruments"
+                                    " WHERE run_id=? ORDER BY id", (run_id,)).fetchall()
+        return [{"role": r, "identity": json.loads(i), "calibration": json.loads(c), "time_s": t}
+                for r, i, c, t in rows]
+
+    # --- artifacts -------------------------------------------------------------------------
+    def add_artifact(self, kind: str, name: str, arrays: Mapping[str, Any] | None = None, *,
+                     metadata: Mapping[str, Any] | None = None,
+                     run_ref: int | str | None = None) -> int:
+        run_id = None if run_ref is None else self.get_run(run_ref).id
+        encoded = [(n, *_encode(a)) for n, a in (arrays or {}).items()]
+        with self._tx() as db:
+            cur = db.execute("INSERT INTO artifacts (run_id, kind, name, created_s, metadata)"
+                             " VALUES (?,?,?,?,?)",
+                             (run_id, kind, name, self._wall_s(), _json(dict(metadata or {}))))
+            aid = cur.lastrowid
+            db.executemany("INSERT INTO arrays (owner, owner_id, name, shape, data)"
+                           " VALUES ('artifact',?,?,?,?)",
+                           [(aid, n, s, d) for n, s, d in encoded])
+        return int(aid)
+
+    def artifacts(self, kind: str | None = None, name: str | None = None,
+                  run_ref: int | str | None = None) -> list[Artifact]:
+        sql = "SELECT id, run_id, kind, name, created_s, metadata FROM artifacts WHERE 1=1"
+        args: list[Any] = []
+        if kind is not None:
+            sql += " AND kind=?"
+            args.append(kind)
+        if name is not None:
+            sql += " AND name=?"
+            args.append(name)
+        if run_ref is not None:
+            sql += " AND run_id=?"
+            args.append(self.get_run(run_ref).id)
+        out = []
+        with self._lock:
+            for r in self._db.execute(sql + " ORDER BY id", args).fetchall():
+                out.append(Artifact(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]),
+                                    self._arrays("artifact", r[0])))
+        return out
+
+    def latest_artifact(self, kind: str, name: str) -> Artifact:
+        found = self.artifacts(kind, name)
+        if not found:
+            raise StoreError(f"no artifact {kind}/{name} in {self.path}")
+        return found[-1]

@@ -1,0 +1,1 @@
+"""normbox_lab.sim"""

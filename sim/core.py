@@ -1,0 +1,321 @@
+"""The emulator framework every simulated instrument shares.
+
+An emulator is a byte-fed state machine on an injected clock.  The host writes bytes with
+`feed()`; the emulator schedules replies with `emit(data, delay_s)`.  Whoever moves time (the
+in-process serial port on a virtual clock, or the pty/TCP server on the real clock) calls
+`poll()` and collects what has become due with `take_output()`.
+
+    host bytes ─feed()─▶ Emulator ─emit(delay)─▶ [(due_s, bytes)…] ─poll()/take_output()─▶ host
+
+`next_event_s()` tells the transport when something will next happen, so a virtual clock can
+jump straight there instead of sleeping.
+
+Faults: every emulator owns a `FaultInjector` built from a spec string, e.g.
+``"no-reply=0.1,garble=0.05,late-reply=0.1:5,disconnect@7"``: ``kind=p`` fires with
+probability p per reply, ``kind@n`` fires once on the n-th reply (1-based), ``:x`` attaches a
+parameter (the delay of ``late-reply`` in seconds, for instance).  Transport-level kinds are
+applied here (`no-reply`, `late-reply`, `garble`, `truncate`, `disconnect`); device-level kinds
+(`device-error`, `busy`, `stall`, ...) are consulted by the emulators themselves through
+`faults.fires(kind)`.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+import random
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+from normbox_lab.clock import Clock, VirtualClock
+
+TRANSPORT_FAULTS = ("no-reply", "late-reply", "garble", "truncate", "disconnect")
+
+
+@dataclass
+class FaultRule:
+    kind: str
+    probability: float = 0.0
+    at_count: int | None = None       # fire once when the kind's counter reaches this
+    parameter: float | None = None
+    fired: int = 0
+
+
+class FaultInjector:
+    """Decides, reply by reply, whether a fault of a given kind happens.  Seeded, so repeatable."""
+
+    def __init__(self, spec: str = "", seed: int = 0, known_kinds: tuple[str, ...] | None = None):
+        self.rules: dict[str, FaultRule] = {}
+        self._counters: dict[str, int] = {}
+        self._rng = random.Random(seed)
+        self.log: list[str] = []
+        for item in filter(None, (s.strip() for s in spec.split(","))):
+            rule = self._parse(item)
+            if known_kinds is not None and rule.kind not in known_kinds:
+                raise ValueError(f"unknown fault kind {rule.kind!r}; known: {', '.join(known_kinds)}")
+            self.rules[rule.kind] = rule
+
+    @staticmethod
+    def _parse(item: str) -> FaultRule:
+        head, _, param = item.partition(":")
+        parameter = float(param) if param else None
+        if "@" in head:
+            kind, _, n = head.partition("@")
+            return FaultRule(kind.strip(), at_count=int(n), parameter=parameter)
+        if "=" in head:
+            kind, _, p = head.partition("=")
+            prob = float(p)
+            if not 0.0 <= prob <= 1.0:
+                raise ValueError(f"fault probability out of [0, 1] in {item!r}")
+            return FaultRule(kind.strip(), probability=prob, parameter=parameter)
+        return FaultRule(head.strip(), probability=1.0, parameter=parameter)
+
+    def add(self, kind: str, probability: float = 1.0, at_count: int | None = None,
+            parameter: float | None = None) -> None:
+        """Python API: arm a fault (`probability` per opportunity, or once at `at_count`)."""
+        self.rules[kind] = FaultRule(kind, probability, at_count, parameter)
+
+    def clear(self, kind: str | None = None) -> None:
+        if kind is None:
+            self.rules.clear()
+        else:
+            self.rules.pop(kind, None)
+
+    def fires(self, kind: str) -> bool:
+        """Count one opportunity for `kind`; True when the fault happens now."""
+        rule = self.rules.get(kind)
+        n = self._counters[kind] = self._counters.get(kind, 0) + 1
+        if rule is None:
+            return False
+        hit = (n == rule.at_count) if rule.at_count is not None else (
+            self._rng.random() < rule.probability)
+        if hit:
+            rule.fired += 1
+            self.log.append(f"{kind}#{n}")
+        return hit
+
+    def parameter(self, kind: str, default: float) -> float:
+        rule = self.rules.get(kind)
+        return default if rule is None or rule.parameter is None else rule.parameter
+
+    def corrupt(self, data: bytes) -> bytes:
+        """Flip bits of one to three bytes (never producing the line terminators)."""
+        buf = bytearray(data)
+        for _ in range(self._rng.randint(1, 3)):
+            if not buf:
+                break
+            i = self._rng.randrange(len(buf))
+            new = buf[i] ^ (1 << self._rng.randrange(7))
+            buf[i] = new if new not in (0x0A, 0x0D) else 0x3F
+        return bytes(buf)
+
+    def cut(self, data: bytes) -> bytes:
+        return data[: self._rng.randrange(max(1, len(data)))]
+
+
+class Emulator:
+    """Base class: the output schedule, the fault hooks and the connection state.
+
+    Subclasses implement `on_bytes(data)` (called for every chunk the host writes) and may
+    override `on_time(now_s)` to advance internal processes (motion, warm-up) and `next_state_s()`
+    to announce when their internal state changes next.
+    """
+
+    #: the device name used by `sim://NAME` URLs and `sim serve NAME`
+    device_name = "emulator"
+    #: device-level fault kinds the subclass understands (in addition to TRANSPORT_FAULTS)
+    device_faults: tuple[str, ...] = ()
+
+    def __init__(self, clock: Clock | None = None, faults: str = "", seed: int = 0) -> None:
+        self.clock: Clock = clock if clock is not None else VirtualClock()
+        self.faults = FaultInjector(faults, seed, TRANSPORT_FAULTS + self.device_faults)
+        self._queue: list[tuple[float, int, bytes]] = []
+        self._seq = itertools.count()
+        self._out = bytearray()
+        self.connected = True
+        self.disconnected_until_s: float | None = None
+
+    # --- host side -------------------------------------------------------------------------
+    def feed(self, data: bytes) -> None:
+        self.poll()
+        if not self.connected:
+            return  # bytes into a dead cable
+        self.on_bytes(bytes(data))
+
+    def poll(self) -> None:
+        now = self.clock.now_s()
+        if not self.connected and self.disconnected_until_s is not None \
+                and now >= self.disconnected_until_s:
+            self.connected = True
+            self.disconnected_until_s = None
+            self.on_reconnect()
+        self.on_time(now)
+        while self._queue and self._queue[0][0] <= now:
+            _, _, data = heapq.heappop(self._queue)
+            if self.connected:
+                self._out += data
+
+    def take_output(self) -> bytes:
+        self.poll()
+        data = bytes(self._out)
+        self._out.clear()
+        return data
+
+    def next_event_s(self) -> float | None:
+        times = [t for t in (self._queue[0][0] if self._queue else None,
+                             self.next_state_s(), self.disconnected_until_s) if t is not None]
+        return min(times) if times else None
+
+    # --- device side -------------------------------------------------------------------------
+    def emit(self, data: bytes, delay_s: float = 0.0, *, reply: bool = True) -> None:
+        """Schedule `data` to appear on the wire `delay_s` from now.
+
+        With `reply=True` the transport faults are applied (no-reply, late-reply, garble,
+        truncate, disconnect).  Unsolicited or multi-part output can pass `reply=False`.
+        """
+        if reply:
+            if self.faults.fires("disconnect"):
+                self.disconnect(self.faults.parameter("disconnect", 2.0))
+                return
+            if self.faults.fires("no-reply"):
+                return
+            if self.faults.fires("late-reply"):
+                delay_s += self.faults.parameter("late-reply", 5.0)
+            if self.faults.fires("garble"):
+                data = self.faults.corrupt(data)
+            if self.faults.fires("truncate"):
+                data = self.faults.cut(data)
+        heapq.heappush(self._queue, (self.clock.now_s() + max(0.0, delay_s), next(self._seq), data))
+
+    def cancel_output(self) -> None:
+        """Drop everything scheduled but not yet on the wire (e.g. on an abort command)."""
+        self._queue.clear()
+
+    def disconnect(self, duration_s: float) -> None:
+        """Cable pulled / USB re-enumerated: nothing in or out for `duration_s`."""
+        self.connected = False
+        self.disconnected_until_s = self.clock.now_s() + duration_s
+        self._queue.clear()
+        self._out.clear()
+        self.on_disconnect()
+
+    # --- hooks ---------------------------------------------------------------------------------
+    def on_bytes(self, data: bytes) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+    def on_time(self, now_s: float) -> None:
+        """Advance internal processes to `now_s` (default: nothing)."""
+
+    def next_state_s(self) -> float | None:
+        """When the internal state changes next on its own (default: never)."""
+        return None
+
+    def on_disconnect(self) -> None:
+        """The link dropped (default: nothing; a power blip would reset state here)."""
+
+    def on_reconnect(self) -> None:
+        """The link is back (default: nothing)."""
+
+
+class LineEmulator(Emulator):
+    """Emulator for line-oriented ASCII protocols: splits the input on `terminators`."""
+
+    terminators: tuple[bytes, ...] = (b"\n",)
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self._inbuf = bytearray()
+
+    def on_bytes(self, data: bytes) -> None:
+        self._inbuf += data
+        while True:
+            cut = [(self._inbuf.find(t), t) for t in self.terminators]
+            cut = [(i, t) for i, t in cut if i >= 0]
+            if not cut:
+                return
+            i, term = min(cut)
+            line = bytes(self._inbuf[:i])
+            del self._inbuf[: i + len(term)]
+            self.on_line(line, term)
+
+    def on_line(self, line: bytes, terminator: bytes) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+# --- the registry of emulated devices ------------------------------------------------------------
+
+EmulatorFactory = Callable[..., Emulator]
+
+
+@dataclass
+class SimContext:
+    """Process-wide simulation state: the clock, the live device instances and the world.
+
+    Instances persist across opening and closing their port (like a real device stays powered
+    when the cable is replugged); `reset()` powers everything off.
+    """
+
+    clock: Clock = field(default_factory=VirtualClock)
+    world: Any = None
+    instances: dict[str, Emulator] = field(default_factory=dict)
+
+    def reset(self, clock: Clock | None = None, world: Any = None) -> None:
+        self.clock = clock if clock is not None else VirtualClock()
+        self.world = world
+        self.instances.clear()
+
+
+_FACTORIES: dict[str, EmulatorFactory] = {}
+CONTEXT = SimContext()
+
+
+def register(name: str, factory: EmulatorFactory) -> None:
+    """Make `sim://NAME` and `sim serve NAME` create emulators with `factory(clock=, faults=,
+    seed=, world=, **options)`."""
+    _FACTORIES[name] = factory
+
+
+def known_devices() -> list[str]:
+    _load_builtin()
+    return sorted(_FACTORIES)
+
+
+def create(name: str, *, clock: Clock | None = None, faults: str = "", seed: int = 0,
+           world: Any = None, **options: Any) -> Emulator:
+    _load_builtin()
+    try:
+        factory = _FACTORIES[name]
+    except KeyError:
+        raise ValueError(f"unknown simulated device {name!r}; known: {', '.join(known_devices())}")
+    return factory(clock=clock if clock is not None else CONTEXT.clock, faults=faults, seed=seed,
+                   world=world if world is not None else CONTEXT.world, **options)
+
+
+def instance(name: str, key: str | None = None, **kwargs: Any) -> Emulator:
+    """The live emulator for `key` (default: the device name), created on first use."""
+    key = key or name
+    emu = CONTEXT.instances.get(key)
+    if emu is None:
+        emu = CONTEXT.instances[key] = create(name, **kwargs)
+    return emu
+
+
+#: modules that register their emulators when imported (a module not written yet is skipped)
+BUILTIN_MODULES: tuple[str, ...] = (
+    "normbox_lab.sim.cs1000",
+    "normbox_lab.sim.cs2000",
+    "normbox_lab.sim.rotator_apt",
+    "normbox_lab.sim.rotator_zaber",
+    "normbox_lab.sim.sphere",
+)
+
+
+def _load_builtin() -> None:
+    import importlib
+
+    for mod in BUILTIN_MODULES:
+        try:
+            importlib.import_module(mod)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
