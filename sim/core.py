@@ -25,7 +25,9 @@ import heapq
 import itertools
 import random
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
+
+import numpy as np
 
 from normbox_lab.clock import Clock, VirtualClock
 
@@ -319,3 +321,21 @@ def _load_builtin() -> None:
         except ModuleNotFoundError as exc:
             if exc.name != mod:
                 raise
+
+
+# --- what the emulators ask of the world -------------------------------------------------------
+
+class World(Protocol):
+    """The physics behind the emulators (the virtual Normbox implements it in `sim/world.py`).
+
+    Emulators hold an optional world; tests may pass a tiny object with just the methods used.
+    """
+
+    def radiance_in_view(self) -> tuple[np.ndarray, np.ndarray]:
+        """(wavelength_nm, spectral radiance W·sr⁻¹·m⁻²·nm⁻¹) the radiometer sees now."""
+        ...
+
+    def brdf_truth(self, theta_i_deg: float, theta_o_deg: float, tilt_deg: float,
+                   wavelength_nm: np.ndarray) -> np.ndarray:
+        """Truth BRDF (sr⁻¹) of the material mounted on the gonioreflectometer."""
+        ...
