@@ -1,0 +1,329 @@
+"""The lab config (TOML): instruments, Normbox geometry, protocol defaults.
+
+Every error names the file, the line and the field (`ConfigError`).  `tomllib` gives no line
+numbers for values, so `_Locator` finds the line of a key inside its table in the source text.
+
+    [lab]
+    name = "Normbox (simulated)"
+    simulated = true
+    time_scale = 0.0        # simulated labs: virtual clock, 0 = instant, 1 = real time
+    seed = 1
+
+    [instruments.radiometer]
+    driver = "cs1000a"      # cs1000a | cs2000a
+    port = "sim://cs1000a"  # /dev/ttyUSB0, COM3, socket://host:port or sim://DEVICE?options
+    baud = 9600
+
+    [geometry]              # DESIGN §1; every field has the Normbox default
+    box_inner_mm = 600.0
+    ...
+
+    [protocols.reference-sweep]
+    angles_deg = [30, 35, ..., 90]
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from normbox_lab.errors import ConfigError
+
+#: instrument roles and the drivers that can fill them
+ROLE_DRIVERS: dict[str, tuple[str, ...]] = {
+    "radiometer": ("cs1000a", "cs2000a"),
+    "rotator": ("apt-k10cr1", "zaber"),
+    "sphere": ("sphere-scpi",),
+    "gonio_light_arm": ("apt-k10cr1", "zaber"),
+    "gonio_detector_arm": ("apt-k10cr1", "zaber"),
+    "spectrometer": ("qepro",),
+}
+REQUIRED_ROLES = ("radiometer", "rotator", "sphere")
+BAUD_RATES = (4800, 9600, 19200, 38400, 57600, 115200)
+
+
+@dataclass(frozen=True)
+class InstrumentConfig:
+    role: str
+    driver: str
+    port: str
+    options: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def simulated(self) -> bool:
+        return self.port.startswith("sim://")
+
+
+@dataclass(frozen=True)
+class GeometryConfig:
+    """Normbox geometry (DESIGN §1).  Lengths in mm, angles in degrees."""
+
+    box_inner_mm: float = 600.0
+    wall_thickness_mm: float = 15.0
+    ceiling_thickness_mm: float = 19.0
+    aperture_x_mm: float = 220.0
+    aperture_y_mm: float = 200.0
+    patch_size_mm: float = 50.0
+    holder_size_mm: float = 80.0
+    sample_height_mm: float = 200.0          # sample centre above the floor
+    radiometer_distance_mm: float = 1000.0   # sample centre to radiometer front lens
+    radiometer_view_deg: float = 1.0
+    wall_lightness_L: float = 65.0
+    panel_homogeneity_percent: float = 3.0
+
+
+@dataclass(frozen=True)
+class LabConfig:
+    path: str
+    name: str
+    simulated: bool
+    time_scale: float | None        # None: real clock
+    seed: int
+    instruments: dict[str, InstrumentConfig]
+    geometry: GeometryConfig
+    protocols: dict[str, dict[str, Any]]
+    render: dict[str, Any]
+    text: str = ""                  # the source, snapshotted into every run
+
+    def protocol_defaults(self, name: str) -> dict[str, Any]:
+        return dict(self.protocols.get(name, {}))
+
+
+class _Locator:
+    """Line numbers of tables and keys in a TOML source (1-based; 0 when not found)."""
+
+    def __init__(self, text: str) -> None:
+        self.lines = text.splitlines()
+
+    def line_of(self, table: str, key: str | None = None) -> int:
+        header = None
+        for i, raw in enumerate(self.lines, 1):
+            s = raw.strip()
+            if s.startswith("[") and not s.startswith("[["):
+                end = s.find("]")
+                name = s[1:end if end > 0 else None].replace('"', "").replace(" ", "")
+                header = name
+                if key is None and name == table:
+                    return i
+                continue
+            if key is not None and header == table:
+                k = s.split("=", 1)[0].strip().strip('"') if "=" in s else None
+                if k == key:
+                    return i
+        if key is not None:
+            return self.line_of(table) if table else 0
+        return 0
+
+
+def load_config(path: str | Path) -> LabConfig:
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(str(path), 0, "(file)", "no such file; create one with "
+                          "`normbox-lab init LAB.toml --sim`") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ConfigError(str(path), 0, "(file)", f"cannot read: {exc}") from None
+    return parse_config(text, str(path))
+
+
+def parse_config(text: str, path: str = "<config>") -> LabConfig:
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        line = getattr(exc, "lineno", None)
+        if line is None:
+            import re
+
+            m = re.search(r"line (\d+)", str(exc))
+            line = int(m.group(1)) if m else 0
+        raise ConfigError(path, line, "(syntax)", str(exc)) from None
+    loc = _Locator(text)
+
+    def err(table: str, key: str | None, message: str) -> ConfigError:
+        where = f"{table}.{key}" if key else table
+        return ConfigError(path, loc.line_of(table, key), where, message)
+
+    def table(obj: Any, name: str) -> dict[str, Any]:
+        if obj is None:
+            return {}
+        if not isinstance(obj, dict):
+            raise err(name.rsplit(".", 1)[0] if "." in name else "", name.rsplit(".", 1)[-1],
+                      "must be a table")
+        return obj
+
+    def number(tab: str, d: dict[str, Any], key: str, default: float, *, minimum: float | None = None,
+               maximum: float | None = None, allow_none: bool = False) -> float | None:
+        v = d.get(key, default)
+        if v is None and allow_none:
+            return None
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise err(tab, key, f"must be a number, got {type(v).__name__} {v!r}")
+        if v != v or v in (float("inf"), float("-inf")):
+            raise err(tab, key, "must be finite")
+        if minimum is not None and v < minimum:
+            raise err(tab, key, f"must be ≥ {minimum}, got {v}")
+        if maximum is not None and v > maximum:
+            raise err(tab, key, f"must be ≤ {maximum}, got {v}")
+        return float(v)
+
+    known_top = {"lab", "instruments", "geometry", "protocols", "render"}
+    for k in data:
+        if k not in known_top:
+            raise err(k, None, f"unknown table; expected one of {', '.join(sorted(known_top))}")
+
+    lab = table(data.get("lab"), "lab")
+    for k in lab:
+        if k not in ("name", "simulated", "time_scale", "seed"):
+            raise err("lab", k, "unknown field")
+    name = lab.get("name", "Normbox")
+    if not isinstance(name, str):
+        raise err("lab", "name", "must be a string")
+    simulated = lab.get("simulated", False)
+    if not isinstance(simulated, bool):
+        raise err("lab", "simulated", "must be true or false")
+    time_scale = number("lab", lab, "time_scale", 0.0 if simulated else None, minimum=0.0,
+                        allow_none=not simulated) if ("time_scale" in lab or simulated) else None
+    seed = lab.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int):
+        raise err("lab", "seed", "must be an integer")
+
+    instruments: dict[str, InstrumentConfig] = {}
+    inst_tab = table(data.get("instruments"), "instruments")
+    for role, spec in inst_tab.items():
+        tab = f"instruments.{role}"
+        if role not in ROLE_DRIVERS:
+            raise err(tab, None, f"unknown instrument role; known: {', '.join(ROLE_DRIVERS)}")
+        if not isinstance(spec, dict):
+            raise err("instruments", role, "must be a table")
+        driver = spec.get("driver")
+        if not isinstance(driver, str) or driver not in ROLE_DRIVERS[role]:
+            raise err(tab, "driver", f"must be one of {', '.join(ROLE_DRIVERS[role])}, "
+                      f"got {driver!r}")
+        port = spec.get("port")
+        if not isinstance(port, str) or not port:
+            raise err(tab, "port", "must be a non-empty string (device path, socket:// or "
+                      "sim:// URL)")
+        options = {k: v for k, v in spec.items() if k not in ("driver", "port")}
+        if "baud" in options:
+            b = options["baud"]
+            if isinstance(b, bool) or not isinstance(b, int) or b not in BAUD_RATES:
+                raise err(tab, "baud", f"must be one of {BAUD_RATES}, got {b!r}")
+        for lim in ("min_angle_deg", "max_angle_deg", "timeout_s"):
+            if lim in options:
+                options[lim] = number(tab, options, lim, 0.0)
+        if "min_angle_deg" in options and "max_angle_deg" in options \
+                and options["min_angle_deg"] >= options["max_angle_deg"]:
+            raise err(tab, "max_angle_deg", "must be greater than min_angle_deg")
+        instruments[role] = InstrumentConfig(role, driver, port, options)
+    for role in REQUIRED_ROLES:
+        if role not in instruments:
+            raise ConfigError(path, loc.line_of("instruments") or 0, f"instruments.{role}",
+                              "missing; every lab needs a radiometer, a rotator and a sphere")
+
+    geo_tab = table(data.get("geometry"), "geometry")
+    geo_fields = {f.name: f.default for f in fields(GeometryConfig)}
+    for k in geo_tab:
+        if k not in geo_fields:
+            raise err("geometry", k, f"unknown field; known: {', '.join(geo_fields)}")
+    geometry = GeometryConfig(**{k: number("geometry", geo_tab, k, d, minimum=0.0)
+                                 for k, d in geo_fields.items()})
+    if geometry.aperture_x_mm >= geometry.box_inner_mm or \
+            geometry.aperture_y_mm >= geometry.box_inner_mm:
+        raise err("geometry", "aperture_x_mm", "the aperture must be smaller than the box")
+    if not 0 < geometry.radiometer_view_deg <= 10:
+        raise err("geometry", "radiometer_view_deg", "must be in (0, 10] degrees")
+
+    protocols: dict[str, dict[str, Any]] = {}
+    for pname, pvals in table(data.get("protocols"), "protocols").items():
+        if not isinstance(pvals, dict):
+            raise err("protocols", pname, "must be a table of parameter defaults")
+        protocols[pname] = dict(pvals)
+
+    render = dict(table(data.get("render"), "render"))
+    if "quality" in render and render["quality"] not in ("quick", "default", "high"):
+        raise err("render", "quality", "must be quick, default or high")
+
+    return LabConfig(path, name, simulated, time_scale, seed, instruments, geometry, protocols,
+                     render, text)
+
+
+SIM_CONFIG_TEMPLATE = """\
+# normbox-lab lab config: a fully simulated Normbox (every instrument is a wire-level emulator).
+# For the real lab, replace each `port` by the device path (/dev/ttyUSB0, COM3) or socket://host:port.
+
+[lab]
+name = "Normbox (simulated)"
+simulated = true
+time_scale = 0.0        # virtual clock: 0 = instant, 1 = real time
+seed = 1
+
+[instruments.radiometer]
+driver = "cs1000a"      # cs1000a | cs2000a
+port = "sim://cs1000a"
+baud = 9600             # CS-1000A: 4800 | 9600 | 19200 (CS-2000A is fixed at 115200)
+
+[instruments.rotator]   # sample holder rotation; 0° = facing the light, 90° = facing the radiometer
+driver = "apt-k10cr1"   # apt-k10cr1 | zaber
+port = "sim://rotator-apt"
+min_angle_deg = 0.0
+max_angle_deg = 95.0
+
+[instruments.sphere]    # integrating-sphere light source (placeholder SCPI-like protocol)
+driver = "sphere-scpi"
+port = "sim://sphere"
+
+[instruments.gonio_light_arm]
+driver = "zaber"
+port = "sim://rotator-zaber?key=gonio-light"
+min_angle_deg = -90.0
+max_angle_deg = 90.0
+
+[instruments.gonio_detector_arm]
+driver = "zaber"
+port = "sim://rotator-zaber?key=gonio-detector"
+min_angle_deg = -90.0
+max_angle_deg = 90.0
+
+[instruments.spectrometer]  # Ocean Optics QE Pro on the gonioreflectometer
+driver = "qepro"
+port = "sim://qepro"     # a real one: "usb:" or "usb:SERIALNUMBER" (seabreeze)
+
+[geometry]              # DESIGN §1, lengths in mm
+box_inner_mm = 600.0
+wall_thickness_mm = 15.0
+ceiling_thickness_mm = 19.0
+aperture_x_mm = 220.0
+aperture_y_mm = 200.0
+patch_size_mm = 50.0
+holder_size_mm = 80.0
+sample_height_mm = 200.0
+radiometer_distance_mm = 1000.0
+radiometer_view_deg = 1.0
+wall_lightness_L = 65.0
+panel_homogeneity_percent = 3.0
+
+[render]
+quality = "default"     # quick | default | high
+
+[protocols.reference-sweep]
+angles_deg = [30, 35, 40, 45, 50, 55, 60, 65, 70, 75, 80, 85, 90]
+patches = [1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24]
+
+[protocols.brdf-inplane]
+tilt_deg = 4.0
+
+[protocols.repeatability]
+repeats = 10
+threshold_percent = 1.0
+"""
+
+
+def write_sim_config(path: str | Path, *, overwrite: bool = False) -> Path:
+    path = Path(path)
+    if path.exists() and not overwrite:
+        raise ConfigError(str(path), 0, "(file)", "exists already; pass --force to overwrite")
+    path.write_text(SIM_CONFIG_TEMPLATE, encoding="utf-8")
+    return path
