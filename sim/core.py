@@ -176,16 +176,18 @@ class Emulator:
         truncate, disconnect).  Unsolicited or multi-part output can pass `reply=False`.
         """
         if reply:
-            if self.faults.fires("disconnect"):
+            # every kind counts every reply, so `kind@n` means "the n-th reply"
+            hit = {kind: self.faults.fires(kind) for kind in TRANSPORT_FAULTS}
+            if hit["disconnect"]:
                 self.disconnect(self.faults.parameter("disconnect", 2.0))
                 return
-            if self.faults.fires("no-reply"):
+            if hit["no-reply"]:
                 return
-            if self.faults.fires("late-reply"):
+            if hit["late-reply"]:
                 delay_s += self.faults.parameter("late-reply", 5.0)
-            if self.faults.fires("garble"):
+            if hit["garble"]:
                 data = self.faults.corrupt(data)
-            if self.faults.fires("truncate"):
+            if hit["truncate"]:
                 data = self.faults.cut(data)
         heapq.heappush(self._queue, (self.clock.now_s() + max(0.0, delay_s), next(self._seq), data))
 

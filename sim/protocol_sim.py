@@ -61,6 +61,7 @@ class Serial(SerialBase):
 
     def write(self, data: bytes) -> int:
         self._check_open()
+        self.emulator.poll()
         if not self.emulator.connected:
             raise SerialException(f"{self._port}: device disconnected")
         self.emulator.feed(bytes(data))
@@ -85,6 +86,7 @@ class Serial(SerialBase):
         clock = self.emulator.clock
         deadline = None if self._timeout is None else clock.now_s() + self._timeout
         while True:
+            self.emulator.poll()
             if not self.emulator.connected and not self._rx:
                 # A real USB-serial adapter disappears: reads fail.
                 raise SerialException(f"{self._port}: device disconnected")

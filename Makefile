@@ -1,0 +1,46 @@
+# normbox-lab: the two commands of the contract are `make demo` and `make test`.
+# Each sets everything up on a fresh machine: .venv, the package with its dev extra, and
+# (as root, when missing) Debian's libllvm19 for Mitsuba's llvm_ad_spectral variant.
+
+PYTHON ?= python3
+VENV   := .venv
+PY     := $(VENV)/bin/python
+STAMP  := $(VENV)/.normbox-installed
+
+.PHONY: demo test test-slow test-all setup lint clean
+
+setup: $(STAMP)
+
+$(STAMP): pyproject.toml
+	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
+	    && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then \
+	  echo ">> installing Debian libllvm19 (Mitsuba's llvm_ad_spectral needs libLLVM >= 16)"; \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -q libllvm19 >/dev/null 2>&1 \
+	  || (apt-get update -q >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q libllvm19 >/dev/null 2>&1) \
+	  || echo "WARNING: could not install libllvm19; Mitsuba will fall back to scalar_spectral (slow)"; \
+	elif ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then \
+	  echo "WARNING: libLLVM 19 not found and not root; Mitsuba may fall back to scalar_spectral (slow)"; \
+	fi
+	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install -q --upgrade pip
+	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m normbox_lab.mitsuba_setup
+	@touch $(STAMP)
+
+test: $(STAMP)
+	$(PY) -m pytest -q
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -m slow
+
+test-all: $(STAMP)
+	$(PY) -m pytest -q -m ''
+
+demo: $(STAMP)
+	$(VENV)/bin/normbox-lab demo
+
+lint: $(STAMP)
+	$(VENV)/bin/ruff check normbox_lab drivers sim protocols tests
+
+clean:
+	rm -rf $(VENV) .cache .pytest_cache .hypothesis *.egg-info

@@ -1,0 +1,34 @@
+"""`normbox-lab export RUN_ID --format netcdf|csv|json [-o PATH] [--store FILE]`."""
+
+from __future__ import annotations
+
+import argparse
+
+from normbox_lab.commands.common import add_store_argument
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("export", help="export a run to NetCDF, CSV or JSON",
+                       description="Export one run (id or uuid prefix). NetCDF through xarray "
+                                   "with wavelength coordinates; CSV in long form; JSON with "
+                                   "the run's provenance and events.")
+    p.add_argument("run", metavar="RUN_ID")
+    p.add_argument("--format", required=True, choices=("netcdf", "csv", "json"))
+    p.add_argument("-o", "--output", metavar="PATH", help="default: run-ID-PROTOCOL.EXT")
+    add_store_argument(p)
+    p.set_defaults(handler=_export)
+
+
+def _export(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from normbox_lab.errors import StoreError
+    from normbox_lab.export import export_run
+    from normbox_lab.store import Store
+
+    if not Path(args.store).exists():
+        raise StoreError(f"no store at {args.store}")
+    with Store(args.store) as store:
+        out = export_run(store, args.run, args.format, args.output)
+    print(f"wrote {out}")
+    return 0

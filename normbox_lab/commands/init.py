@@ -1,0 +1,30 @@
+"""`normbox-lab init LAB.toml [--sim] [--force]`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("init", help="write a lab config",
+                       description="Write a lab config. --sim: every instrument emulated "
+                                   "(sim:// ports), ready for `normbox-lab run`.")
+    p.add_argument("path", metavar="LAB.toml")
+    p.add_argument("--sim", action="store_true", help="every instrument emulated")
+    p.add_argument("--force", action="store_true", help="overwrite an existing file")
+    p.set_defaults(handler=_init)
+
+
+def _init(args: argparse.Namespace) -> int:
+    from normbox_lab.config import load_config, write_sim_config
+
+    if not args.sim:
+        print("normbox-lab: only simulated labs can be generated so far; write the template "
+              "with --sim and replace each `port` by your device path", file=sys.stderr)
+        return 2
+    path = write_sim_config(args.path, overwrite=args.force)
+    cfg = load_config(path)  # what we write must load
+    print(f"wrote {path}: {len(cfg.instruments)} simulated instruments "
+          f"({', '.join(cfg.instruments)})")
+    return 0
