@@ -1,0 +1,212 @@
+"""Small in-test fakes of the instrument roles, on a VirtualClock (no sleeping).
+
+Their timing models are exact on purpose (each action sleeps the clock for what its
+`estimate_*` says), so the engine's dry-run ETA can be checked against executed virtual time.
+Faults and lamp glitches are scripted by call number.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from normbox_lab.clock import VirtualClock
+from normbox_lab.errors import DeviceError, InstrumentTimeout
+from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+
+
+class FakeWorld:
+    def __init__(self) -> None:
+        self.patch: int | None = None
+        self.angle_deg = 0.0
+        self.placed: list[int] = []
+
+    def place_patch(self, n: int) -> None:
+        self.patch = int(n)
+        self.placed.append(int(n))
+
+    def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
+        if patch is None:
+            return 0.5
+        return 2.0 + 3.0 * patch * (1.0 + np.cos(np.radians(angle_deg)))
+
+
+class FakeStage:
+    speed_deg_s = 10.0
+    overhead_s = 0.5
+    home_s = 5.0
+
+    def __init__(self, clock: VirtualClock, world: FakeWorld, name: str = "rotator") -> None:
+        self.clock, self.world, self.name = clock, world, name
+        self.homed = False
+        self.pos = 0.0
+        self.moves: list[float] = []
+        self.stops = 0
+
+    def identify(self) -> InstrumentIdentity:
+        return InstrumentIdentity("rotation-stage", "FAKE", "1", simulated=True)
+
+    def close(self) -> None: ...
+    def is_homed(self) -> bool: return self.homed
+    def estimate_home_time_s(self) -> float: return self.home_s
+
+    def home(self, wait: bool = True) -> None:
+        self.clock.sleep(self.home_s)
+        self.homed, self.pos = True, 0.0
+        self.world.angle_deg = 0.0
+
+    def estimate_move_time_s(self, from_deg: float, to_deg: float) -> float:
+        d = abs(to_deg - from_deg)
+        return 0.0 if d == 0 else self.overhead_s + d / self.speed_deg_s
+
+    def move_to(self, angle_deg: float, wait: bool = True) -> None:
+        self.clock.sleep(self.estimate_move_time_s(self.pos, angle_deg))
+        self.pos = float(angle_deg)
+        self.world.angle_deg = self.pos
+        self.moves.append(self.pos)
+
+    def position_deg(self) -> float: return self.pos
+    def is_moving(self) -> bool: return False
+    def stop(self) -> None: self.stops += 1
+
+
+class FakeLamp:
+    settle_s = 120.0
+
+    def __init__(self, clock: VirtualClock) -> None:
+        self.clock = clock
+        self.on = False
+        self.stable_at_s = float("inf")
+        self.switch_ons = 0
+
+    def identify(self) -> InstrumentIdentity:
+        return InstrumentIdentity("light-source", "FAKE-SPHERE", simulated=True)
+
+    def close(self) -> None: ...
+
+    def set_output(self, on: bool) -> None:
+        self.on = on
+        if on:
+            self.switch_ons += 1
+            self.stable_at_s = self.clock.now_s() + self.settle_s
+
+    def set_level_percent(self, level_percent: float) -> None: ...
+
+    def state(self) -> str:
+        if not self.on:
+            return "off"
+        return "stable" if self.clock.now_s() >= self.stable_at_s else "settling"
+
+    def is_stable(self) -> bool: return self.state() == "stable"
+
+    def estimate_settle_time_s(self) -> float:
+        return self.settle_s
+
+    def glitch(self, duration_s: float) -> None:
+        """The lamp drifts out of regulation for `duration_s`."""
+        self.stable_at_s = self.clock.now_s() + duration_s
+
+
+@dataclass
+class FakeRadiometer:
+    clock: VirtualClock
+    world: FakeWorld
+    #: call number (1-based) → list of exceptions to raise on that call and its retries
+    faults: dict[int, list[BaseException]] = field(default_factory=dict)
+    #: call number → callback run in the middle of that measurement
+    during: dict[int, Callable[[], None]] = field(default_factory=dict)
+    calls: int = 0
+    aborted: int = 0
+    remote: bool = False
+    _abort_flag: bool = False
+
+    def identify(self) -> InstrumentIdentity:
+        return InstrumentIdentity("spectroradiometer", "FAKE-CS", "42", simulated=True)
+
+    def close(self) -> None: ...
+    def set_remote(self, on: bool) -> None: self.remote = on
+    def set_speed(self, mode: str) -> None: ...
+    def status(self) -> dict[str, object]: return {}
+
+    def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
+        return 2.0 + 40.0 / max(luminance_cd_m2, 0.1)
+
+    def abort(self) -> None:
+        self.aborted += 1
+        self._abort_flag = True
+
+    def measure(self) -> SpectralReading:
+        self.calls += 1
+        pending = self.faults.get(self.calls)
+        if pending:
+            exc = pending.pop(0)
+            self.calls -= 1          # the retry is the same reading
+            self.clock.sleep(1.0)
+            raise exc
+        lum = self.world.luminance_cd_m2(self.world.patch, self.world.angle_deg)
+        duration = self.estimate_measure_time_s(lum)
+        self.clock.sleep(duration / 2)
+        hook = self.during.pop(self.calls, None)
+        if hook is not None:
+            hook()
+        if self._abort_flag:
+            self._abort_flag = False
+            raise DeviceError("ER10", "measurement aborted")
+        self.clock.sleep(duration / 2)
+        rad = np.full(RADIOMETER_WAVELENGTHS_NM.shape, lum / 683.0 / 100.0)
+        return SpectralReading(RADIOMETER_WAVELENGTHS_NM, rad, None, duration,
+                               self.clock.wall_time_s(), "FAKE-CS",
+                               {"patch_seen": self.world.patch, "angle_seen": self.world.angle_deg})
+
+
+class FakeOperator:
+    expected_response_s = 3.0
+
+    def __init__(self, clock: VirtualClock, world: FakeWorld, fault_answers: list[str] | None = None):
+        self.clock, self.world = clock, world
+        self.fault_answers = list(fault_answers or [])
+        self.asked: list[Any] = []
+
+    def __call__(self, req: Any) -> str:
+        self.asked.append(req)
+        if req.kind == "fault":
+            return self.fault_answers.pop(0) if self.fault_answers else "abort"
+        self.clock.sleep(self.expected_response_s)
+        if req.data.get("action") == "place_patch":
+            self.world.place_patch(req.data["patch"])
+        return "ok"
+
+
+class FakeLab:
+    def __init__(self, *, lamp_on: bool = False, fault_answers: list[str] | None = None,
+                 clock: VirtualClock | None = None) -> None:
+        self.clock = clock or VirtualClock(time_scale=0.0)
+        self.world = FakeWorld()
+        self.rotator = FakeStage(self.clock, self.world)
+        self.sphere = FakeLamp(self.clock)
+        if lamp_on:
+            self.sphere.set_output(True)
+            self.clock.sleep(self.sphere.settle_s)
+        self.radiometer = FakeRadiometer(self.clock, self.world)
+        self.instruments = {"rotator": self.rotator, "sphere": self.sphere,
+                            "radiometer": self.radiometer}
+        self.operator = FakeOperator(self.clock, self.world, fault_answers)
+
+    def instrument(self, role: str) -> Any:
+        return self.instruments[role]
+
+    def luminance_hint_cd_m2(self, step: Any) -> float:
+        return self.world.luminance_cd_m2(step.params.get("patch"),
+                                          float(step.params.get("angle_deg", 0.0)))
+
+    def record_identities(self, store: Any, run_id: int, segment: int = 1) -> None:
+        for role, inst in self.instruments.items():
+            ident = inst.identify()
+            store.add_instrument(run_id, role, {"model": ident.model, "segment": segment})
+
+
+def timeout(msg: str = "no reply") -> InstrumentTimeout:
+    return InstrumentTimeout(msg, instrument="radiometer")

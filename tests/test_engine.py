@@ -1,0 +1,266 @@
+"""Engine semantics on fakes and a VirtualClock: ETA, pause/resume, abort, suspenders, retries,
+prompts, subscribers, plan validation.  Nothing here sleeps: virtual seconds are what we check."""
+
+from __future__ import annotations
+
+import queue
+import threading
+
+import pytest
+
+from engine_fakes import FakeLab, timeout
+from normbox_lab import engine as eng
+from normbox_lab.errors import DeviceError, NormboxError, StoreError
+from normbox_lab.store import Store
+
+SMALL = {"angles_deg": [30, 60, 90], "patches": [1, 2, 3, 4]}
+
+
+@pytest.fixture
+def store(tmp_path):
+    s = Store(tmp_path / "t.sqlite")
+    yield s
+    s.close()
+
+
+def make(lab, store, params=None, **kw):
+    plan = eng.build_plan("reference-sweep", params, lab)
+    return eng.Engine(lab, store, plan, **kw)
+
+
+def started(events):
+    return [(e.key, e.data.get("kind")) for e in events if e.kind == "step-started"]
+
+
+def test_dry_run_eta_equals_executed_virtual_time(store):
+    lab = FakeLab()
+    e = make(lab, store)
+    dry = e.dry_run()
+    assert len(dry.executed) == 1 + 13 + 2 * 312 and dry.plan.planned == 312
+    assert dry.prepare_s == lab.rotator.home_s
+    t0 = lab.clock.now_s()
+    res = e.run()
+    elapsed = lab.clock.now_s() - t0
+    assert res.status == "done" and res.done == 312
+    assert dry.total_s > 312 * 3.0            # operator time alone
+    assert abs(elapsed - dry.total_s) / dry.total_s < 0.01
+    assert res.elapsed_s == pytest.approx(elapsed)
+    # every reading was taken at its declared angle with its patch in view
+    for r in store.readings(res.run_id):
+        assert r.metadata["patch_seen"] == r.metadata["patch"]
+        assert r.metadata["angle_seen"] == r.metadata["angle_deg"]
+    assert store.get_run(res.run_id).status == "done"
+
+
+def test_dry_run_of_a_resume_lists_only_what_is_needed(store):
+    lab = FakeLab(lamp_on=True)
+    e = make(lab, store, SMALL)
+    committed = {"a30/p01", "a30/p02", "a30/p03", "a30/p04", "a60/p01"}
+    dry = e.dry_run(committed)
+    assert [x.key for x in dry.executed[:4]] == ["lamp", "a60/move", "a60/p02/place", "a60/p02"]
+    assert dry.executed[0].duration_s == 0.0          # the lamp is already stable
+    assert len(dry.remaining_keys) == 12 - 5
+
+
+def test_deferred_pause_then_resume_after_restart_replays_exact_state(store):
+    lab = FakeLab()
+    e = make(lab, store)
+    seen = []
+    e.subscribe(seen.append)
+
+    def pause_at_50(ev):
+        if ev.kind == "reading-stored" and len(store.keys(ev.run_id)) == 50:
+            e.pause()
+    e.subscribe(pause_at_50)
+    res = e.run()
+    assert res.status == "paused" and res.done == 50
+    assert store.get_run(res.run_id).status == "paused"
+
+    # a new process: new lab (physical state unknown), same store
+    lab2 = FakeLab()
+    e2 = make(lab2, store)
+    seen2 = []
+    e2.subscribe(seen2.append)
+    res2 = e2.run(resume=res.uuid[:8])
+    assert res2.status == "done" and res2.taken == 262 and res2.done == 312
+    # the first missing reading is a40/p03: the lamp, the angle and the patch come first
+    assert started(seen2)[:4] == [("lamp", "wait-stable"), ("a40/move", "move"),
+                                  ("a40/p03/place", "prompt"), ("a40/p03", "measure")]
+    assert lab2.world.placed[0] == 3 and lab2.rotator.moves[0] == 40.0
+    keys = [r.key for r in store.readings(res.run_id)]
+    assert len(keys) == len(set(keys)) == 312
+    assert set(keys) == set(e2.plan.commit_keys)
+    kinds = [k for _, k, _ in store.events(res.run_id)]
+    assert kinds.count("segment") == 2 and "status:paused" in kinds
+
+
+def test_in_process_pause_waits_and_resumes_in_a_worker_thread(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL, wait_when_paused=True)
+    paused = threading.Event()
+    e.subscribe(lambda ev: paused.set() if ev.kind == "paused" else None)
+    e.subscribe(lambda ev: e.pause() if ev.kind == "reading-stored" and ev.key == "a30/p02"
+                else None)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
+    worker.start()
+    assert paused.wait(10)
+    assert e.state == "paused" and len(store.keys(e.run_id)) == 2
+    e.resume()
+    worker.join(10)
+    assert result["r"].status == "done" and result["r"].done == 12
+    # in-process resume keeps the known state: no second move to 30°
+    assert lab.rotator.moves.count(30.0) == 1
+
+
+def test_abort_is_immediate_and_stops_the_instruments(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+    lab.radiometer.during[7] = e.abort          # abort in the middle of the 7th reading
+    res = e.run()
+    assert res.status == "aborted" and res.done == 6
+    assert lab.radiometer.aborted >= 1 and lab.rotator.stops >= 1
+    assert store.get_run(res.run_id).status == "aborted"
+    assert "a60/p03" not in store.keys(res.run_id)
+    # an aborted run can still be completed later
+    res2 = make(FakeLab(), store, SMALL).run(resume=res.run_id)
+    assert res2.status == "done" and res2.done == 12 and res2.taken == 6
+
+
+def test_lamp_glitch_suspends_and_the_interrupted_reading_is_taken_again(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+    glitch_at = []
+    lab.radiometer.during[5] = lambda: (glitch_at.append(lab.clock.now_s()),
+                                        lab.sphere.glitch(30.0))
+    events = []
+    e.subscribe(events.append)
+    res = e.run()
+    assert res.status == "done" and res.done == 12
+    assert lab.radiometer.calls == 13                 # one reading taken twice, stored once
+    kinds = [k for _, k, _ in store.events(res.run_id)]
+    assert kinds.count("suspended") == 1 and kinds.count("unsuspended") == 1
+    susp = [ev for ev in events if ev.kind == "suspended"][0]
+    assert susp.key == "a60/p01" and susp.data["after_reading"] is True
+    back = [ev for ev in events if ev.kind == "unsuspended"][0]
+    assert back.time_s >= glitch_at[0] + 30.0 > susp.time_s   # waited for the lamp
+    stored = store.reading(res.run_id, "a60/p01")
+    assert stored.time_s >= lab.clock.wall_time_s() - lab.clock.now_s() + back.time_s
+
+
+def test_transient_faults_are_retried_within_the_bound(store):
+    lab = FakeLab()
+    lab.radiometer.faults[3] = [timeout(), timeout()]
+    res = make(lab, store, SMALL).run()
+    assert res.status == "done" and res.done == 12
+    faults = [d for _, k, d in store.events(res.run_id) if k == "fault"]
+    assert [f["attempt"] for f in faults] == [1, 2] and faults[0]["key"] == "a30/p03"
+    assert not [r for r in lab.operator.asked if r.kind == "fault"]
+
+
+@pytest.mark.parametrize("answer, status, done", [("retry", "done", 12), ("skip", "interrupted", 11),
+                                                   ("abort", "aborted", 2)])
+def test_persistent_fault_asks_the_operator(store, answer, status, done):
+    lab = FakeLab(fault_answers=[answer])
+    lab.radiometer.faults[3] = [timeout(), timeout(), timeout()]     # 3 attempts: persistent
+    res = make(lab, store, SMALL).run()
+    assert (res.status, res.done) == (status, done)
+    asked = [r for r in lab.operator.asked if r.kind == "fault"]
+    assert len(asked) == 1 and asked[0].choices == ("retry", "skip", "abort")
+    assert asked[0].key == "a30/p03"
+    ops = [d for _, k, d in store.events(res.run_id) if k == "operator"]
+    assert ops[-1]["answer"] == answer
+    if answer == "skip":
+        assert res.skipped == ("a30/p03",) and "a30/p03" not in store.keys(res.run_id)
+        # resuming fills the hole, and nothing else is taken again
+        res2 = make(FakeLab(), store, SMALL).run(resume=res.run_id)
+        assert res2.taken == 1 and res2.done == 12
+
+
+def test_device_error_is_not_retried(store):
+    lab = FakeLab(fault_answers=["retry"])
+    lab.radiometer.faults[2] = [DeviceError("ER20", "overexposed")]
+    res = make(lab, store, SMALL).run()
+    assert res.status == "done"
+    assert [d["attempt"] for _, k, d in store.events(res.run_id) if k == "fault"] == [1]
+    assert len([r for r in lab.operator.asked if r.kind == "fault"]) == 1
+
+
+def test_prompts_answered_from_another_thread(store):
+    lab = FakeLab()
+    lab.operator = None                                # no operator: the engine waits
+    e = make(lab, store, {"angles_deg": [30], "patches": [5, 6]})
+    prompts: queue.Queue = queue.Queue()
+    e.subscribe(lambda ev: prompts.put(ev.data["prompt"]) if ev.kind == "prompt" else None)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
+    worker.start()
+    answered = []
+    while worker.is_alive() or not prompts.empty():
+        try:
+            req = prompts.get(timeout=0.5)
+        except queue.Empty:
+            continue
+        assert e.pending_prompt == req
+        with pytest.raises(NormboxError):
+            e.answer("maybe", req.id)
+        lab.world.place_patch(req.data["patch"])
+        e.answer("ok", req.id)
+        answered.append(req.message)
+    worker.join(5)
+    assert answered == ["place patch 5 (blue flower)", "place patch 6 (bluish green)"]
+    assert result["r"].done == 2
+
+
+def test_a_failing_subscriber_never_kills_the_run(store, caplog):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+
+    def bad(ev):
+        raise RuntimeError("plotting exploded")
+    e.subscribe(bad)
+    res = e.run()
+    assert res.status == "done" and res.done == 12
+    assert "plotting exploded" in caplog.text
+
+
+def test_progress_events_count_up_with_a_shrinking_eta(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+    prog = []
+    e.subscribe(lambda ev: prog.append(ev.data) if ev.kind == "progress" else None)
+    e.run()
+    assert [p["done"] for p in prog] == list(range(1, 13))
+    etas = [p["eta_s"] for p in prog]
+    assert etas[-1] == 0 and all(a >= b for a, b in zip(etas, etas[1:]))
+
+
+def test_plan_validation():
+    with pytest.raises(eng.PlanError, match="not unique"):
+        eng.Plan("x", {}, [eng.move("a", "rotator", 1), eng.move("a", "rotator", 2)])
+    with pytest.raises(eng.PlanError, match="requires"):
+        eng.Plan("x", {}, [eng.move("m", "rotator", 1),
+                           eng.measure("r", requires={"rotator": 2.0})])
+    with pytest.raises(eng.PlanError, match="unknown kind"):
+        eng.Plan("x", {}, [eng.Step("k", "dance")])
+
+
+def test_resume_refuses_a_changed_plan(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+    e.subscribe(lambda ev: e.pause() if ev.kind == "reading-stored" else None)
+    res = e.run()
+    with pytest.raises(StoreError, match="different plan"):
+        make(FakeLab(), store, {"angles_deg": [30, 60], "patches": [1, 2, 3, 4]}).run(
+            resume=res.run_id)
+
+
+def test_instrument_identities_recorded_per_segment(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL)
+    e.subscribe(lambda ev: e.pause() if ev.kind == "reading-stored" else None)
+    res = e.run()
+    make(FakeLab(), store, SMALL).run(resume=res.run_id)
+    inst = store.instruments(res.run_id)
+    assert {i["role"] for i in inst} == {"rotator", "sphere", "radiometer"}
+    assert sorted({i["identity"]["segment"] for i in inst}) == [1, 2]
