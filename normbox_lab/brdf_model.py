@@ -26,8 +26,9 @@ Cook-Torrance formula, which is the one whose normal-incidence value is ((η−1
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Mapping
+from typing import Any
 
 import numpy as np
 
@@ -154,7 +155,7 @@ class MaterialFit:
                                   metadata=self.to_metadata(), run_ref=run_ref)
 
     @classmethod
-    def from_artifact(cls, artifact: Any) -> "MaterialFit":
+    def from_artifact(cls, artifact: Any) -> MaterialFit:
         """From a store `Artifact` (or anything with .name, .arrays, .metadata)."""
         md: Mapping[str, Any] = dict(artifact.metadata)
         known = {"model", "alpha", "eta", "c_per_sr", "fit_error_pct", "w", "cost", "tilt_deg"}

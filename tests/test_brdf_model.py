@@ -5,8 +5,14 @@ import pytest
 from scipy import integrate
 
 from normbox_lab.brdf_model import (
-    MaterialFit, ct_ggx_brdf, fresnel_cook_torrance, ggx_d, gonio_geometry,
-    inplane_directions, smith_g1, specular_basis,
+    MaterialFit,
+    ct_ggx_brdf,
+    fresnel_cook_torrance,
+    ggx_d,
+    gonio_geometry,
+    inplane_directions,
+    smith_g1,
+    specular_basis,
 )
 from normbox_lab.store import Store
 
