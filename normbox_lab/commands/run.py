@@ -1,0 +1,224 @@
+"""`normbox-lab run PROTOCOL [--lab LAB.toml] [--store FILE] [--resume RUN_ID] [--dry-run]
+[--param K=V ...] [--world normbox|analytic|none]`.
+
+Ctrl-C once = pause after the current reading (the run stays resumable); twice = abort now.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "run", help="run (or resume, or dry-run) a measurement protocol",
+        description="Run a protocol: reference-sweep, brdf-inplane, light-map, repeatability, or "
+                    "a path to a protocol .py file. Every reading is committed to the store "
+                    "before the next step; Ctrl-C pauses after the current reading (resume with "
+                    "--resume RUN_ID), a second Ctrl-C aborts.")
+    p.add_argument("protocol", nargs="?", metavar="PROTOCOL",
+                   help="protocol name or .py file (omit with --resume)")
+    p.add_argument("--lab", metavar="LAB.toml",
+                   help="lab config (default: ./lab.toml, else the simulated template)")
+    p.add_argument("--store", default=None, metavar="FILE",
+                   help="measurement store (default: normbox.sqlite)")
+    p.add_argument("--resume", metavar="RUN_ID",
+                   help="continue an interrupted run at its first missing reading")
+    p.add_argument("--dry-run", action="store_true",
+                   help="list the steps and the ETA from the instruments' timing models")
+    p.add_argument("--param", action="append", default=[], metavar="K=V",
+                   help="override a protocol parameter (JSON values: angles_deg=[30,60])")
+    p.add_argument("--world", choices=("normbox", "analytic", "none"), default="normbox",
+                   help="simulated labs: the virtual Normbox (Mitsuba), the closed-form "
+                        "analytic world, or none")
+    op = p.add_mutually_exclusive_group()
+    op.add_argument("--virtual-operator", dest="virtual_operator", action="store_true",
+                    default=None, help="answer prompts by simulation (default in simulated labs)")
+    op.add_argument("--terminal-operator", dest="virtual_operator", action="store_false",
+                    help="ask the prompts on the terminal, also in a simulated lab")
+    p.add_argument("--fault-policy", choices=("retry", "skip", "abort"), default="retry",
+                   help="the virtual operator's answer to a persistent fault (default retry)")
+    p.add_argument("--time-scale", type=float, default=None, metavar="S",
+                   help="simulated labs: override the lab's time scale (0 = instant)")
+    p.add_argument("--plain", action="store_true",
+                   help="one line per reading instead of a progress bar")
+    p.set_defaults(handler=_run)
+
+
+def _load_lab_config(args: argparse.Namespace):  # noqa: ANN202
+    from dataclasses import replace
+
+    from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
+
+    if args.lab:
+        config = load_config(args.lab)
+    elif Path("lab.toml").exists():
+        config = load_config("lab.toml")
+    else:
+        print("no --lab and no ./lab.toml: using the simulated lab template "
+              "(normbox-lab init lab.toml --sim writes it)", file=sys.stderr)
+        config = parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
+    if args.time_scale is not None:
+        if not config.simulated:
+            print("--time-scale applies to simulated labs only; ignored", file=sys.stderr)
+        else:
+            config = replace(config, time_scale=args.time_scale)
+    return config
+
+
+def _parse_overrides(module, items: list[str]) -> dict:  # noqa: ANN001
+    from normbox_lab.engine import PlanError, coerce_param
+
+    out = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise PlanError(f"--param expects K=V, got {item!r}")
+        if key not in module.PARAMETERS:
+            raise PlanError(f"unknown parameter {key!r}; known: {', '.join(module.PARAMETERS)}")
+        out[key] = coerce_param(module.PARAMETERS[key], value)
+    return out
+
+
+def _run(args: argparse.Namespace) -> int:
+    import signal
+
+    from normbox_lab import engine as eng
+    from normbox_lab.lab import build_lab
+    from normbox_lab.store import DEFAULT_STORE, Store
+
+    store_path = args.store or DEFAULT_STORE
+    store = Store(store_path)
+    run_ref = None
+    if args.resume:
+        rec = store.get_run(args.resume)
+        protocol = rec.protocol
+        if args.protocol and args.protocol != protocol:
+            raise eng.PlanError(f"run {rec.uuid} ran {protocol!r}, not {args.protocol!r}")
+        if args.param:
+            raise eng.PlanError("--param cannot change a resumed run (its parameters are "
+                                "stored with it)")
+        module = eng.load_protocol(protocol)
+        params = eng.resolve_parameters(module, None, rec.parameters)
+        run_ref = rec.id
+    else:
+        if not args.protocol:
+            raise eng.PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
+                                "repeatability, or a .py file), or --resume RUN_ID")
+        protocol = args.protocol
+        module = eng.load_protocol(protocol)
+    config = _load_lab_config(args)
+    if not args.resume:
+        params = eng.resolve_parameters(module, config.protocol_defaults(Path(protocol).stem
+                                                                         if protocol.endswith(".py")
+                                                                         else protocol),
+                                        _parse_overrides(module, args.param))
+
+    lab = build_lab(config, world=args.world if config.simulated else "none",
+                    virtual_operator=args.virtual_operator, fault_policy=args.fault_policy)
+    progress_ref: dict = {}
+    if lab.operator is None:
+        from normbox_lab.operator import TerminalOperator
+
+        def before() -> None:
+            prog = progress_ref.get("progress")
+            if prog is not None:
+                prog.stop()
+        lab.operator = TerminalOperator(before=before)
+    plan = eng.build_plan(protocol, params, lab, module=module)
+    engine = eng.Engine(lab, store, plan)
+    try:
+        if args.dry_run:
+            committed = store.keys(run_ref) if run_ref is not None else set()
+            for line in engine.dry_run(committed).lines():
+                print(line)
+            return 0
+        return _execute(engine, lab, store, run_ref, args, progress_ref, signal)
+    finally:
+        lab.close()
+        store.close()
+
+
+def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:  # noqa: ANN001
+    from normbox_lab.engine import format_duration
+
+    interrupts = {"n": 0}
+
+    def on_sigint(signum, frame):  # noqa: ANN001
+        interrupts["n"] += 1
+        if interrupts["n"] == 1:
+            print("\npausing after the current reading (Ctrl-C again to abort now)…",
+                  file=sys.stderr, flush=True)
+            engine.pause()
+        else:
+            print("\naborting…", file=sys.stderr, flush=True)
+            engine.abort()
+
+    previous = signal.signal(signal.SIGINT, on_sigint)
+    scale = getattr(lab.clock, "time_scale", None)
+    clock_note = "" if scale is None else f" (virtual clock, time scale {scale:g})"
+    try:
+        if args.plain:
+            def plain(ev) -> None:  # noqa: ANN001
+                if ev.kind == "run-started":
+                    print(f"run {ev.data['run_uuid']} started: {ev.data['done']}/"
+                          f"{ev.data['planned']} done, ETA {format_duration(ev.data['eta_s'])}"
+                          f"{clock_note}", flush=True)
+                elif ev.kind == "progress":
+                    print(f"{ev.key} {ev.data['done']}/{ev.data['planned']} "
+                          f"eta {ev.data['eta_s']:.0f}s", flush=True)
+                elif ev.kind in ("warning", "fault", "suspended"):
+                    print(f"{ev.kind}: {ev.key} {dict(ev.data)}", file=sys.stderr, flush=True)
+            engine.subscribe(plain)
+            result = engine.run(resume=run_ref)
+        else:
+            result = _run_with_progress(engine, run_ref, progress_ref, clock_note)
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    store_arg = f" --store {args.store}" if args.store else ""
+    print(f"run {result.uuid} (id {result.run_id}): {result.status}, "
+          f"{result.done}/{result.planned} readings ({result.taken} taken now)")
+    if result.skipped:
+        print(f"skipped: {', '.join(result.skipped)}")
+    if result.status != "done":
+        print(f"resume with: normbox-lab run --resume {result.uuid[:8]}{store_arg}")
+    return 0 if result.status in ("done", "paused") else 1
+
+
+def _run_with_progress(engine, run_ref, progress_ref, clock_note):  # noqa: ANN001, ANN202
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    from normbox_lab.engine import format_duration
+
+    console = Console(stderr=True)
+    progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(),
+                        MofNCompleteColumn(), TextColumn("{task.fields[key]}"),
+                        TextColumn("ETA {task.fields[eta]}"), console=console, transient=False)
+    progress_ref["progress"] = progress
+    task = progress.add_task(engine.plan.protocol, total=engine.plan.planned, key="", eta="?")
+
+    def on_event(ev) -> None:  # noqa: ANN001
+        if ev.kind == "run-started":
+            console.print(f"run {ev.data['run_uuid']} segment {ev.data['segment']}: "
+                          f"{ev.data['done']}/{ev.data['planned']} done, ETA "
+                          f"{format_duration(ev.data['eta_s'])}{clock_note}")
+            progress.update(task, completed=ev.data["done"],
+                            eta=format_duration(ev.data["eta_s"]))
+        elif ev.kind == "progress":
+            progress.update(task, completed=ev.data["done"], key=ev.key,
+                            eta=format_duration(ev.data["eta_s"]))
+        elif ev.kind == "answer":
+            progress.start()
+        elif ev.kind in ("warning", "suspended", "fault"):
+            msg = ev.data.get("message") or ev.data.get("error") or ""
+            console.print(f"[yellow]{ev.kind}[/] {ev.key} {msg}")
+        elif ev.kind == "paused":
+            console.print(f"paused before {ev.key or 'the end'}")
+
+    engine.subscribe(on_event)
+    with progress:
+        return engine.run(resume=run_ref)

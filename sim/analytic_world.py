@@ -1,0 +1,148 @@
+"""A cheap closed-form Normbox world for tests and the engine bench (the `World` protocol).
+
+    L(λ) = ρ_patch(λ)/π · L_panel(λ) · (Ω_direct · max(cos s, 0) + Ω_indirect)
+
+- ρ_patch: ColorChecker "N Ohta" reflectances from colour-science (5 nm, interpolated to 1 nm);
+  an empty holder is black (ρ = 0.03).
+- L_panel: a Planckian spectrum (default 3000 K) scaled to `panel_luminance_cd_m2`.
+- s: the sample angle (0° = facing the light, 90° = facing the radiometer); the direct term is
+  the panel's solid angle seen from the sample times cos s, the indirect term a constant.
+
+The gonioreflectometer truth is Lambertian: f = ρ/π.  The light map sees the panel with a smooth
+±`panel_homogeneity_percent` variation.  Milliseconds per call; no rendering.
+
+colour-science takes seconds to import, so the 24 reflectances are cached in
+``$NORMBOX_LAB_CACHE`` (default ``~/.cache/normbox-lab``) after the first use.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
+
+H_J_S = 6.62607015e-34
+C_M_S = 2.99792458e8
+K_J_K = 1.380649e-23
+KM_LM_W = 683.002
+HOLDER_REFLECTANCE = 0.03
+
+
+def _cache_dir() -> Path:
+    return Path(os.environ.get("NORMBOX_LAB_CACHE", Path.home() / ".cache" / "normbox-lab"))
+
+
+def colorchecker_reflectances() -> np.ndarray:
+    """(24, 401) reflectances at RADIOMETER_WAVELENGTHS_NM, patch N at row N - 1."""
+    path = _cache_dir() / "colorchecker_n_ohta_380_780_1nm.npy"
+    try:
+        data = np.load(path)
+        if data.shape == (24, RADIOMETER_WAVELENGTHS_NM.size):
+            return data
+    except (OSError, ValueError):
+        pass
+    import colour
+
+    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    data = np.array([np.interp(RADIOMETER_WAVELENGTHS_NM, sd.wavelengths, sd.values)
+                     for sd in sds.values()])
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy")
+        with os.fdopen(fd, "wb") as f:
+            np.save(f, data)
+        os.replace(tmp, path)
+    except OSError:
+        pass  # a read-only home: recompute next time
+    return data
+
+
+def planck_W_sr_m2_nm(wavelength_nm: np.ndarray, temperature_K: float) -> np.ndarray:
+    wl_m = np.asarray(wavelength_nm, dtype=float) * 1e-9
+    return (2 * H_J_S * C_M_S**2 / wl_m**5
+            / np.expm1(H_J_S * C_M_S / (wl_m * K_J_K * temperature_K))) * 1e-9
+
+
+def _v_lambda() -> np.ndarray:
+    """CIE 1924 photopic V(λ), Gaussian approximation (only used to scale the lamp)."""
+    wl = RADIOMETER_WAVELENGTHS_NM
+    return 1.019 * np.exp(-285.4 * (wl / 1000.0 - 0.559) ** 2)
+
+
+class AnalyticWorld:
+    """The `World` protocol in closed form; state is changed by the operator and the rotator."""
+
+    def __init__(self, *, lamp_cct_K: float = 3000.0, panel_luminance_cd_m2: float = 2000.0,
+                 direct_solid_angle_sr: float = 0.25, indirect_solid_angle_sr: float = 0.08,
+                 panel_homogeneity_percent: float = 3.0) -> None:
+        self.wavelength_nm = RADIOMETER_WAVELENGTHS_NM.copy()
+        self.reflectance = colorchecker_reflectances()
+        spd = planck_W_sr_m2_nm(self.wavelength_nm, lamp_cct_K)
+        lum = KM_LM_W * float(np.sum(spd * _v_lambda()))
+        self.panel_W_sr_m2_nm = spd * (panel_luminance_cd_m2 / lum)
+        self.direct_sr = direct_solid_angle_sr
+        self.indirect_sr = indirect_solid_angle_sr
+        self.homogeneity = panel_homogeneity_percent / 100.0
+        self.patch: int | None = None
+        self.sample_angle_deg = 90.0
+        self.lamp_level = 1.0               # 0 = off; the sphere emulator may set it
+        self.aim: tuple[float, float] | None = None   # (x_mm, y_mm) on the panel, or None
+        self.gonio_material: str | int | None = None
+        self.placed: list[int] = []
+
+    # --- what the operator and the motors change --------------------------------------------
+    def place_patch(self, n: int) -> None:
+        if not 1 <= int(n) <= 24:
+            raise ValueError(f"no ColorChecker patch {n}")
+        self.patch = int(n)
+        self.placed.append(int(n))
+        self.aim = None
+
+    def remove_patch(self) -> None:
+        self.patch = None
+
+    def set_sample_angle(self, angle_deg: float) -> None:
+        self.sample_angle_deg = float(angle_deg)
+
+    def aim_panel(self, x_mm: float, y_mm: float) -> None:
+        self.aim = (float(x_mm), float(y_mm))
+
+    def mount_gonio_material(self, name: str | int) -> None:
+        self.gonio_material = name
+
+    # --- what the instruments see -----------------------------------------------------------
+    def _rho(self, material: str | int | None) -> np.ndarray:
+        if material is None:
+            return np.full_like(self.wavelength_nm, HOLDER_REFLECTANCE)
+        if isinstance(material, str) and not material.isdigit():
+            # the wall paint: a flat grey of lightness L≈65 (Y≈0.34)
+            return np.full_like(self.wavelength_nm, 0.34)
+        return self.reflectance[int(material) - 1]
+
+    def panel_factor(self, x_mm: float, y_mm: float) -> float:
+        """Smooth fall-off towards the panel's corners, ±homogeneity over the panel."""
+        r2 = (x_mm / 110.0) ** 2 + (y_mm / 100.0) ** 2
+        return 1.0 + self.homogeneity * (1.0 - r2)
+
+    def radiance_at(self, patch: int | None, angle_deg: float) -> np.ndarray:
+        geometry = self.direct_sr * max(np.cos(np.radians(angle_deg)), 0.0) + self.indirect_sr
+        return self._rho(patch) / np.pi * self.panel_W_sr_m2_nm * geometry * self.lamp_level
+
+    def radiance_in_view(self) -> tuple[np.ndarray, np.ndarray]:
+        if self.aim is not None:
+            return self.wavelength_nm, self.panel_W_sr_m2_nm * self.lamp_level \
+                * self.panel_factor(*self.aim)
+        return self.wavelength_nm, self.radiance_at(self.patch, self.sample_angle_deg)
+
+    def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
+        return KM_LM_W * float(np.sum(self.radiance_at(patch, angle_deg) * _v_lambda()))
+
+    def brdf_truth(self, theta_i_deg: float, theta_o_deg: float, tilt_deg: float,
+                   wavelength_nm: np.ndarray) -> np.ndarray:
+        rho = np.interp(np.asarray(wavelength_nm, dtype=float), self.wavelength_nm,
+                        self._rho(self.gonio_material))
+        return rho / np.pi

@@ -1,0 +1,151 @@
+"""SIGKILL a running reference sweep at random moments, resume each time, until it is done.
+
+Each child process runs (or resumes) the 312-reading sweep on a virtual clock at time scale 0
+and prints every key *after* its commit.  The parent kills it after a random delay, then
+checks: every key the child reported is in the store (no reading lost), no key twice, the run's
+reading count matches its keys, `PRAGMA integrity_check` is ok.  At the end the key set equals
+the plan.
+
+The child's lab is `sim` (the simulated lab template: wire-level emulators over sim://, the
+analytic world, the virtual operator) when the drivers are installed, else `fake` (the
+in-test fakes of engine_fakes.py).
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import sqlite3
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+HERE = Path(__file__).resolve().parent
+
+
+def sim_lab_available() -> bool:
+    try:
+        from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+        from normbox_lab.lab import driver_class
+
+        cfg = parse_config(SIM_CONFIG_TEMPLATE)
+        for role in ("radiometer", "rotator", "sphere"):
+            driver_class(cfg.instruments[role].driver)
+        return True
+    except Exception:  # noqa: BLE001 - any missing piece means: not available
+        return False
+
+
+def child(store_path: str, lab_kind: str) -> int:
+    from normbox_lab import engine as eng
+    from normbox_lab.store import Store
+
+    store = Store(store_path)
+    if lab_kind == "sim":
+        from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+        from normbox_lab.lab import build_lab
+
+        lab = build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
+    else:
+        sys.path.insert(0, str(HERE))
+        from engine_fakes import FakeLab
+
+        lab = FakeLab()
+    plan = eng.build_plan("reference-sweep", None, lab)
+    runs = store.runs()
+    resume = runs[-1].id if runs and runs[-1].status != "done" else None
+    engine = eng.Engine(lab, store, plan)
+    engine.subscribe(lambda ev: print(f"stored {ev.key}", flush=True)
+                     if ev.kind == "reading-stored" else None)
+    print("started", flush=True)
+    result = engine.run(resume=resume)
+    print(f"finished {result.status} {result.done}", flush=True)
+    return 0 if result.status == "done" else 1
+
+
+def campaign(tmp_path: Path, kills_wanted: int, seed: int, max_readings: int = 30,
+             max_delay_s: float = 0.01) -> dict:
+    store_path = tmp_path / "kill.sqlite"
+    lab_kind = "sim" if sim_lab_available() else "fake"
+    rng = random.Random(seed)
+    env = dict(os.environ, NORMBOX_LAB_CACHE=os.environ.get(
+        "NORMBOX_LAB_CACHE", str(Path.home() / ".cache" / "normbox-lab")))
+    kills = resumes = 0
+    reported: set[str] = set()
+    previous = 0
+    for attempt in range(kills_wanted + 50):
+        proc = subprocess.Popen([sys.executable, str(Path(__file__)), store_path, lab_kind],
+                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                env=env)
+        if attempt > 0:
+            resumes += 1
+        assert proc.stdout is not None
+        first = proc.stdout.readline()
+        assert first.strip() == "started", (first, proc.stderr.read() if proc.stderr else "")
+        lines: list[str] = []
+        if kills < kills_wanted:
+            # kill after a random number of committed readings plus a random delay, so the
+            # kill lands anywhere: mid-commit, mid-measurement, mid-move, in a prompt
+            for _ in range(rng.randint(0, max_readings)):
+                line = proc.stdout.readline()
+                if not line:
+                    break
+                lines.append(line.rstrip("\n"))
+            try:
+                proc.wait(timeout=rng.uniform(0.0, max_delay_s))
+            except subprocess.TimeoutExpired:
+                proc.kill()
+                kills += 1
+        out, err = proc.communicate()
+        lines += out.splitlines()
+        reported |= {ln.split()[1] for ln in lines if ln.startswith("stored ")}
+        db = sqlite3.connect(store_path)
+        try:
+            assert db.execute("PRAGMA integrity_check").fetchone()[0] == "ok"
+            keys = [k for (k,) in db.execute("SELECT key FROM readings")]
+        finally:
+            db.close()
+        assert len(keys) == len(set(keys)), "a reading was stored twice"
+        assert reported <= set(keys), f"lost readings: {sorted(reported - set(keys))[:5]}"
+        assert len(keys) >= previous
+        previous = len(keys)
+        if proc.returncode == 0 and any(ln.startswith("finished done") for ln in lines):
+            break
+        assert proc.returncode in (-9, 0, 1), err[-2000:]
+    else:
+        pytest.fail("the sweep never finished")
+    from normbox_lab import engine as eng
+    from normbox_lab.store import Store
+
+    with Store(store_path) as store:
+        (run,) = store.runs()
+        assert run.status == "done" and run.done == 312
+        assert store.keys(run.id) == set(eng.build_plan("reference-sweep").commit_keys)
+        segments = sum(1 for _, k, _ in store.events(run.id) if k == "segment")
+        for r in store.readings(run.id):
+            if lab_kind == "fake":
+                assert r.metadata["patch_seen"] == r.metadata["patch"]
+                assert r.metadata["angle_seen"] == r.metadata["angle_deg"]
+    return {"kills": kills, "resumes": resumes, "segments": segments, "readings": previous,
+            "lab": lab_kind}
+
+
+def test_sigkill_campaign(tmp_path, capsys):
+    stats = campaign(tmp_path, kills_wanted=20, seed=7)
+    with capsys.disabled():
+        print(f"\nkill campaign: {stats}")
+    assert stats["kills"] == 20 and stats["readings"] == 312
+
+
+@pytest.mark.slow
+def test_sigkill_campaign_large(tmp_path, capsys):
+    stats = campaign(tmp_path, kills_wanted=100, seed=11, max_readings=6)
+    with capsys.disabled():
+        print(f"\nkill campaign (large): {stats}")
+    assert stats["kills"] == 100 and stats["readings"] == 312
+
+
+if __name__ == "__main__":
+    sys.exit(child(sys.argv[1], sys.argv[2]))
