@@ -419,7 +419,7 @@ class Engine:
         for cb in list(self._subs.values()):
             try:
                 cb(ev)
-            except Exception:  # noqa: BLE001 - a subscriber must never kill a run
+            except Exception:
                 log.exception("engine subscriber %r failed on %s", cb, event_kind)
 
     def _store_event(self, event_kind: str, /, **detail: Any) -> None:
@@ -779,7 +779,7 @@ class Engine:
         if self.plan.on_reading is not None:
             try:
                 flags = list(self.plan.on_reading(step, reading, self._hook_context) or ())
-            except Exception:  # noqa: BLE001 - a protocol's check must not lose the run
+            except Exception:
                 log.exception("protocol on_reading hook failed at %s", step.key)
                 flags = []
             for message in flags:
@@ -981,8 +981,25 @@ class Engine:
 
 
 __all__ = [
-    "STEP_KINDS", "Step", "Plan", "PlanError", "move", "wait_stable", "prompt", "calibrate",
-    "measure", "load_protocol", "build_plan", "resolve_parameters", "coerce_param",
-    "PROTOCOL_NAMES", "EngineEvent", "PromptRequest", "RetryPolicy", "DryRun", "RunResult",
-    "Engine", "format_duration",
+    "PROTOCOL_NAMES",
+    "STEP_KINDS",
+    "DryRun",
+    "Engine",
+    "EngineEvent",
+    "Plan",
+    "PlanError",
+    "PromptRequest",
+    "RetryPolicy",
+    "RunResult",
+    "Step",
+    "build_plan",
+    "calibrate",
+    "coerce_param",
+    "format_duration",
+    "load_protocol",
+    "measure",
+    "move",
+    "prompt",
+    "resolve_parameters",
+    "wait_stable",
 ]

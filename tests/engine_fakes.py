@@ -7,8 +7,9 @@ Faults and lamp glitches are scripted by call number.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -210,3 +211,60 @@ class FakeLab:
 
 def timeout(msg: str = "no reply") -> InstrumentTimeout:
     return InstrumentTimeout(msg, instrument="radiometer")
+
+
+class FakeGonio:
+    """In-plane gonioreflectometer fake: Lambertian ρ = 0.5 (patch) or 0.34 (wall)."""
+
+    measure_s = 4.0
+    calibrate_s = 30.0
+
+    def __init__(self, clock: VirtualClock, world: FakeWorld) -> None:
+        self.clock, self.world = clock, world
+        self.material: Any = None
+        self.calibrated_for: Any = None
+        self.calibrations = 0
+
+    def identify(self) -> InstrumentIdentity:
+        return InstrumentIdentity("gonioreflectometer", "FAKE-GONIO", simulated=True)
+
+    def close(self) -> None: ...
+
+    def estimate_calibrate_time_s(self) -> float:
+        return self.calibrate_s
+
+    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float) -> float:
+        return self.measure_s
+
+    def calibrate(self) -> dict[str, np.ndarray]:
+        self.clock.sleep(self.calibrate_s)
+        self.calibrations += 1
+        self.calibrated_for = self.material
+        return {"dark_counts": np.zeros(5), "white_counts": np.full(5, 1000.0)}
+
+    def measure_brdf(self, theta_i_deg: float, theta_o_deg: float):
+        from normbox_lab.types import BrdfReading
+
+        self.clock.sleep(self.measure_s)
+        wl = np.arange(400.0, 701.0, 100.0)
+        rho = 0.34 if self.material == "wall" else 0.5
+        return BrdfReading(theta_i_deg, theta_o_deg, 4.0, wl, np.full(wl.shape, rho / np.pi),
+                           timestamp_s=self.clock.wall_time_s(), instrument_id="FAKE-GONIO",
+                           metadata={"material_seen": self.material,
+                                     "calibrated_for": self.calibrated_for})
+
+
+def add_gonio(lab: FakeLab) -> FakeGonio:
+    gonio = FakeGonio(lab.clock, lab.world)
+    lab.instruments["gonio"] = gonio
+    op = lab.operator
+    original = op.__call__
+
+    def operator(req: Any) -> str:
+        if req.data.get("action") == "mount_gonio_material":
+            gonio.material = req.data["material"]
+        return original(req)
+    lab.operator = operator
+    operator.expected_response_s = op.expected_response_s  # type: ignore[attr-defined]
+    operator.asked = op.asked  # type: ignore[attr-defined]
+    return gonio

@@ -7,8 +7,8 @@ import queue
 import threading
 
 import pytest
-
 from engine_fakes import FakeLab, timeout
+
 from normbox_lab import engine as eng
 from normbox_lab.errors import DeviceError, NormboxError, StoreError
 from normbox_lab.store import Store

@@ -32,17 +32,17 @@ def register(sub: argparse._SubParsersAction) -> None:
 class _TimedStore:
     """Forwards to a Store and adds up the wall time spent inside it."""
 
-    def __init__(self, store, timer) -> None:  # noqa: ANN001
+    def __init__(self, store, timer) -> None:
         self._store = store
         self._timer = timer
         self.spent_s = 0.0
 
-    def __getattr__(self, name: str):  # noqa: ANN204
+    def __getattr__(self, name: str):
         attr = getattr(self._store, name)
         if not callable(attr):
             return attr
 
-        def timed(*a, **k):  # noqa: ANN002, ANN003, ANN202
+        def timed(*a, **k):
             t0 = self._timer()
             try:
                 return attr(*a, **k)

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_run)
 
 
-def _load_lab_config(args: argparse.Namespace):  # noqa: ANN202
+def _load_lab_config(args: argparse.Namespace):
     from dataclasses import replace
 
     from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
@@ -68,7 +68,7 @@ def _load_lab_config(args: argparse.Namespace):  # noqa: ANN202
     return config
 
 
-def _parse_overrides(module, items: list[str]) -> dict:  # noqa: ANN001
+def _parse_overrides(module, items: list[str]) -> dict:
     from normbox_lab.engine import PlanError, coerce_param
 
     out = {}
@@ -142,12 +142,12 @@ def _run(args: argparse.Namespace) -> int:
         store.close()
 
 
-def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:  # noqa: ANN001
+def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
     from normbox_lab.engine import format_duration
 
     interrupts = {"n": 0}
 
-    def on_sigint(signum, frame):  # noqa: ANN001
+    def on_sigint(signum, frame):
         interrupts["n"] += 1
         if interrupts["n"] == 1:
             print("\npausing after the current reading (Ctrl-C again to abort now)…",
@@ -162,7 +162,7 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:  #
     clock_note = "" if scale is None else f" (virtual clock, time scale {scale:g})"
     try:
         if args.plain:
-            def plain(ev) -> None:  # noqa: ANN001
+            def plain(ev) -> None:
                 if ev.kind == "run-started":
                     print(f"run {ev.data['run_uuid']} started: {ev.data['done']}/"
                           f"{ev.data['planned']} done, ETA {format_duration(ev.data['eta_s'])}"
@@ -188,7 +188,7 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:  #
     return 0 if result.status in ("done", "paused") else 1
 
 
-def _run_with_progress(engine, run_ref, progress_ref, clock_note):  # noqa: ANN001, ANN202
+def _run_with_progress(engine, run_ref, progress_ref, clock_note):
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
@@ -201,7 +201,7 @@ def _run_with_progress(engine, run_ref, progress_ref, clock_note):  # noqa: ANN0
     progress_ref["progress"] = progress
     task = progress.add_task(engine.plan.protocol, total=engine.plan.planned, key="", eta="?")
 
-    def on_event(ev) -> None:  # noqa: ANN001
+    def on_event(ev) -> None:
         if ev.kind == "run-started":
             console.print(f"run {ev.data['run_uuid']} segment {ev.data['segment']}: "
                           f"{ev.data['done']}/{ev.data['planned']} done, ETA "

@@ -1,0 +1,106 @@
+"""Lab assembly, the analytic world and the virtual operator."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from normbox_lab.sim import core
+from normbox_lab.sim.analytic_world import AnalyticWorld, colorchecker_reflectances
+
+from normbox_lab import lab as labmod
+from normbox_lab.clock import VirtualClock
+from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.engine import PromptRequest
+from normbox_lab.errors import ConfigError, NormboxError
+from normbox_lab.operator import TerminalOperator, VirtualOperator
+
+
+@pytest.fixture(scope="module")
+def world():
+    return AnalyticWorld()
+
+
+def test_build_lab_shares_clock_and_world_with_the_sim_context():
+    cfg = parse_config(SIM_CONFIG_TEMPLATE)
+    lab = labmod.build_lab(cfg, world="analytic")
+    assert isinstance(lab.clock, VirtualClock) and lab.clock.time_scale == 0.0
+    assert core.CONTEXT.clock is lab.clock and core.CONTEXT.world is lab.world
+    assert isinstance(lab.world, AnalyticWorld)
+    assert isinstance(lab.operator, VirtualOperator) and lab.operator.world is lab.world
+    assert "gonio" in lab.roles()
+    with pytest.raises(NormboxError, match="unknown driver"):
+        labmod.driver_class("cs9000")
+    with pytest.raises(NormboxError, match="unknown world"):
+        labmod.build_lab(cfg, world="mars")
+
+
+def test_missing_role_is_a_config_error():
+    cfg = parse_config(SIM_CONFIG_TEMPLATE.split("[instruments.gonio_light_arm]")[0])
+    lab = labmod.build_lab(cfg, world="none")
+    with pytest.raises(ConfigError, match="spectrometer"):
+        lab.instrument("spectrometer")
+
+
+def test_colorchecker_reflectances_come_from_colour_science(world):
+    refl = colorchecker_reflectances()
+    assert refl.shape == (24, 401)
+    white, black = refl[18], refl[23]
+    assert 0.8 < white.mean() < 0.95 and black.mean() < 0.05
+    # red (15) reflects more at 650 nm than at 450 nm, blue (13) the other way round
+    assert refl[14][270] > 3 * refl[14][70] and refl[12][70] > 3 * refl[12][270]
+
+
+def test_analytic_radiance_is_direct_cosine_plus_constant_indirect(world):
+    w = world
+    w.place_patch(19)
+    w.set_sample_angle(30.0)
+    _, l30 = w.radiance_in_view()
+    w.set_sample_angle(90.0)
+    _, l90 = w.radiance_in_view()
+    ratio = (w.direct_sr * np.cos(np.radians(30)) + w.indirect_sr) / w.indirect_sr
+    np.testing.assert_allclose(l30 / l90, ratio, rtol=1e-12)
+    # Lambertian: radiance = ρ/π · L_panel · geometry
+    np.testing.assert_allclose(l90, w.reflectance[18] / np.pi * w.panel_W_sr_m2_nm
+                               * w.indirect_sr, rtol=1e-12)
+    assert w.luminance_cd_m2(19, 30.0) > w.luminance_cd_m2(19, 90.0) > w.luminance_cd_m2(24, 90)
+    wl = np.array([500.0, 600.0])
+    w.mount_gonio_material(19)
+    np.testing.assert_allclose(w.brdf_truth(10, 20, 4, wl),
+                               np.interp(wl, w.wavelength_nm, w.reflectance[18]) / np.pi)
+    w.mount_gonio_material("wall")
+    np.testing.assert_allclose(w.brdf_truth(10, 20, 4, wl), 0.34 / np.pi)
+
+
+def test_panel_map_is_brightest_in_the_centre(world):
+    w = world
+    w.aim_panel(0, 0)
+    _, centre = w.radiance_in_view()
+    w.aim_panel(90, 80)
+    _, corner = w.radiance_in_view()
+    assert 0.95 < corner.sum() / centre.sum() < 1.0
+    w.place_patch(1)           # placing a patch points the radiometer back at the sample
+    assert w.aim is None
+
+
+def test_virtual_operator_acts_on_the_world_and_answers_faults(world):
+    clock = VirtualClock()
+    op = VirtualOperator(world, clock, fault_policy="retry", response_s=4.0,
+                         max_fault_retries=2)
+    assert op(PromptRequest(1, "a30/p05/place", "operator", "place patch 5", ("ok",),
+                            {"action": "place_patch", "patch": 5})) == "ok"
+    assert world.patch == 5 and clock.now_s() == 4.0
+    fault = PromptRequest(2, "a30/p05", "fault", "timeout", ("retry", "skip", "abort"), {})
+    assert [op(fault) for _ in range(3)] == ["retry", "retry", "skip"]
+    with pytest.raises(ValueError):
+        VirtualOperator(world, clock, fault_policy="pray")
+
+
+def test_terminal_operator_reads_answers():
+    import io
+
+    out = io.StringIO()
+    op = TerminalOperator(io.StringIO("x\nsk\n"), out)
+    req = PromptRequest(1, "k", "fault", "it broke", ("retry", "skip", "abort"), {})
+    assert op(req) == "skip" and "please answer" in out.getvalue()
+    assert TerminalOperator(io.StringIO("\n"), io.StringIO())(req) == "retry"
+    assert TerminalOperator(io.StringIO(""), io.StringIO())(req) == "abort"
