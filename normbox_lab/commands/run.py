@@ -149,6 +149,8 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
 
     def on_sigint(signum, frame):
         interrupts["n"] += 1
+        if engine.pending_prompt is not None:
+            raise KeyboardInterrupt      # waiting for the operator: nothing is being measured
         if interrupts["n"] == 1:
             print("\npausing after the current reading (Ctrl-C again to abort now)…",
                   file=sys.stderr, flush=True)
@@ -160,6 +162,7 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
     previous = signal.signal(signal.SIGINT, on_sigint)
     scale = getattr(lab.clock, "time_scale", None)
     clock_note = "" if scale is None else f" (virtual clock, time scale {scale:g})"
+    result = None
     try:
         if args.plain:
             def plain(ev) -> None:
@@ -176,8 +179,14 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
             result = engine.run(resume=run_ref)
         else:
             result = _run_with_progress(engine, run_ref, progress_ref, clock_note)
+    except KeyboardInterrupt:
+        print(f"\ninterrupted at a prompt; run {engine.run_uuid} is paused", file=sys.stderr)
     finally:
         signal.signal(signal.SIGINT, previous)
+    if result is None:
+        store_arg = f" --store {args.store}" if args.store else ""
+        print(f"resume with: normbox-lab run --resume {engine.run_uuid[:8]}{store_arg}")
+        return 130
     store_arg = f" --store {args.store}" if args.store else ""
     print(f"run {result.uuid} (id {result.run_id}): {result.status}, "
           f"{result.done}/{result.planned} readings ({result.taken} taken now)")
