@@ -268,3 +268,59 @@ def add_gonio(lab: FakeLab) -> FakeGonio:
     operator.expected_response_s = op.expected_response_s  # type: ignore[attr-defined]
     operator.asked = op.asked  # type: ignore[attr-defined]
     return gonio
+
+
+# --- fake *drivers* (Driver.open(url, clock, **options)) over the sim context's world ----------
+
+class _WorldView:
+    """FakeWorld's interface on top of the lab's world (AnalyticWorld)."""
+
+    def __init__(self, world: Any) -> None:
+        self._w = world
+
+    @property
+    def patch(self) -> Any:
+        return self._w.patch
+
+    @property
+    def angle_deg(self) -> float:
+        return self._w.sample_angle_deg
+
+    @angle_deg.setter
+    def angle_deg(self, value: float) -> None:
+        self._w.set_sample_angle(value)
+
+    def luminance_cd_m2(self, patch: Any, angle_deg: float) -> float:
+        return self._w.luminance_cd_m2(patch, angle_deg)
+
+
+def _world() -> _WorldView:
+    from normbox_lab.sim import core
+
+    return _WorldView(core.CONTEXT.world)
+
+
+class RadiometerDriver(FakeRadiometer):
+    @classmethod
+    def open(cls, url: str, clock: Any, **options: Any) -> "RadiometerDriver":
+        return cls(clock, _world())
+
+
+class StageDriver(FakeStage):
+    @classmethod
+    def open(cls, url: str, clock: Any, **options: Any) -> "StageDriver":
+        return cls(clock, _world())
+
+
+class LampDriver(FakeLamp):
+    @classmethod
+    def open(cls, url: str, clock: Any, **options: Any) -> "LampDriver":
+        return cls(clock)
+
+
+FAKE_DRIVERS = {
+    "cs1000a": ("engine_fakes", ("RadiometerDriver",)),
+    "apt-k10cr1": ("engine_fakes", ("StageDriver",)),
+    "zaber": ("engine_fakes", ("StageDriver",)),
+    "sphere-scpi": ("engine_fakes", ("LampDriver",)),
+}

@@ -147,5 +147,52 @@ def test_sigkill_campaign_large(tmp_path, capsys):
     assert stats["kills"] == 100 and stats["readings"] == 312
 
 
+def cli_child(argv: list[str]) -> int:
+    """`normbox-lab run ...` with the fake drivers behind the lab assembly."""
+    sys.path.insert(0, str(HERE))
+    from engine_fakes import FAKE_DRIVERS
+
+    from normbox_lab import lab as labmod
+    from normbox_lab.cli import main
+
+    if not sim_lab_available():
+        labmod.DRIVERS = FAKE_DRIVERS
+    return main(argv)
+
+
+def test_ctrl_c_pauses_after_the_current_reading_and_resume_completes(tmp_path):
+    import signal
+
+    store = str(tmp_path / "ctrlc.sqlite")
+    argv = ["run", "reference-sweep", "--world", "analytic", "--plain", "--store", store]
+    proc = subprocess.Popen([sys.executable, str(Path(__file__)), "cli", *argv],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            cwd=tmp_path)
+    assert proc.stdout is not None
+    seen = 0
+    for line in proc.stdout:
+        if line.startswith("a30/p"):
+            seen += 1
+            if seen == 5:
+                proc.send_signal(signal.SIGINT)
+                break
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert "pausing after the current reading" in err
+    status = [ln for ln in out.splitlines() if ln.startswith("run ") and "readings" in ln][0]
+    assert ": paused, " in status
+    done = int(status.split(", ")[1].split("/")[0])
+    assert 5 <= done < 312
+    resume = [ln for ln in out.splitlines() if ln.startswith("resume with:")][0]
+    run_id = resume.split("--resume ")[1].split()[0]
+    proc2 = subprocess.run([sys.executable, str(Path(__file__)), "cli", "run", "--resume",
+                            run_id, "--world", "analytic", "--plain", "--store", store],
+                           capture_output=True, text=True, cwd=tmp_path, timeout=300)
+    assert proc2.returncode == 0, proc2.stderr
+    assert f"done, 312/312 readings ({312 - done} taken now)" in proc2.stdout
+
+
 if __name__ == "__main__":
+    if sys.argv[1] == "cli":
+        sys.exit(cli_child(sys.argv[2:]))
     sys.exit(child(sys.argv[1], sys.argv[2]))

@@ -104,3 +104,55 @@ def test_terminal_operator_reads_answers():
     assert op(req) == "skip" and "please answer" in out.getvalue()
     assert TerminalOperator(io.StringIO("\n"), io.StringIO())(req) == "retry"
     assert TerminalOperator(io.StringIO(""), io.StringIO())(req) == "abort"
+
+
+# --- the run command, end to end, with fake drivers behind the lab assembly ---------------------
+
+@pytest.fixture
+def fake_drivers(monkeypatch, tmp_path):
+    from engine_fakes import FAKE_DRIVERS
+
+    monkeypatch.setattr(labmod, "DRIVERS", FAKE_DRIVERS)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
+    from normbox_lab import engine as eng
+    from normbox_lab.cli import main
+    from normbox_lab.store import Store
+
+    store = str(fake_drivers / "cli.sqlite")
+    common = ["--world", "analytic", "--store", store, "--param", "angles_deg=[30,90]",
+              "--param", "patches=1,19"]
+    assert main(["run", "reference-sweep", "--dry-run", *common]) == 0
+    out, err = capsys.readouterr()
+    assert "using the simulated lab template" in err
+    assert "4 readings" in out and "a90/p19" in out and out.strip().splitlines()[-1].startswith("ETA")
+
+    # pause after the second reading (what Ctrl-C does), then resume from the printed id
+    original = eng.Engine.run
+
+    def run_and_pause(self, resume=None):
+        self.subscribe(lambda ev: self.pause() if ev.kind == "reading-stored"
+                       and ev.key == "a30/p19" else None)
+        return original(self, resume)
+    eng.Engine.run = run_and_pause
+    try:
+        assert main(["run", "reference-sweep", "--plain", *common]) == 0
+    finally:
+        eng.Engine.run = original
+    out = capsys.readouterr().out
+    assert "paused, 2/4 readings" in out
+    resume_line = [ln for ln in out.splitlines() if ln.startswith("resume with:")][0]
+    run_id = resume_line.split("--resume ")[1].split()[0]
+    assert main(["run", "--resume", run_id, "--store", store, "--world", "analytic",
+                 "--plain"]) == 0
+    out = capsys.readouterr().out
+    assert "done, 4/4 readings (2 taken now)" in out
+    with Store(store) as s:
+        (run,) = s.runs()
+        assert run.status == "done" and s.keys(run.id) == {"a30/p01", "a30/p19", "a90/p01",
+                                                             "a90/p19"}
+        assert run.parameters["angles_deg"] == [30, 90]
+    assert main(["run", "--resume", run_id, "--store", store, "--param", "patches=[2]"]) == 1

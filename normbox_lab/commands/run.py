@@ -185,7 +185,7 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
         signal.signal(signal.SIGINT, previous)
     if result is None:
         store_arg = f" --store {args.store}" if args.store else ""
-        print(f"resume with: normbox-lab run --resume {engine.run_uuid[:8]}{store_arg}")
+        print(f"resume with: normbox-lab run --resume {engine.run_uuid}{store_arg}")
         return 130
     store_arg = f" --store {args.store}" if args.store else ""
     print(f"run {result.uuid} (id {result.run_id}): {result.status}, "
@@ -193,7 +193,7 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
     if result.skipped:
         print(f"skipped: {', '.join(result.skipped)}")
     if result.status != "done":
-        print(f"resume with: normbox-lab run --resume {result.uuid[:8]}{store_arg}")
+        print(f"resume with: normbox-lab run --resume {result.uuid}{store_arg}")
     return 0 if result.status in ("done", "paused") else 1
 
 
