@@ -387,6 +387,7 @@ class Engine:
         self._subs: dict[int, Callable[[EngineEvent], None]] = {}
         self._sub_ids = itertools.count(1)
         self._pause = threading.Event()
+        self._stop = threading.Event()
         self._abort = threading.Event()
         self._resume = threading.Event()
         self._lock = threading.Lock()
@@ -431,7 +432,12 @@ class Engine:
         """Deferred pause: the current reading finishes and is committed, then the run pauses."""
         self._pause.set()
 
-    stop = pause  # a stopped run is a paused run whose segment ended: resumable
+    def stop(self) -> None:
+        """Deferred: finish the current reading, end this segment (status `paused`, resumable),
+        also when paused in-process."""
+        self._stop.set()
+        self._pause.set()
+        self._resume.set()
 
     def resume(self) -> None:
         """Continue a run paused in-process (`wait_when_paused=True`)."""
@@ -599,6 +605,7 @@ class Engine:
         paused (unless `wait_when_paused`), or aborted."""
         self._abort.clear()
         self._pause.clear()
+        self._stop.clear()
         if resume is None:
             rec = self.store.create_run(
                 self.plan.protocol, parameters=self.plan.parameters,
@@ -702,13 +709,15 @@ class Engine:
         self.state = "paused"
         self.store.set_run_status(self.run_id, "paused", detail={"next": next_key})
         self._emit("paused", next_key, done=len(self._committed))
-        if not self.wait_when_paused:
+        if not self.wait_when_paused or self._stop.is_set():
             return True
         self._resume.clear()
         while not self._resume.wait(0.1):
             pass
         if self._abort.is_set():
             raise OperatorAbort("abort requested while paused")
+        if self._stop.is_set():
+            return True
         self.state = "running"
         self.store.set_run_status(self.run_id, "running", detail={"in_process": True})
         self._emit("resumed", next_key)

@@ -264,3 +264,20 @@ def test_instrument_identities_recorded_per_segment(store):
     inst = store.instruments(res.run_id)
     assert {i["role"] for i in inst} == {"rotator", "sphere", "radiometer"}
     assert sorted({i["identity"]["segment"] for i in inst}) == [1, 2]
+
+
+def test_stop_while_paused_in_process_ends_the_segment_resumably(store):
+    lab = FakeLab()
+    e = make(lab, store, SMALL, wait_when_paused=True)
+    paused = threading.Event()
+    e.subscribe(lambda ev: paused.set() if ev.kind == "paused" else None)
+    e.subscribe(lambda ev: e.pause() if ev.kind == "reading-stored" and ev.key == "a30/p03"
+                else None)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
+    worker.start()
+    assert paused.wait(10)
+    e.stop()
+    worker.join(10)
+    assert result["r"].status == "paused" and result["r"].done == 3
+    assert make(FakeLab(), store, SMALL).run(resume=e.run_uuid).done == 12

@@ -109,6 +109,8 @@ def _run(args: argparse.Namespace) -> int:
             raise eng.PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
                                 "repeatability, or a .py file), or --resume RUN_ID")
         protocol = args.protocol
+        if protocol.endswith(".py"):
+            protocol = str(Path(protocol).resolve())   # a resume may start elsewhere
         module = eng.load_protocol(protocol)
     config = _load_lab_config(args)
     if not args.resume:
