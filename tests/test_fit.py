@@ -93,7 +93,7 @@ def test_w_changes_the_weighting():
     y = ct_ggx_brdf(WI, WO, kd, ks, 0.3, 1.5, 0.0)
     back = 0.08 * np.exp(-((TO - TI) / 15.0) ** 2)[:, None] * (kd / kd.max())
     data = _data(y + back)
-    p1, p4 = FitProblem(data, 1.0), FitProblem(data, 4.0)
+    p4 = FitProblem(data, 4.0)
     np.testing.assert_allclose(p4.mu[:, 0], np.clip(WI[:, 2], 0, 1) ** 4)
     f1, f4 = fit_material(data, w=1.0), fit_material(data, w=4.0)
     assert (f1.alpha, f1.eta) != pytest.approx((f4.alpha, f4.eta), rel=1e-3)
