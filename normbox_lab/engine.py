@@ -347,6 +347,8 @@ class RunResult:
 
 
 def format_duration(seconds: float) -> str:
+    if seconds != seconds:       # nan: unknown
+        return "?"
     seconds = max(0, int(round(seconds)))
     h, rem = divmod(seconds, 3600)
     m, s = divmod(rem, 60)
@@ -403,6 +405,7 @@ class Engine:
         self._segment = 0
         self._ratio = 1.0
         self._hook_context: dict[str, Any] = {}
+        self._remaining_s = 0.0
 
     # --- subscribers ---------------------------------------------------------------------------
     def subscribe(self, callback: Callable[[EngineEvent], None]) -> Callable[[], None]:
@@ -646,9 +649,14 @@ class Engine:
         t0 = self.clock.now_s()
         taken = 0
         status = "done"
-        dry = self.dry_run(self._committed)
+        try:
+            eta_s = self.dry_run(self._committed).total_s
+        except (InstrumentError, OSError) as exc:      # no ETA is no reason to stop
+            log.warning("no ETA: %s", exc)
+            self._estimates, eta_s = {}, float("nan")
+        self._remaining_s = sum(self._estimates.values())
         self._emit("run-started", run_uuid=self.run_uuid, segment=self._segment,
-                   planned=self.plan.planned, done=len(self._committed), eta_s=dry.total_s,
+                   planned=self.plan.planned, done=len(self._committed), eta_s=eta_s,
                    resumed=resume is not None)
         try:
             self._prepare()
@@ -782,7 +790,8 @@ class Engine:
         est = self._estimates.get(step.key, 0.0)
         if est > 0 and took > 0:
             self._ratio = 0.8 * self._ratio + 0.2 * (took / est)
-        remaining = sum(v for k, v in self._estimates.items() if k not in self._committed)
+        self._remaining_s = max(0.0, self._remaining_s - est)
+        remaining = self._remaining_s if len(self._committed) < self.plan.planned else 0.0
         self._emit("step-finished", step.key, kind=step.kind, duration_s=took)
         self._emit("reading-stored", step.key, reading=reading)
         if self.plan.on_reading is not None:
