@@ -324,8 +324,8 @@ class DryRun:
     remaining_keys: list[str]
 
     def lines(self) -> list[str]:
-        out = [f"protocol {self.plan.protocol}: {len(self.plan)} steps, "
-               f"{self.plan.planned} readings, {len(self.remaining_keys)} to take"]
+        out = [(f"protocol {self.plan.protocol}: {len(self.plan)} steps, "
+               f"{self.plan.planned} readings, {len(self.remaining_keys)} to take")]
         out.append(f"  {'prepare':<22} {'init/home':<11} {self.prepare_s:9.1f} s")
         for e in self.executed:
             s = self.plan.steps[e.index]
@@ -347,9 +347,9 @@ class RunResult:
 
 
 def format_duration(seconds: float) -> str:
-    if seconds != seconds:       # nan: unknown
+    if math.isnan(seconds):      # unknown
         return "?"
-    seconds = max(0, int(round(seconds)))
+    seconds = max(0, round(seconds))
     h, rem = divmod(seconds, 3600)
     m, s = divmod(rem, 60)
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"

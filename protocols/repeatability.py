@@ -54,6 +54,6 @@ def on_reading(params: dict[str, Any], step: Step, reading: Any,
         return []
     change = 100.0 * (value - first[1]) / first[1]
     if abs(change) > float(params["threshold_percent"]):
-        return [f"{step.key}: luminance changed {change:+.2f} % from {first[0]} "
-                f"(threshold {params['threshold_percent']} %)"]
+        return [(f"{step.key}: luminance changed {change:+.2f} % from {first[0]} "
+                f"(threshold {params['threshold_percent']} %)")]
     return []

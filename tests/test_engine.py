@@ -3,6 +3,7 @@ prompts, subscribers, plan validation.  Nothing here sleeps: virtual seconds are
 
 from __future__ import annotations
 
+import itertools
 import queue
 import threading
 
@@ -140,9 +141,9 @@ def test_lamp_glitch_suspends_and_the_interrupted_reading_is_taken_again(store):
     assert lab.radiometer.calls == 13                 # one reading taken twice, stored once
     kinds = [k for _, k, _ in store.events(res.run_id)]
     assert kinds.count("suspended") == 1 and kinds.count("unsuspended") == 1
-    susp = [ev for ev in events if ev.kind == "suspended"][0]
+    susp = next(ev for ev in events if ev.kind == "suspended")
     assert susp.key == "a60/p01" and susp.data["after_reading"] is True
-    back = [ev for ev in events if ev.kind == "unsuspended"][0]
+    back = next(ev for ev in events if ev.kind == "unsuspended")
     assert back.time_s >= glitch_at[0] + 30.0 > susp.time_s   # waited for the lamp
     stored = store.reading(res.run_id, "a60/p01")
     assert stored.time_s >= lab.clock.wall_time_s() - lab.clock.now_s() + back.time_s
@@ -232,7 +233,7 @@ def test_progress_events_count_up_with_a_shrinking_eta(store):
     e.run()
     assert [p["done"] for p in prog] == list(range(1, 13))
     etas = [p["eta_s"] for p in prog]
-    assert etas[-1] == 0 and all(a >= b for a, b in zip(etas, etas[1:]))
+    assert etas[-1] == 0 and all(a >= b for a, b in itertools.pairwise(etas))
 
 
 def test_plan_validation():
@@ -281,3 +282,19 @@ def test_stop_while_paused_in_process_ends_the_segment_resumably(store):
     worker.join(10)
     assert result["r"].status == "paused" and result["r"].done == 3
     assert make(FakeLab(), store, SMALL).run(resume=e.run_uuid).done == 12
+
+
+def test_abort_while_waiting_for_an_answer(store):
+    lab = FakeLab()
+    lab.operator = None
+    e = make(lab, store, SMALL)
+    asked = threading.Event()
+    e.subscribe(lambda ev: asked.set() if ev.kind == "prompt" else None)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
+    worker.start()
+    assert asked.wait(10)
+    e.abort()
+    worker.join(10)
+    assert result["r"].status == "aborted" and result["r"].done == 0
+    assert store.get_run(e.run_id).status == "aborted"

@@ -24,7 +24,7 @@ def test_shipped_protocols_declare_their_plans(name, planned):
     assert module.__doc__ and isinstance(module.PARAMETERS, dict)
     plan = eng.build_plan(name)
     assert plan.planned == planned
-    assert len(set(s.key for s in plan.steps)) == len(plan.steps)
+    assert len({s.key for s in plan.steps}) == len(plan.steps)
 
 
 def test_reference_sweep_is_angle_major_with_keys_and_state():
