@@ -349,7 +349,7 @@ class RunResult:
 def format_duration(seconds: float) -> str:
     if math.isnan(seconds):      # unknown
         return "?"
-    seconds = max(0, round(seconds))
+    seconds = max(0, int(round(float(seconds))))  # noqa: RUF046
     h, rem = divmod(seconds, 3600)
     m, s = divmod(rem, 60)
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"
