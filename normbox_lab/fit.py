@@ -292,6 +292,19 @@ def relative_error(fit: MaterialFit, data: BrdfData) -> np.ndarray:
     return np.where(np.isfinite(y) & (y > 0), rel, np.nan)
 
 
+def fit_error_at(fit: MaterialFit, data: BrdfData, theta_i_deg: float,
+                 theta_o_deg: float) -> np.ndarray:
+    """Relative fit error spectrum at a geometry: mean over the measured gonio geometries
+    nearest to (θi, θo) (all those within one grid step, ties included), NaNs skipped."""
+    d = np.hypot(data.theta_i_deg - theta_i_deg, data.theta_o_deg - theta_o_deg)
+    rel = relative_error(fit, data)
+    ok = np.isfinite(rel).any(axis=1)
+    if not ok.any():
+        return np.full(data.wavelength_nm.size, np.nan)
+    near = ok & (d <= d[ok].min() + 1e-9)
+    return np.nanmean(rel[near], axis=0)
+
+
 def fit_error_pct(fit: MaterialFit, data: BrdfData, mask: np.ndarray | None = None) -> float:
     """Relative RMS error in %, over all valid samples (or the geometries selected by mask)."""
     rel = relative_error(fit, data)
