@@ -389,7 +389,8 @@ def polar_plot(data: BrdfData | None, fits: MaterialFit | dict[str, MaterialFit]
             rmax = max(rmax, float(np.max(fl)))
         ax.plot([np.deg2rad(ti)] * 2, [0, rmax * 1.05 or 1.0], ":", color="0.5", lw=0.8)
         ax.set_rmax(rmax * 1.05 or 1.0)
-        ax.set_title(f"θi = {abs(ti):.0f}°", fontsize=8)
+        ax.set_yticklabels([])
+        ax.set_title(f"θi = {ti:.0f}° (r max {rmax:.3g})", fontsize=8)
         ax.tick_params(labelsize=6)
         if k == 0:
             ax.legend(fontsize=6, loc="lower left", bbox_to_anchor=(-0.3, -0.25))

@@ -1,0 +1,48 @@
+"""The HTML report: self-contained, every figure and table present, numbers from the data."""
+
+import base64
+import re
+
+import numpy as np
+
+from normbox_lab.report import ReportData, build_html, synthetic_report_data, write_report
+
+FIGURES = ["fig-reference", "fig-prediction", "fig-rmse", "fig-nrmse", "fig-deltae", "fig-nse",
+           "fig-polar-patch08", "fig-errormodel", "fig-nse-fit"]
+TABLES = ["tab-rmse", "tab-nrmse", "tab-correlations", "tab-deltae", "tab-rating", "tab-fits",
+          "tab-errormodel", "tab-nse-fit"]
+
+
+def test_report_is_self_contained_and_complete(tmp_path):
+    data = synthetic_report_data(step_nm=20.0, seed=1)
+    data.polar_materials = ["patch08"]
+    path = write_report(tmp_path / "sub" / "report.html", data)
+    assert path.exists()
+    text = path.read_text(encoding="utf-8")
+    refs = re.findall(r"""(?:src|href)\s*=\s*["']([^"']*)["']""", text)
+    assert refs
+    for ref in refs:
+        assert ref.startswith(("data:image/png;base64,", "#")), ref
+    assert "<link" not in text and "<script" not in text and "url(" not in text
+    for fid in FIGURES:
+        m = re.search(rf'<figure id="{fid}">.*?base64,([^"]+)"', text, re.DOTALL)
+        assert m, fid
+        assert base64.b64decode(m.group(1))[:8] == b"\x89PNG\r\n\x1a\n"
+    for tid in TABLES:
+        assert f'id="{tid}"' in text, tid
+    # the ΔE00 table carries the comparison's numbers, 24 patch rows
+    table = re.search(r'id="tab-deltae">.*?</table>', text, re.DOTALL).group(0)
+    assert table.count("<tr>") == 25
+    assert f"{data.comparison.delta_e00[3, 4]:.4g}" in table
+    fits = re.search(r'id="tab-fits">.*?</table>', text, re.DOTALL).group(0)
+    assert f"{data.fits['wall'].alpha:.4g}" in fits
+
+
+def test_report_with_comparison_only():
+    data = synthetic_report_data(step_nm=20.0, seed=2)
+    only = ReportData(comparison=data.comparison)
+    _html, figs, tabs = build_html(only)
+    assert "fig-deltae" in figs and "tab-deltae" in tabs
+    assert not any(f.startswith("fig-polar") for f in figs)
+    assert "fig-errormodel" not in figs
+    assert np.isfinite(data.comparison.delta_e00).all()
