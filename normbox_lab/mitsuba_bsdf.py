@@ -1,0 +1,197 @@
+"""The Normbox BRDF family as a Mitsuba 3 BSDF (a Python `mi.BSDF`, registered as "normbox").
+
+Same formula as `normbox_lab.materials.truth_brdf` (and, with the extras off, as the fit model
+`normbox_lab.brdf_model.ct_ggx_brdf`):
+
+    f = kd(λ)/π + ks(λ)·D·F(η(λ))·G1(ωi)G1(ωo)/(4 cosθi cosθo) − c + kb(λ)·exp((ωi·ωo−1)/σ²)/π
+
+Spectra are resampled onto a fixed 5 nm grid (360–830 nm) and interpolated linearly at the
+path's wavelengths with `dr.gather`; every parameter is an opaque Dr.Jit value, so changing the
+material (`set_material`) does not recompile the render kernel.  The BSDF is two-sided (a
+surface seen from behind reflects like its front).  Sampling: cosine hemisphere with probability
+`p_diffuse`, GGX visible normals otherwise, combined by their mixture pdf.
+
+Mitsuba is imported lazily: call `bsdf_class()` after `mi.set_variant(...)`.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+GRID_MIN_NM = 360.0
+GRID_STEP_NM = 5.0
+GRID_NM = np.arange(GRID_MIN_NM, 830.0 + 0.5, GRID_STEP_NM)
+
+_CLASSES: dict[str, Any] = {}
+
+
+def bsdf_class() -> Any:
+    """The `NormboxBSDF` class for the current Mitsuba variant (registered as "normbox")."""
+    import drjit as dr
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant in _CLASSES:
+        return _CLASSES[variant]
+
+    def gather_spectrum(values: Any, wavelengths: Any, active: Any) -> Any:
+        n = len(GRID_NM)
+        out = []
+        for k in range(len(wavelengths)):
+            t = (wavelengths[k] - GRID_MIN_NM) / GRID_STEP_NM
+            t = dr.clip(t, 0.0, n - 1.0)
+            i0 = dr.minimum(mi.UInt32(dr.floor(t)), n - 2)
+            w = t - mi.Float(i0)
+            v0 = dr.gather(mi.Float, values, i0, active)
+            v1 = dr.gather(mi.Float, values, i0 + 1, active)
+            out.append(dr.fma(w, v1 - v0, v0))
+        return mi.UnpolarizedSpectrum(*out)
+
+    class NormboxBSDF(mi.BSDF):
+        def __init__(self, props: Any) -> None:
+            mi.BSDF.__init__(self, props)
+            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+                       | mi.BSDFFlags.BackSide)
+            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+                      | mi.BSDFFlags.BackSide)
+            self.m_components = [diffuse, glossy]
+            self.m_flags = diffuse | glossy
+            self.p_diffuse = 0.5
+            flat = np.full(GRID_NM.shape, 0.5)
+            self.set_values(kd=flat, ks=np.zeros_like(flat), kb=np.zeros_like(flat),
+                            alpha=0.5, eta=1.5, c=0.0, deta_per_100nm=0.0, sigma=0.3)
+
+        # -- parameters --------------------------------------------------------------------
+        def set_values(self, *, kd: np.ndarray, ks: np.ndarray, kb: np.ndarray, alpha: float,
+                       eta: float, c: float, deta_per_100nm: float, sigma: float) -> None:
+            self.kd = mi.Float(np.asarray(kd, dtype=np.float32))
+            self.ks = mi.Float(np.asarray(ks, dtype=np.float32))
+            self.kb = mi.Float(np.asarray(kb, dtype=np.float32))
+            self.alpha = dr.opaque(mi.Float, float(alpha))
+            self.eta = dr.opaque(mi.Float, float(eta))
+            self.c = dr.opaque(mi.Float, float(c))
+            self.deta = dr.opaque(mi.Float, float(deta_per_100nm) / 100.0)
+            self.inv_sigma2 = dr.opaque(mi.Float, 1.0 / float(sigma) ** 2)
+            # the lobe choice: more glossy sampling for smooth materials with real ks
+            ks_mean = float(np.mean(ks))
+            kd_mean = float(np.mean(kd))
+            p_glossy = 0.0 if ks_mean <= 0 else min(0.5, max(0.15, 0.25 / max(alpha, 0.1)
+                                                             * ks_mean / (ks_mean + kd_mean)))
+            self.p_diffuse = dr.opaque(mi.Float, 1.0 - p_glossy)
+
+        def set_material(self, material: Any) -> None:
+            """From a `normbox_lab.materials.Material`."""
+            kd, ks, kb = material.spectra_at(GRID_NM)
+            self.set_values(kd=kd, ks=ks, kb=kb, alpha=material.alpha, eta=material.eta,
+                            c=material.c, deta_per_100nm=material.deta_per_100nm,
+                            sigma=material.backscatter_sigma)
+
+        # -- the model ---------------------------------------------------------------------
+        def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
+            """f (sr⁻¹) for local directions with wi.z > 0 (no cosine)."""
+            cos_i = mi.Frame3f.cos_theta(wi)
+            cos_o = mi.Frame3f.cos_theta(wo)
+            valid = active & (cos_i > 0) & (cos_o > 0)
+            h = dr.normalize(wi + wo)
+            cos_h = mi.Frame3f.cos_theta(h)
+            a2 = self.alpha * self.alpha
+            c2 = cos_h * cos_h
+            d = a2 / (dr.pi * dr.square(c2 * (a2 - 1.0) + 1.0))
+            d = dr.select(cos_h > 0, d, 0.0)
+
+            def g1(cos_t: Any) -> Any:
+                cc = dr.clip(cos_t * cos_t, 1e-30, 1.0)
+                return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cc) / cc))
+
+            geo = d * g1(cos_i) * g1(cos_o) / (4.0 * dr.select(valid, cos_i * cos_o, 1.0))
+            geo = dr.select(valid, geo, 0.0)
+            cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+            wl = si.wavelengths
+            eta = self.eta + self.deta * (wl - 550.0)
+            g = dr.sqrt(dr.fmax(eta * eta - 1.0 + cb * cb, 0.0))
+            fa = (g - cb) / (g + cb)
+            fb = (cb * (g + cb) - 1.0) / (cb * (g - cb) + 1.0)
+            fres = 0.5 * fa * fa * (1.0 + fb * fb)
+            kd = gather_spectrum(self.kd, wl, active)
+            ks = gather_spectrum(self.ks, wl, active)
+            kb = gather_spectrum(self.kb, wl, active)
+            back = kb * (dr.exp((dr.dot(wi, wo) - 1.0) * self.inv_sigma2) * dr.inv_pi)
+            f = kd * dr.inv_pi + ks * fres * geo + back - self.c
+            return dr.select(valid, f, 0.0)
+
+        def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
+            cos_o = mi.Frame3f.cos_theta(wo)
+            pdf_d = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.alpha, True)
+            m = dr.normalize(wi + wo)
+            dwh = dr.dot(wo, m)
+            pdf_s = distr.pdf(wi, m) / (4.0 * dr.abs(dwh))
+            pdf_s = dr.select(dwh > 0, pdf_s, 0.0)
+            pdf = self.p_diffuse * pdf_d + (1.0 - self.p_diffuse) * pdf_s
+            return dr.select(active & (cos_o > 0), pdf, 0.0)
+
+        @staticmethod
+        def _to_front(si: Any) -> tuple[Any, Any]:
+            flip = mi.Frame3f.cos_theta(si.wi) < 0
+            wi = mi.Vector3f(si.wi.x, si.wi.y, dr.abs(si.wi.z))
+            return wi, flip
+
+        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True):
+            wi, flip = self._to_front(si)
+            use_d = sample1 < self.p_diffuse
+            wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
+            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.alpha, True)
+            m, _ = distr.sample(wi, sample2)
+            wo_s = mi.reflect(wi, m)
+            wo = dr.select(use_d, wo_d, wo_s)
+            pdf = self._pdf(wi, wo, active)
+            ok = active & (pdf > 0) & (mi.Frame3f.cos_theta(wo) > 0)
+            f = self._f(si, wi, wo, ok)
+            value = f * mi.Frame3f.cos_theta(wo) / dr.select(ok, pdf, 1.0)
+            bs = dr.zeros(mi.BSDFSample3f)
+            bs.wo = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
+            bs.pdf = dr.select(ok, pdf, 0.0)
+            bs.eta = 1.0
+            bs.sampled_type = dr.select(use_d, mi.UInt32(+mi.BSDFFlags.DiffuseReflection),
+                                        mi.UInt32(+mi.BSDFFlags.GlossyReflection))
+            bs.sampled_component = dr.select(use_d, mi.UInt32(0), mi.UInt32(1))
+            return bs, dr.select(ok, value, 0.0)
+
+        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True):
+            wi, flip = self._to_front(si)
+            wo_l = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
+            f = self._f(si, wi, wo_l, active)
+            return dr.select(active, f * dr.fmax(mi.Frame3f.cos_theta(wo_l), 0.0), 0.0)
+
+        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True):
+            wi, flip = self._to_front(si)
+            wo_l = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
+            return self._pdf(wi, wo_l, active)
+
+        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True):
+            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
+
+        def traverse(self, callback: Any) -> None:
+            pass
+
+        def parameters_changed(self, keys: Any) -> None:
+            pass
+
+        def to_string(self) -> str:
+            return "NormboxBSDF[]"
+
+    mi.register_bsdf("normbox", lambda props: NormboxBSDF(props))
+    _CLASSES[variant] = NormboxBSDF
+    return NormboxBSDF
+
+
+def make_bsdf(material: Any) -> Any:
+    """A `NormboxBSDF` instance carrying `material` (current Mitsuba variant)."""
+    import mitsuba as mi
+
+    cls = bsdf_class()
+    bsdf = cls(mi.Properties("normbox"))
+    bsdf.set_material(material)
+    return bsdf

@@ -1,0 +1,222 @@
+"""The Normbox as a Mitsuba 3 scene: one builder for the virtual world and the prediction.
+
+Coordinates (metres; the config is in mm):
+- x: horizontal, along the sample's rotation axis (parallel to the open side);
+  y: depth, the open side at y = −L/2, the back wall at y = +L/2; z: up, floor z = 0,
+  ceiling (inner surface) z = L, with L = `box_inner_mm` (600 mm).
+- Ceiling aperture `aperture_x_mm` × `aperture_y_mm` (220 × 200) centred in the ceiling; its
+  four side faces are `ceiling_thickness_mm` (19 mm) high; the sphere's opal panel closes it at
+  z = L + ceiling thickness and emits downwards (25 sub-panels, one per point of the 5×5
+  homogeneity map).  The walls are modelled by their inner faces (painted grey); the 15 mm wall
+  thickness only fixes the outer rim of the open side, which no light inside the box reaches the
+  radiometer through, so it is not modelled.  Outside the box the lab is dark.
+- The sample holder (black) stands in the middle: a post from the floor and a plate of
+  `holder_size_mm` behind the patch.  The patch (`patch_size_mm` square) is centred at
+  (0, 0, `sample_height_mm`) and rotated about the x axis by the sample angle s: its normal is
+  n(s) = (0, −sin s, cos s), so s = 0° faces the ceiling (the light), s = 90° the radiometer.
+- The radiometer sits on the open side at (0, −`radiometer_distance_mm`, sample height) looking
+  along +y at the sample centre: a perspective sensor with a `radiometer_view_deg` (1°) square
+  field of view, 10 × 10 px, every pixel a full spectrum (`specfilm`), averaged.  At s the
+  radiometer sees the sample at 90° − s from its normal (paper: 60…0° for s = 30…90°).
+
+`SceneGeometry` has the defaults of `normbox_lab.config.GeometryConfig`; every function here
+accepts any object with those attribute names.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: a 5×5 map of the opal panel's relative radiance (rows: y from −, columns: x from −), the
+#: pattern of an integrating-sphere port: brightest near the centre, a slight gradient in x,
+#: scaled so that the extremes are exactly ±homogeneity (±3 %); its mean is 1 within 0.2 %.
+_MAP_PATTERN = np.array([[-1.00, -0.55, -0.30, -0.45, -0.85],
+                         [-0.50, 0.15, 0.45, 0.25, -0.35],
+                         [-0.25, 0.50, 1.00, 0.60, -0.10],
+                         [-0.55, 0.10, 0.40, 0.20, -0.40],
+                         [-0.95, -0.60, -0.25, -0.40, -0.80]])
+
+
+@dataclass(frozen=True)
+class SceneGeometry:
+    """Normbox geometry (mm, degrees); the same fields as `normbox_lab.config.GeometryConfig`."""
+
+    box_inner_mm: float = 600.0
+    wall_thickness_mm: float = 15.0
+    ceiling_thickness_mm: float = 19.0
+    aperture_x_mm: float = 220.0
+    aperture_y_mm: float = 200.0
+    patch_size_mm: float = 50.0
+    holder_size_mm: float = 80.0
+    sample_height_mm: float = 200.0
+    radiometer_distance_mm: float = 1000.0
+    radiometer_view_deg: float = 1.0
+    wall_lightness_L: float = 65.0
+    panel_homogeneity_percent: float = 3.0
+
+
+GEOMETRY_FIELDS = tuple(SceneGeometry.__dataclass_fields__)
+
+
+def as_geometry(obj: Any = None) -> SceneGeometry:
+    """A `SceneGeometry` from any object with (some of) its attribute names; None: defaults."""
+    if obj is None:
+        return SceneGeometry()
+    if isinstance(obj, SceneGeometry):
+        return obj
+    geo = getattr(obj, "geometry", None)       # a LabConfig
+    if geo is not None and not isinstance(obj, (int, float)):
+        obj = geo
+    base = SceneGeometry()
+    return SceneGeometry(**{f: float(getattr(obj, f, getattr(base, f))) for f in GEOMETRY_FIELDS})
+
+
+def panel_map(homogeneity_percent: float = 3.0) -> np.ndarray:
+    """(5, 5) relative radiance of the opal panel (1 ± homogeneity)."""
+    return 1.0 + homogeneity_percent / 100.0 * _MAP_PATTERN
+
+
+def panel_map_at(x_mm: float, y_mm: float, geometry: Any = None) -> float:
+    """Relative panel radiance at a point of the panel (mm from its centre), bilinear between the
+    25 cell centres (constant beyond the outer centres)."""
+    g = as_geometry(geometry)
+    m = panel_map(g.panel_homogeneity_percent)
+    cx = (np.arange(5) + 0.5) / 5 * g.aperture_x_mm - g.aperture_x_mm / 2
+    cy = (np.arange(5) + 0.5) / 5 * g.aperture_y_mm - g.aperture_y_mm / 2
+    row = np.array([np.interp(x_mm, cx, m[j]) for j in range(5)])
+    return float(np.interp(y_mm, cy, row))
+
+
+def sample_normal(angle_deg: float) -> np.ndarray:
+    s = math.radians(angle_deg)
+    return np.array([0.0, -math.sin(s), math.cos(s)])
+
+
+def radiometer_position_m(geometry: Any = None) -> np.ndarray:
+    g = as_geometry(geometry)
+    return np.array([0.0, -g.radiometer_distance_mm, g.sample_height_mm]) / 1000.0
+
+
+def sample_centre_m(geometry: Any = None) -> np.ndarray:
+    g = as_geometry(geometry)
+    return np.array([0.0, 0.0, g.sample_height_mm / 1000.0])
+
+
+def panel_cells_m(geometry: Any = None) -> list[tuple[np.ndarray, float, float, float]]:
+    """The 25 sub-panels: (centre (3,), half-size x, half-size y, relative radiance)."""
+    g = as_geometry(geometry)
+    m = panel_map(g.panel_homogeneity_percent)
+    ax, ay = g.aperture_x_mm / 1000.0, g.aperture_y_mm / 1000.0
+    z = (g.box_inner_mm + g.ceiling_thickness_mm) / 1000.0
+    cells = []
+    for j in range(5):
+        for i in range(5):
+            cx = (i + 0.5) / 5 * ax - ax / 2
+            cy = (j + 0.5) / 5 * ay - ay / 2
+            cells.append((np.array([cx, cy, z]), ax / 10, ay / 10, float(m[j, i])))
+    return cells
+
+
+# --- Mitsuba scene description --------------------------------------------------------------------
+def _rect(T: Any, centre: Any, rot: list[tuple[tuple[float, float, float], float]],
+          half: tuple[float, float], bsdf: Any) -> dict[str, Any]:
+    tr = T().translate(list(map(float, centre)))
+    for axis, angle in rot:
+        tr = tr @ T().rotate(list(axis), angle)
+    tr = tr @ T().scale([half[0], half[1], 1.0])
+    return {"type": "rectangle", "to_world": tr, "bsdf": bsdf}
+
+
+def _box(T: Any, centre: Any, angle_deg: float, half: tuple[float, float, float],
+         bsdf: Any) -> dict[str, Any]:
+    tr = T().translate(list(map(float, centre))) @ T().rotate([1, 0, 0], angle_deg) \
+        @ T().scale(list(half))
+    return {"type": "cube", "to_world": tr, "bsdf": bsdf}
+
+
+def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: Any,
+               holder_bsdf: Any, lamp_values: np.ndarray, lamp_grid_nm: np.ndarray,
+               film: dict[str, Any], max_depth: int = 12) -> dict[str, Any]:
+    """The Mitsuba scene (a `mi.load_dict` dictionary) for one sample angle.
+
+    The BSDFs are Mitsuba objects (or plugin dicts); `lamp_values` (W·sr⁻¹·m⁻²·nm⁻¹ on
+    `lamp_grid_nm`, evenly spaced) is the panel's mean spectral radiance; each of the 25
+    sub-panels gets it times its map factor.  `film` is the sensor's film dict."""
+    import mitsuba as mi
+
+    T = mi.ScalarTransform4f
+    g = as_geometry(geometry)
+    a = g.box_inner_mm / 2000.0
+    top = g.box_inner_mm / 1000.0
+    hx, hy = g.aperture_x_mm / 2000.0, g.aperture_y_mm / 2000.0
+    tc = g.ceiling_thickness_mm / 1000.0
+    d: dict[str, Any] = {"type": "scene",
+                         "integrator": {"type": "path", "max_depth": int(max_depth),
+                                        "rr_depth": 6, "hide_emitters": False}}
+    # walls (inner faces), normals into the box
+    d["floor"] = _rect(T, [0, 0, 0], [], (a, a), wall_bsdf)
+    d["back"] = _rect(T, [0, a, a], [((1, 0, 0), 90)], (a, a), wall_bsdf)
+    d["left"] = _rect(T, [-a, 0, a], [((0, 1, 0), 90)], (a, a), wall_bsdf)
+    d["right"] = _rect(T, [a, 0, a], [((0, 1, 0), -90)], (a, a), wall_bsdf)
+    # ceiling with the aperture: four strips facing down
+    down = [((1, 0, 0), 180)]
+    d["ceil_front"] = _rect(T, [0, -(a + hy) / 2, top], down, (a, (a - hy) / 2), wall_bsdf)
+    d["ceil_back"] = _rect(T, [0, (a + hy) / 2, top], down, (a, (a - hy) / 2), wall_bsdf)
+    d["ceil_left"] = _rect(T, [-(a + hx) / 2, 0, top], down, ((a - hx) / 2, hy), wall_bsdf)
+    d["ceil_right"] = _rect(T, [(a + hx) / 2, 0, top], down, ((a - hx) / 2, hy), wall_bsdf)
+    # the aperture's side faces (ceiling panel edges), facing into the opening
+    zc = top + tc / 2
+    d["ap_left"] = _rect(T, [-hx, 0, zc], [((0, 1, 0), 90)], (tc / 2, hy), wall_bsdf)
+    d["ap_right"] = _rect(T, [hx, 0, zc], [((0, 1, 0), -90)], (tc / 2, hy), wall_bsdf)
+    d["ap_front"] = _rect(T, [0, -hy, zc], [((1, 0, 0), -90)], (hx, tc / 2), wall_bsdf)
+    d["ap_back"] = _rect(T, [0, hy, zc], [((1, 0, 0), 90)], (hx, tc / 2), wall_bsdf)
+    # the opal panel: 25 emitting cells facing down
+    black = {"type": "diffuse", "reflectance": {"type": "uniform", "value": 0.0}}
+    wmin, wmax = float(lamp_grid_nm[0]), float(lamp_grid_nm[-1])
+    for k, (centre, ex, ey, factor) in enumerate(panel_cells_m(g)):
+        vals = ", ".join(f"{v:.9g}" for v in np.asarray(lamp_values) * factor)
+        cell = _rect(T, centre, down, (ex, ey), black)
+        cell["emitter"] = {"type": "area",
+                           "radiance": {"type": "regular", "wavelength_min": wmin,
+                                        "wavelength_max": wmax, "values": vals}}
+        d[f"panel_{k:02d}"] = cell
+    # holder and patch, rotated about x through the sample centre
+    h = g.sample_height_mm / 1000.0
+    c = sample_centre_m(g)
+    n = sample_normal(angle_deg)
+    ps = g.patch_size_mm / 2000.0
+    hs = g.holder_size_mm / 2000.0
+    plate_t = 0.005
+    d["patch"] = _rect(T, c, [((1, 0, 0), angle_deg)], (ps, ps), patch_bsdf)
+    d["holder_plate"] = _box(T, c - n * (plate_t + 0.0005), angle_deg, (hs, hs, plate_t),
+                             holder_bsdf)
+    post_top = max(h - hs - 0.01, 0.02)
+    d["holder_post"] = _box(T, [0, 0, post_top / 2], 0.0, (0.015, 0.015, post_top / 2),
+                            holder_bsdf)
+    # the radiometer
+    origin = radiometer_position_m(g)
+    d["sensor"] = {"type": "perspective", "fov": float(g.radiometer_view_deg), "fov_axis": "x",
+                   "near_clip": 0.01, "far_clip": 10.0,
+                   "to_world": T().look_at(origin=list(map(float, origin)),
+                                           target=list(map(float, c)), up=[0, 0, 1]),
+                   "sampler": {"type": "independent"},
+                   "film": film}
+    return d
+
+
+def band_film(band_centres_nm: np.ndarray, band_width_nm: float, pixels: int = 10) -> dict:
+    """A `specfilm` with one triangular band (unit height, half-width = band_width) per centre;
+    the bands sum to 1 between the first and last centre, so wavelengths are sampled uniformly
+    and channel j estimates ∫ hat_j(λ) L(λ) dλ ≈ band_width · L(λ_j)."""
+    film: dict[str, Any] = {"type": "specfilm", "width": pixels, "height": pixels,
+                            "component_format": "float32", "rfilter": {"type": "box"}}
+    w = float(band_width_nm)
+    for k, lam in enumerate(band_centres_nm):
+        film[f"b{k:04d}"] = {"type": "spectrum",
+                             "value": [(float(lam - w), 0.0), (float(lam), 1.0),
+                                       (float(lam + w), 0.0)]}
+    return film
