@@ -1,0 +1,374 @@
+"""Konica Minolta CS-1000 / CS-1000A spectroradiometer over RS-232C (pyserial).
+
+Facts from /work/shared/reference/cs1000-cs2000-protocol.md §2, §3.1, §4.1, §6.  No official
+CS-1000 communication document is public: the command set below is what three independent
+drivers agree on; what is *assumed* is said so (docs/radiometers.md has the full table).
+
+Line: 8N1, no flow control, 4800/9600/19200 baud (must match the instrument), LF after each
+command, replies read up to LF (a CR before it is dropped).
+
+    RMT,1 / RMT,0        → OK                      remote mode on / off
+    MES,1                → OK,<t>   (after the pre-measurement, ≤ ~10 s; t = integration s)
+                         → OK       (≈ 2·t later, end of the measurement)
+    MES,0                → OK                      cancel
+    MMS,<m>,<t>          → OK                      time mode (0 auto, 1 multi t %.2f, 2 auto
+                                                   long, 3 manual t %.3f in 0.04–60 s)
+    SPS,<0|1> / SPR      → OK / OK,<s>             speed normal / fast
+    STR                  → OK,<time mode>,<speed>,<manual time>   (layout assumed)
+    BDR,<k>,<o>,<f>      → OK                      select data (k 0 spectral / 1 colorimetric,
+                                                   o 0 = 2° / 1 = 10°, f 0 ASCII / 1 binary)
+    &                    → next block: colorimetry 1 line of 11 values (Le, Lv, X, Y, Z, x, y,
+                           u′, v′, T, Δuv); spectrum 15 lines of ≤ 28 values (401, 380–780 nm);
+                           binary spectrum (unconfirmed): 7 blocks of little-endian float32,
+                           6 × 60 + 41, no terminator
+    ERnn                 → `DeviceError` (codes as the CS-2000's; *unconfirmed* for this model)
+
+While measuring the instrument refuses everything but MES,0.  Replies that are neither ``OK…``
+nor ``ERnn`` raise `ProtocolError` with the raw bytes.
+
+Timing model for ETAs (assumed, identical to the emulator's; docs/radiometers.md):
+pre-measurement clamp(1 + 2·log10(100/Lv), 1, 10) s; integration t = clamp(K/Lv, 0.05, 60) s
+(K = 100 normal, 25 fast; or the manual/multi time); main phase 2·t; plus the data transfer
+at 10 bits per byte.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+import numpy as np
+from serial import SerialException
+
+from normbox_lab.clock import Clock
+from normbox_lab.drivers.radiometer_common import (
+    LinkLost, SerialRadiometer, check_spectrum, colorimetry_from)
+from normbox_lab.errors import (ConfigError, DeviceError, InstrumentError, InstrumentTimeout,
+                                ProtocolError)
+from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+
+BAUD_RATES = (4800, 9600, 19200)
+SPEEDS = {"normal": 0, "fast": 1}
+TIME_MODES = {"auto": 0, "multi": 1, "auto-long": 2, "manual": 3}
+SPECTRAL_LINES = 15
+SPECTRAL_LINE_VALUES = 28
+BINARY_BLOCKS = (60, 60, 60, 60, 60, 60, 41)
+FIRST_REPLY_TIMEOUT_S = 15.0        # pre-measurement is "about 1–10 s"
+
+#: error codes (CS-2000 2008 texts; a VB CS-1000A driver uses the same list — unconfirmed)
+ERRORS = {
+    "ER00": "invalid command or parameters, not in remote mode, or command refused",
+    "ER02": "measurement in progress (busy)",
+    "ER05": "no compensation values",
+    "ER10": "over measurement range",
+    "ER17": "parameter out of range",
+    "ER20": "no measurement data",
+    "ER30": "memory error",
+    "ER51": "CCD Peltier abnormality",
+    "ER52": "temperature count abnormality",
+    "ER71": "outside synchronisation range",
+    "ER81": "shutter malfunction",
+    "ER82": "internal ND filter malfunction",
+    "ER83": "measurement angle abnormality",
+    "ER99": "program abnormality",
+}
+
+
+def integration_time_s(luminance_cd_m2: float, speed: str = "normal", time_mode: str = "auto",
+                       time_s: float = 1.0) -> float:
+    if time_mode in ("multi", "manual"):
+        return float(time_s)
+    k = 25.0 if speed == "fast" else 100.0
+    return min(60.0, max(0.05, k / max(float(luminance_cd_m2), 1e-6)))
+
+
+def pre_measurement_s(luminance_cd_m2: float) -> float:
+    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
+
+
+class CS1000A(SerialRadiometer):
+    model = "CS-1000A"
+
+    def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
+                 baud: int = 9600, data_format: str = "ascii", observer_deg: int = 2,
+                 **options: Any) -> None:
+        super().__init__(port, clock, instrument_id=instrument_id, **options)
+        if data_format not in ("ascii", "binary"):
+            raise ConfigError("<driver options>", 0, "data_format", "must be ascii or binary")
+        if int(observer_deg) not in (2, 10):
+            raise ConfigError("<driver options>", 0, "observer_deg", "must be 2 or 10")
+        self.baud = int(baud)
+        self.data_format = data_format
+        self.observer_deg = int(observer_deg)
+        self.speed = "normal"
+        self.time_mode = "auto"
+        self.time_s = 1.0
+
+    @classmethod
+    def open(cls, url: str, clock: Clock, *, baud: int = 9600, instrument_id: str = "radiometer",
+             **options: Any) -> "CS1000A":
+        from normbox_lab.sim.transport import open_port
+
+        if int(baud) not in BAUD_RATES:
+            raise ConfigError("<driver options>", 0, "baud",
+                              f"CS-1000A baud must be one of {BAUD_RATES}, not {baud}")
+        try:
+            port = open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
+                             rtscts=False, timeout=1.0)
+        except (SerialException, OSError, ValueError) as exc:
+            raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
+        return cls(port, clock, instrument_id=instrument_id, baud=int(baud), **options)
+
+    # --- replies --------------------------------------------------------------------------------
+    def parse_reply(self, raw: bytes) -> list[str]:
+        """``OK[,f1,…]`` → [f1, …]; ``ERnn`` → `DeviceError`; anything else → `ProtocolError`."""
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise self._protocol("reply is not ASCII", raw) from None
+        head, *fields = text.split(",")
+        if head == "OK":
+            return fields
+        if len(head) == 4 and head.startswith("ER") and head[2:].isdigit() and not fields:
+            raise DeviceError(head, ERRORS.get(head, "unknown error code"),
+                              instrument=self.instrument_id)
+        raise self._protocol("unexpected reply", raw)
+
+    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
+        """Send `cmd`, return the fields after ``OK``; bounded retries of transport faults and
+        of ER02 (busy).  An ER00 to a command other than RMT re-enters remote mode once (the
+        instrument drops to local mode after a power blip) and repeats the command."""
+        def once() -> list[str]:
+            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
+
+        try:
+            return self.with_retries(once, retry_device=("ER02",))
+        except DeviceError as exc:
+            if exc.code != "ER00" or cmd.startswith("RMT,"):
+                raise
+            self._enter_remote()
+            return self.with_retries(once, retry_device=("ER02",))
+
+    def _expect_ok(self, cmd: str, fields: list[str], raw_hint: str = "") -> None:
+        if fields:
+            raise self._protocol(f"{cmd}: unexpected fields after OK", ",".join(
+                ["OK", *fields]).encode())
+
+    # --- the Spectroradiometer role ---------------------------------------------------------------
+    def identify(self) -> InstrumentIdentity:
+        url = str(getattr(self.port, "port", "") or getattr(self.port, "portstr", "") or "")
+        return InstrumentIdentity("spectroradiometer", self.model, serial_number="",
+                                  firmware="", simulated=url.startswith("sim://"),
+                                  extra={"port": url, "baud": str(self.baud),
+                                         "note": "the CS-1000A has no identification command"})
+
+    def _enter_remote(self) -> None:
+        self.parse_reply(self.exchange(b"RMT,1"))
+        self.remote = True
+
+    def set_remote(self, on: bool) -> None:
+        self._expect_ok("RMT", self.command("RMT,1" if on else "RMT,0"))
+        self.remote = bool(on)
+
+    def set_speed(self, mode: str) -> None:
+        """"normal" or "fast" (SPS)."""
+        if mode not in SPEEDS:
+            raise ConfigError("<driver call>", 0, "speed", f"must be one of {', '.join(SPEEDS)}")
+        self._ensure_remote()
+        self._expect_ok("SPS", self.command(f"SPS,{SPEEDS[mode]}"))
+        self.speed = mode
+
+    def read_speed(self) -> str:
+        self._ensure_remote()
+        fields = self.command("SPR")
+        if fields not in (["0"], ["1"]):
+            raise self._protocol("SPR: expected OK,0 or OK,1", ",".join(["OK", *fields]).encode())
+        return "fast" if fields == ["1"] else "normal"
+
+    def set_time_mode(self, mode: str, time_s: float | None = None) -> None:
+        """MMS: "auto", "auto-long", "multi" (time_s, %.2f) or "manual" (0.04–60 s, %.3f)."""
+        if mode not in TIME_MODES:
+            raise ConfigError("<driver call>", 0, "time_mode",
+                              f"must be one of {', '.join(TIME_MODES)}")
+        if mode == "manual" and (time_s is None or not 0.04 <= time_s <= 60.0):
+            raise ConfigError("<driver call>", 0, "time_s", "manual time must be 0.04–60 s")
+        if mode == "multi" and (time_s is None or not 1.0 <= time_s <= 60.0):
+            raise ConfigError("<driver call>", 0, "time_s", "multi time must be 1–60 s")
+        arg = {"auto": "", "auto-long": "", "multi": f"{time_s:.2f}",
+               "manual": f"{time_s:.3f}"}[mode]
+        self._ensure_remote()
+        self._expect_ok("MMS", self.command(f"MMS,{TIME_MODES[mode]},{arg}"))
+        self.time_mode = mode
+        if time_s is not None:
+            self.time_s = float(time_s)
+
+    def status(self) -> dict[str, object]:
+        self._ensure_remote()
+        fields = self.command("STR")
+        raw = ",".join(["OK", *fields]).encode()
+        if len(fields) < 3:
+            raise self._protocol("STR: expected OK,<time mode>,<speed>,<time>", raw)
+        modes = {str(v): k for k, v in TIME_MODES.items()}
+        speeds = {str(v): k for k, v in SPEEDS.items()}
+        if fields[0] not in modes or fields[1] not in speeds:
+            raise self._protocol("STR: unknown time mode or speed", raw)
+        return {"model": self.model, "remote": self.remote, "time_mode": modes[fields[0]],
+                "speed": speeds[fields[1]], "time_s": self.parse_number(fields[2], raw),
+                "raw": fields}
+
+    def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
+        """Pre-measurement + 2·t + command and data transfer time at this baud rate."""
+        t = integration_time_s(luminance_cd_m2, self.speed, self.time_mode, self.time_s)
+        # bytes on the line: MES,1 + 2 replies, BDR + colorimetry, BDR + 15 spectral lines
+        n_bytes = 6 + 12 + 3 + 10 + 3 + 2 + 90 + 10 + 3 + SPECTRAL_LINES * 2 + 401 * 10 + 2 * 15
+        exchanges = 2 + 2 + 1 + SPECTRAL_LINES
+        return pre_measurement_s(luminance_cd_m2) + 2 * t + n_bytes * 10.0 / self.baud \
+            + exchanges * 0.02
+
+    def abort(self) -> None:
+        """Cancel a running measurement (from any thread); idle → MES,0 anyway (harmless)."""
+        if self.request_abort():
+            return
+        with self._lock:
+            try:
+                self.command("MES,0")
+            except DeviceError:
+                pass
+
+    def close(self) -> None:
+        try:
+            if self.remote:
+                self.set_remote(False)
+        except InstrumentError:
+            pass
+        finally:
+            try:
+                self.port.close()
+            except (SerialException, OSError):
+                pass
+
+    def recover(self) -> None:
+        """Engine hook after a fault: flush, cancel whatever runs, re-enter remote mode."""
+        with self._lock:
+            self._cancel_quietly()
+            self.remote = False
+            self.set_remote(True)
+
+    def _ensure_remote(self) -> None:
+        if not self.remote:
+            self.set_remote(True)
+
+    def _cancel_quietly(self) -> None:
+        try:
+            self._resync()
+            self.exchange(b"MES,0", timeout_s=3.0)
+        except (InstrumentError, SerialException, OSError):
+            pass
+        self._resync()
+
+    # --- measuring ---------------------------------------------------------------------------------
+    def measure(self) -> SpectralReading:
+        """MES,1 → OK,<t> → OK, then colorimetry and spectrum.  Transport faults are retried
+        (whole measurement, bounded); a device error, an abort or a persistent fault raises."""
+        with self._lock:
+            self._measuring = True
+            self._abort.clear()
+            try:
+                self._ensure_remote()
+                t_s = self.with_retries(self._run_measurement, retry_device=("ER02",))
+                colour_block = self._transfer(self._read_colorimetry)
+                spectrum = self._transfer(self._read_spectrum)
+            finally:
+                self._measuring = False
+        c = colorimetry_from(colour_block)
+        return SpectralReading(RADIOMETER_WAVELENGTHS_NM.copy(), spectrum, c, t_s,
+                               self.clock.wall_time_s(), self.instrument_id,
+                               {"model": self.model, "speed": self.speed,
+                                "time_mode": self.time_mode, "observer_deg": self.observer_deg,
+                                "data_format": self.data_format})
+
+    def _run_measurement(self) -> float:
+        try:
+            self._write(b"MES,1")
+            first = self._read_line(FIRST_REPLY_TIMEOUT_S)
+            assert first is not None
+            fields = self.parse_reply(first)
+            if len(fields) != 1:
+                raise self._protocol("MES,1: expected OK,<t>", first)
+            t_s = self.parse_number(fields[0], first)
+            if not 0 < t_s <= 600:
+                raise self._protocol("MES,1: integration time out of range", first)
+            wait_s = 2 * t_s * 1.2 + 10.0
+            final = self._read_line(wait_s, watch_abort=True)
+            if final is None:                            # abort() from another thread
+                self._cancel_quietly()
+                raise self._aborted()
+            if self.parse_reply(final):
+                raise self._protocol("MES,1: expected a bare OK at the end", final)
+            return t_s
+        except (InstrumentTimeout, ProtocolError):
+            self._cancel_quietly()       # the instrument may still be measuring
+            raise
+        except DeviceError as exc:
+            if exc.code == "ER00":       # dropped to local mode: enter remote, then retry
+                self._enter_remote()
+                raise self._timeout("instrument was in local mode; remote mode re-entered") \
+                    from exc
+            raise
+
+    def _transfer(self, read: Any) -> Any:
+        """A data transfer (BDR + & blocks) as one unit, retried whole: `&` is not idempotent."""
+        return self.with_retries(read, retry_device=("ER02",))
+
+    def _select(self, kind: int, binary: bool) -> None:
+        obs = 1 if self.observer_deg == 10 else 0
+        fields = self.parse_reply(self.exchange(f"BDR,{kind},{obs},{int(binary)}".encode()))
+        if fields and kind == 0 and binary:
+            pass  # extra "info" fields after OK are seen in one driver; ignored
+        self._bdr_info = fields
+
+    def _data_line(self, expected: int | tuple[int, int]) -> tuple[list[float], bytes]:
+        raw = self.exchange(b"&")
+        if raw.startswith(b"ER"):
+            self.parse_reply(raw)          # raises DeviceError or ProtocolError
+        try:
+            parts = raw.decode("ascii").split(",")
+        except UnicodeDecodeError:
+            raise self._protocol("data block is not ASCII", raw) from None
+        lo, hi = (expected, expected) if isinstance(expected, int) else expected
+        if not lo <= len(parts) <= hi:
+            raise self._protocol(f"data block has {len(parts)} values, expected {expected}", raw)
+        return [self.parse_number(p, raw) for p in parts], raw
+
+    def _read_colorimetry(self) -> list[float]:
+        self._select(1, False)
+        values, _ = self._data_line(11)
+        return values
+
+    def _read_spectrum(self) -> np.ndarray:
+        if self.data_format == "binary":
+            self._select(0, True)
+            values: list[float] = []
+            raw_all = b""
+            for n in BINARY_BLOCKS:
+                self._write(b"&")
+                raw = self._read_exact(4 * n, self.command_timeout_s)
+                raw_all += raw
+                values += struct.unpack(f"<{n}f", raw)
+            return check_spectrum(values, raw_all, self.instrument_id)
+        self._select(0, False)
+        values = []
+        raws = b""
+        for i in range(SPECTRAL_LINES):
+            n = SPECTRAL_LINE_VALUES if i < SPECTRAL_LINES - 1 else 401 - 14 * 28
+            block, raw = self._data_line(n)
+            values += block
+            raws += raw + b"\n"
+        return check_spectrum(values, raws, self.instrument_id)
+
+
+CS1000 = CS1000A
+__all__ = ["CS1000A", "CS1000", "ERRORS", "BAUD_RATES", "integration_time_s",
+           "pre_measurement_s"]

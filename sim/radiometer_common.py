@@ -1,0 +1,179 @@
+"""What the CS-1000A and CS-2000A emulators share: the light they see, the instrument's
+imperfections, colorimetry, and the timing model.
+
+Light in view (first that applies):
+  1. a ``scene`` callable → ``(wavelength_nm, radiance_W_sr_m2_nm)``;
+  2. ``world.radiance_in_view()`` when a world is given;
+  3. `default_spectrum()`: a Planckian 2856 K (CIE illuminant A's temperature) scaled to
+     ``DEFAULT_LUMINANCE_CD_M2`` = 100 cd/m².
+The spectrum is resampled (linear, zero outside its range) to 380–780 nm at 1 nm.
+
+Instrument behaviour (``noise="on"``, the default; seeded, one draw per measurement):
+  - wavelength-scale error: the instrument reports L(λ + δ) at λ, δ ~ U(−0.3, +0.3) nm;
+  - radiometric error: one gain g ~ U(0.98, 1.02) on the whole spectrum (±2 %).
+``noise="off"`` disables both (δ = 0, g = 1): the reported spectrum is the scene's.
+
+Colorimetry: CIE 1931 2° colour-matching functions from colour-science (``MSDS_CMFS``),
+integrated explicitly at 1 nm: X = 683·Σ L·x̄·Δλ (so Y = Lv in cd/m²), Le = Σ L·Δλ,
+x, y, u′, v′ from XYZ, T and Δuv from colour's Ohno (2013) method on CIE 1960 uv.
+
+Timing model (an assumption written for this lab — Konica Minolta publishes no
+luminance-vs-time table; see docs/radiometers.md):
+  pre-measurement  t_pre = clamp(1 + 2·log10(100 / Lv), 1, 10) s        (auto-exposure)
+  CS-1000A         integration t = clamp(K / Lv, 0.05, 60) s with K = 100 cd·s/m² (normal),
+                   25 (fast), or the manual time (MMS,3); main phase = 2·t (light + dark)
+  CS-2000A         ttt = clamp(ceil(K / Lv), 2, 242) s with K = 200 (Normal) / 50 (Fast);
+                   Multi-Integ: clamp(2·tt, 2, 242); Manual: clamp(ceil(2·t) + 1, 2, 242)
+  serial transfer  10 bits per byte at the line's baud rate
+`time_factor` (URL option, or the environment variable ``NORMBOX_LAB_SIM_TIME_FACTOR``)
+multiplies every duration, e.g. 0.01 for a pty demo on the real clock.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from typing import Any, Callable
+
+import numpy as np
+
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
+
+KM_LM_W = 683.0
+DEFAULT_CCT_K = 2856.0
+DEFAULT_LUMINANCE_CD_M2 = 100.0
+WAVELENGTH_ERROR_NM = 0.3
+RADIOMETRIC_ERROR = 0.02
+
+Scene = Callable[[], tuple[np.ndarray, np.ndarray]]
+
+_CMFS: dict[int, np.ndarray] = {}
+_OBSERVERS = {2: "CIE 1931 2 Degree Standard Observer", 10: "CIE 1964 10 Degree Standard Observer"}
+
+
+def cmfs(observer_deg: int = 2) -> np.ndarray:
+    """(401, 3) x̄ ȳ z̄ at 380–780 nm, 1 nm, from colour-science's MSDS_CMFS (lazy import)."""
+    if observer_deg not in _CMFS:
+        import colour
+
+        c = colour.MSDS_CMFS[_OBSERVERS[observer_deg]]
+        wl = np.asarray(c.wavelengths, dtype=float)
+        vals = np.asarray(c.values, dtype=float)
+        _CMFS[observer_deg] = np.stack([np.interp(RADIOMETER_WAVELENGTHS_NM, wl, vals[:, i])
+                                        for i in range(3)], axis=1)
+    return _CMFS[observer_deg]
+
+
+def planck_W_sr_m2_nm(wavelength_nm: np.ndarray, temperature_K: float) -> np.ndarray:
+    h, c, k = 6.62607015e-34, 2.99792458e8, 1.380649e-23
+    wl_m = np.asarray(wavelength_nm, dtype=float) * 1e-9
+    return 2 * h * c**2 / wl_m**5 / np.expm1(h * c / (wl_m * k * temperature_K)) * 1e-9
+
+
+def default_spectrum() -> tuple[np.ndarray, np.ndarray]:
+    """Planckian 2856 K scaled to 100 cd/m² (CIE 1931 2°, 683 lm/W)."""
+    wl = RADIOMETER_WAVELENGTHS_NM.copy()
+    spd = planck_W_sr_m2_nm(wl, DEFAULT_CCT_K)
+    lv = KM_LM_W * float(np.sum(spd * cmfs(2)[:, 1]))
+    return wl, spd * (DEFAULT_LUMINANCE_CD_M2 / lv)
+
+
+def colorimetry(radiance_W_sr_m2_nm: np.ndarray, observer_deg: int = 2) -> dict[str, float]:
+    """The 11-value block (Le, Lv, X, Y, Z, x, y, u′, v′, T, Δuv) of a 380–780 nm spectrum.
+
+    With the 10° observer X, Y, Z and what follows from them are the 10° values; Lv stays
+    the (2°) luminance, as on the instruments' 10° blocks.
+    """
+    L = np.asarray(radiance_W_sr_m2_nm, dtype=float)
+    X, Y, Z = (KM_LM_W * (L[:, None] * cmfs(observer_deg)).sum(axis=0)).tolist()
+    lv = KM_LM_W * float((L * cmfs(2)[:, 1]).sum())
+    le = float(L.sum())
+    s = X + Y + Z
+    d = X + 15 * Y + 3 * Z
+    if s <= 0 or d <= 0:
+        return {"Le": le, "Lv": lv, "X": X, "Y": Y, "Z": Z, "x": math.nan, "y": math.nan,
+                "u_prime": math.nan, "v_prime": math.nan, "T": math.nan, "duv": math.nan}
+    x, y = X / s, Y / s
+    up, vp = 4 * X / d, 9 * Y / d
+    try:
+        import colour
+
+        T, duv = (float(v) for v in colour.temperature.uv_to_CCT_Ohno2013(
+            np.array([up, vp * 2.0 / 3.0])))
+    except (ValueError, ArithmeticError):
+        T, duv = math.nan, math.nan
+    if not (1000.0 <= T <= 99999.0 and abs(duv) <= 0.1):
+        T, duv = math.nan, math.nan       # outside what the instrument reports
+    return {"Le": le, "Lv": lv, "X": X, "Y": Y, "Z": Z, "x": x, "y": y, "u_prime": up,
+            "v_prime": vp, "T": T, "duv": duv}
+
+
+def resample(wavelength_nm: np.ndarray, radiance: np.ndarray, shift_nm: float = 0.0) -> np.ndarray:
+    """Radiance at RADIOMETER_WAVELENGTHS_NM + shift_nm (linear, 0 outside the data)."""
+    wl = np.asarray(wavelength_nm, dtype=float)
+    L = np.asarray(radiance, dtype=float)
+    if wl.shape != L.shape or wl.ndim != 1 or wl.size < 2:
+        raise ValueError("scene must return two 1-D arrays of the same length")
+    return np.interp(RADIOMETER_WAVELENGTHS_NM + shift_nm, wl, L, left=0.0, right=0.0)
+
+
+def env_time_factor(default: float = 1.0) -> float:
+    value = os.environ.get("NORMBOX_LAB_SIM_TIME_FACTOR")
+    return float(value) if value else default
+
+
+def pre_measurement_s(luminance_cd_m2: float) -> float:
+    lv = max(float(luminance_cd_m2), 1e-6)
+    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / lv)))
+
+
+class RadiometerOptics:
+    """The light path of an emulated radiometer: scene → instrument-affected spectrum."""
+
+    def __init__(self, *, scene: Scene | None = None, world: Any = None, noise: str | bool = "on",
+                 seed: int = 0) -> None:
+        self.scene = scene
+        self.world = world
+        self.noise = _on_off(noise)
+        self.rng = np.random.default_rng(seed)
+
+    def light(self) -> tuple[np.ndarray, np.ndarray]:
+        """(wavelength_nm, radiance) in view now: scene, else world, else the default."""
+        if self.scene is not None:
+            return self.scene()
+        if self.world is not None and hasattr(self.world, "radiance_in_view"):
+            return self.world.radiance_in_view()
+        return default_spectrum()
+
+    def observe(self) -> tuple[np.ndarray, dict[str, float]]:
+        """One measurement: (reported spectrum, its 2° colorimetry) with the instrument's
+        errors.  Call `colorimetry(spectrum, 10)` for the 10° block."""
+        wl, L = self.light()
+        if self.noise:
+            shift = float(self.rng.uniform(-WAVELENGTH_ERROR_NM, WAVELENGTH_ERROR_NM))
+            gain = float(self.rng.uniform(1 - RADIOMETRIC_ERROR, 1 + RADIOMETRIC_ERROR))
+        else:
+            shift, gain = 0.0, 1.0
+        spectrum = np.maximum(resample(wl, L, shift) * gain, 0.0)
+        return spectrum, colorimetry(spectrum)
+
+
+def _on_off(value: str | bool) -> bool:
+    if isinstance(value, bool):
+        return value
+    v = str(value).strip().lower()
+    if v in ("on", "1", "true", "yes"):
+        return True
+    if v in ("off", "0", "false", "no"):
+        return False
+    raise ValueError(f"noise must be on or off, not {value!r}")
+
+
+def fmt_e(value: float) -> str:
+    """``#.####e±#`` (CS-2000 spectral/XYZ shape); tiny values print ``0.0000e-9``."""
+    if not math.isfinite(value):
+        return "-9.9999e9"
+    if abs(value) < 1e-9:
+        return "0.0000e-9"
+    mant, exp = f"{value:.4e}".split("e")
+    return f"{mant}e{int(exp)}"
