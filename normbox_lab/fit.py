@@ -7,7 +7,9 @@ paper used 1…4 and 6).  NaN samples and blocked geometries are left out.
 
 Separable solve (variable projection):
 - outer: (α, η, c) by `scipy.optimize.least_squares` (trf, box bounds, a few starts in α), on
-  the *projected* residuals, i.e. residuals evaluated at the optimal (kd, ks) for those (α, η, c);
+  the *projected* residuals, i.e. residuals evaluated at the optimal (kd, ks) for those (α, η, c),
+  with Kaufman's variable-projection Jacobian (`FitProblem.projected_jacobian`; one inner solve
+  per iteration instead of four for finite differences, ~4x faster);
 - inner: for fixed (α, η, c) the model f = kd·(1/π) + ks·S_g(α, η) − c is linear in (kd, ks)
   per wavelength, but the log cost is not.  Per wavelength we (1) solve the first-order
   linearisation ln(1+μf) − ln(1+μy) ≈ μ(f − y)/(1 + μy) as a weighted 2-variable NNLS, which is
@@ -220,13 +222,48 @@ class FitProblem:
         kd, ks = self._solved(p)
         return self.residuals(kd, ks, *(float(v) for v in p))[self.valid]
 
+    def projected_jacobian(self, p: Sequence[float]) -> np.ndarray:
+        """Kaufman's variable-projection Jacobian: P⊥·∂r/∂(α, η, c) at the inner optimum.
+
+        Per wavelength, the columns for (α, η, c) are projected onto the orthogonal complement
+        of the inner Jacobian's free columns (kd, ks not at their bound 0).  This makes c, which
+        kd can absorb, correctly flat; Jᵀr is the exact gradient of the projected cost (the
+        inner problem is at its optimum); only the Gauss-Newton curvature is approximated.
+        ∂S/∂α, ∂S/∂η by central differences on the 153-value specular basis (cheap).
+        """
+        alpha, eta, c = (float(v) for v in p)
+        kd, ks = self._solved(p)
+        b = self.basis(alpha, eta)
+        f = kd * _INV_PI + ks * b - c
+        g = self.m * self.mu / np.maximum(1.0 + self.mu * f, 1e-12)      # ∂r/∂f
+        j0 = g * _INV_PI
+        j1 = g * b
+        free0, free1 = kd > 0.0, ks > 0.0
+        m00 = np.where(free0, (j0 * j0).sum(0), 1.0)
+        m11 = np.where(free1, (j1 * j1).sum(0), 1.0)
+        m01 = np.where(free0 & free1, (j0 * j1).sum(0), 0.0)
+        det = m00 * m11 - m01 * m01
+        det = np.where(np.abs(det) > 1e-300, det, 1e-300)
+        ha, he = 1e-6 * max(alpha, 1e-3), 1e-6 * eta
+        d_alpha = (self.basis(alpha + ha, eta) - self.basis(alpha - ha, eta)) / (2 * ha)
+        d_eta = (self.basis(alpha, eta + he) - self.basis(alpha, eta - he)) / (2 * he)
+        cols = []
+        for jp in (g * ks * d_alpha, g * ks * d_eta, -g):
+            u0 = np.where(free0, (j0 * jp).sum(0), 0.0)
+            u1 = np.where(free1, (j1 * jp).sum(0), 0.0)
+            c0 = (m11 * u0 - m01 * u1) / det
+            c1 = (m00 * u1 - m01 * u0) / det
+            cols.append((jp - j0 * c0 - j1 * c1)[self.valid])
+        return np.stack(cols, axis=1)
+
 
 def _outer(problem: FitProblem, x0: Sequence[float], lo: np.ndarray, hi: np.ndarray,
            max_nfev: int | None = None):
     from scipy.optimize import least_squares
 
     x0 = np.clip(np.asarray(x0, dtype=np.float64), lo + 1e-9, hi - 1e-9)
-    return least_squares(problem.projected_residuals, x0, bounds=(lo, hi), method="trf",
+    return least_squares(problem.projected_residuals, x0, jac=problem.projected_jacobian,
+                         bounds=(lo, hi), method="trf",
                          x_scale=np.array([0.1, 0.1, 0.01]), xtol=1e-10, ftol=1e-12,
                          gtol=1e-12, max_nfev=max_nfev)
 
