@@ -39,13 +39,21 @@ import struct
 from typing import Any
 
 import numpy as np
+from normbox_lab.drivers.radiometer_common import (
+    SerialRadiometer,
+    check_spectrum,
+    colorimetry_from,
+)
 from serial import SerialException
 
 from normbox_lab.clock import Clock
-from normbox_lab.drivers.radiometer_common import (
-    LinkLost, SerialRadiometer, check_spectrum, colorimetry_from)
-from normbox_lab.errors import (ConfigError, DeviceError, InstrumentError, InstrumentTimeout,
-                                ProtocolError)
+from normbox_lab.errors import (
+    ConfigError,
+    DeviceError,
+    InstrumentError,
+    InstrumentTimeout,
+    ProtocolError,
+)
 from normbox_lab.interfaces import InstrumentIdentity
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 
@@ -108,7 +116,7 @@ class CS1000A(SerialRadiometer):
 
     @classmethod
     def open(cls, url: str, clock: Clock, *, baud: int = 9600, instrument_id: str = "radiometer",
-             **options: Any) -> "CS1000A":
+             **options: Any) -> CS1000A:
         from normbox_lab.sim.transport import open_port
 
         if int(baud) not in BAUD_RATES:
@@ -370,5 +378,11 @@ class CS1000A(SerialRadiometer):
 
 
 CS1000 = CS1000A
-__all__ = ["CS1000A", "CS1000", "ERRORS", "BAUD_RATES", "integration_time_s",
-           "pre_measurement_s"]
+__all__ = [
+    "BAUD_RATES",
+    "CS1000",
+    "CS1000A",
+    "ERRORS",
+    "integration_time_s",
+    "pre_measurement_s",
+]

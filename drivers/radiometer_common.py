@@ -15,14 +15,20 @@ from __future__ import annotations
 
 import math
 import threading
-from typing import Any, Callable, TypeVar
+from collections.abc import Callable
+from typing import Any, TypeVar
 
 import numpy as np
 from serial import SerialException
 
 from normbox_lab.clock import Clock
-from normbox_lab.errors import (DeviceError, InstrumentError, InstrumentTimeout, OperatorAbort,
-                                ProtocolError)
+from normbox_lab.errors import (
+    DeviceError,
+    InstrumentError,
+    InstrumentTimeout,
+    OperatorAbort,
+    ProtocolError,
+)
 from normbox_lab.types import Colorimetry
 
 T = TypeVar("T")

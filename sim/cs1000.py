@@ -49,10 +49,15 @@ import struct
 from typing import Any
 
 import numpy as np
-
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
-    RadiometerOptics, Scene, colorimetry, env_time_factor, fmt_e, pre_measurement_s)
+    RadiometerOptics,
+    Scene,
+    colorimetry,
+    env_time_factor,
+    fmt_e,
+    pre_measurement_s,
+)
 
 SPECTRAL_BLOCK_VALUES = 28
 BINARY_BLOCK_VALUES = 60
@@ -287,7 +292,7 @@ def format_colorimetry(c: dict[str, float]) -> str:
     def chroma(v: float) -> str:
         return "-9.999" if not math.isfinite(v) else f"{v:.4f}"
 
-    T = "-9999" if not math.isfinite(c["T"]) else f"{int(round(c['T']))}"
+    T = "-9999" if not math.isfinite(c["T"]) else f"{round(c['T'])}"
     duv = "-9.9999" if not math.isfinite(c["duv"]) else f"{c['duv']:+.4f}"
     return ",".join([fmt_e(c["Le"]), fmt_e(c["Lv"]), fmt_e(c["X"]), fmt_e(c["Y"]),
                      fmt_e(c["Z"]), chroma(c["x"]), chroma(c["y"]), chroma(c["u_prime"]),

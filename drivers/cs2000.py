@@ -1,0 +1,397 @@
+"""Konica Minolta CS-2000 / CS-2000A spectroradiometer (pyserial).
+
+Facts from the CS-2000/CS-2000A Communication Specifications (Rev. 7.00) as summarised in
+/work/shared/reference/cs1000-cs2000-protocol.md §2.2, §3.2, §4.2, §5, §6, §7.
+
+Line: 115200 baud (RS-232C default; ignored over USB), 8N1, RTS/CTS.  Commands end in LF
+(`delimiter` option: LF or CR+LF); the reply ends in the same delimiter.  Every reply starts
+with ``OK00`` or ``ERnn`` (→ `DeviceError` with the meaning from `ERRORS`).
+
+    RMTS,2 (fw ≥ 3.00.9301; falls back to RMTS,1) / RMTS,0       remote on (no flash writes) / off
+    IDDR            → OK00,<name 9>,<variation 1|2>,<serial 7>
+    MSWE,0          → OK00     measure button off: the buffer survives until the next MEAS,1
+    SPMS,m,… / SPMR → speed mode 0 Normal, 1 Fast, 2 Multi-Integ Normal (tt s), 3 Manual (µs),
+                      4 Multi-Integ Fast, each with ND 0 off / 1 on / 2 auto
+    MEAS,1          → OK00,ttt after the pre-measurement (1–10 s), → OK00 ttt s later
+    MEAS,0          → OK00     cancel (after the pre-measurement)
+    MEDR,1,f,1..4   → OK00,v1,…   spectral radiance 380–479, 480–579, 580–679, 680–780 nm
+    MEDR,2,f,00     → OK00,24 values (Le, Lv, X, Y, Z, x, y, u′, v′, T, Δuv, λd, Pe, 10° …)
+    MEDR,0,0,1      → OK00,speed,sync,integration µs,ND,lens,ext ND,angle,cal channel
+  f = 0 ASCII (``#.####e±#`` …), 1 hex (8 hex digits, big-endian IEEE float).
+
+Timing model for ETAs (assumed; the same as the emulator's, docs/radiometers.md):
+pre-measurement clamp(1 + 2·log10(100/Lv), 1, 10) s + ttt = clamp(ceil(K/Lv), 2, 242) s (K = 200
+Normal, 50 Fast; Multi-Integ 2·tt; Manual ceil(2·t) + 1) + data transfer at 10 bits per byte.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from typing import Any
+
+from normbox_lab.drivers.radiometer_common import (
+    SerialRadiometer,
+    check_spectrum,
+    colorimetry_from,
+)
+from serial import SerialException
+
+from normbox_lab.clock import Clock
+from normbox_lab.errors import (
+    ConfigError,
+    DeviceError,
+    InstrumentError,
+    InstrumentTimeout,
+    ProtocolError,
+)
+from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+
+ERRORS = {
+    "ER00": "invalid command or number of parameters (or not in remote mode, or a command "
+            "other than MEAS,0 during a measurement)",
+    "ER02": "measurement in progress",
+    "ER05": "no compensation values (user calibration, lens or ND factors missing)",
+    "ER10": "over measurement range (luminance too high or flicker too large)",
+    "ER17": "parameter out of range or wrong length (or MEAS,0 when idle, MEAS,1 while "
+            "measuring)",
+    "ER20": "no data",
+    "ER30": "internal memory (flash) error",
+    "ER32": "internal memory (flash) error",
+    "ER34": "internal memory (flash) error",
+    "ER51": "temperature abnormality (CCD Peltier)",
+    "ER52": "temperature abnormality (temperature count)",
+    "ER71": "outside synchronisation range (20–200 Hz)",
+    "ER81": "shutter malfunction",
+    "ER82": "internal ND filter malfunction",
+    "ER83": "measurement angle abnormality",
+    "ER84": "cooling fan abnormality",
+    "ER99": "program abnormality",
+}
+SPEED_MODES = {"normal": 0, "fast": 1, "multi-normal": 2, "manual": 3, "multi-fast": 4}
+ND_MODES = {"off": 0, "on": 1, "auto": 2}
+SPECTRAL_BLOCK_SIZES = {1: 100, 2: 100, 3: 100, 4: 101}
+FIRST_REPLY_TIMEOUT_S = 15.0          # pre-measurement "about 1–10 s"
+HEX_UNDEFINED = "D1BA43B6"
+
+
+def measurement_time_s(luminance_cd_m2: float, speed: str = "normal", time_s: float = 1.0) -> int:
+    """ttt of the timing model (2–242 s)."""
+    lv = max(float(luminance_cd_m2), 1e-6)
+    if speed in ("normal", "fast"):
+        t = math.ceil((50.0 if speed == "fast" else 200.0) / lv)
+    elif speed in ("multi-normal", "multi-fast"):
+        t = 2 * round(time_s)
+    else:
+        t = math.ceil(2 * time_s) + 1
+    return int(min(242, max(2, t)))
+
+
+def pre_measurement_s(luminance_cd_m2: float) -> float:
+    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
+
+
+class CS2000A(SerialRadiometer):
+    model = "CS-2000A"
+
+    def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
+                 data_format: str = "ascii", delimiter: str = "\n", baud: int = 115200,
+                 **options: Any) -> None:
+        super().__init__(port, clock, instrument_id=instrument_id, **options)
+        if data_format not in ("ascii", "hex"):
+            raise ConfigError("<driver options>", 0, "data_format", "must be ascii or hex")
+        if delimiter not in ("\n", "\r\n"):
+            raise ConfigError("<driver options>", 0, "delimiter", "must be LF or CR+LF")
+        self.data_format = data_format
+        self.terminator = delimiter.encode("ascii")
+        self.baud = int(baud)
+        self.remote_level = 0          # 0 off, 1 on (writes flash), 2 on without flash writes
+        self.speed = "multi-normal"    # the factory default: Multi-Integ Normal 1 s, ND auto
+        self.time_s = 1.0
+        self.nd = "auto"
+        self._button_off = False
+
+    @classmethod
+    def open(cls, url: str, clock: Clock, *, baud: int = 115200,
+             instrument_id: str = "radiometer", **options: Any) -> CS2000A:
+        from normbox_lab.sim.transport import open_port
+
+        try:
+            port = open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
+                             rtscts=True, timeout=1.0)
+        except (SerialException, OSError, ValueError) as exc:
+            raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
+        return cls(port, clock, instrument_id=instrument_id, baud=int(baud), **options)
+
+    # --- replies ----------------------------------------------------------------------------------
+    def parse_reply(self, raw: bytes) -> list[str]:
+        """``OK00[,f…]`` → [f…]; ``ERnn`` → `DeviceError`; anything else → `ProtocolError`."""
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise self._protocol("reply is not ASCII", raw) from None
+        head, *fields = text.split(",")
+        if head == "OK00":
+            return fields
+        if len(head) == 4 and head.startswith("ER") and head[2:].isdigit() and not fields:
+            raise DeviceError(head, ERRORS.get(head, "unknown error code"),
+                              instrument=self.instrument_id)
+        raise self._protocol("unexpected reply", raw)
+
+    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
+        """Send `cmd`, return the fields after ``OK00``.  Transport faults and ER02 are
+        retried (bounded); ER00 to a command other than RMTS re-enters remote mode once."""
+        def once() -> list[str]:
+            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
+
+        try:
+            return self.with_retries(once, retry_device=("ER02",))
+        except DeviceError as exc:
+            if exc.code != "ER00" or cmd.startswith("RMTS,"):
+                raise
+            self._enter_remote()
+            return self.with_retries(once, retry_device=("ER02",))
+
+    def _no_fields(self, cmd: str, fields: list[str]) -> None:
+        if fields:
+            raise self._protocol(f"{cmd}: unexpected fields after OK00",
+                                 ",".join(["OK00", *fields]).encode())
+
+    # --- remote mode ---------------------------------------------------------------------------------
+    def _enter_remote(self) -> None:
+        """RMTS,2 (no flash writes, fw ≥ 3.00.9301); ER17/ER00 from older firmware → RMTS,1.
+        Then MSWE,0 once, so the data buffer survives reading (spec §8.1)."""
+        level = 2 if self.remote_level != 1 else 1
+        try:
+            self._no_fields("RMTS", self.parse_reply(self.exchange(f"RMTS,{level}".encode())))
+        except DeviceError as exc:
+            if level != 2 or exc.code not in ("ER17", "ER00"):
+                raise
+            level = 1
+            self._no_fields("RMTS", self.parse_reply(self.exchange(b"RMTS,1")))
+        self.remote_level = level
+        self.remote = True
+        if not self._button_off:
+            self._no_fields("MSWE", self.parse_reply(self.exchange(b"MSWE,0")))
+            self._button_off = True
+
+    def set_remote(self, on: bool) -> None:
+        if on:
+            self.with_retries(self._enter_remote, retry_device=("ER02",))
+        else:
+            self._no_fields("RMTS", self.command("RMTS,0"))
+            self.remote = False
+            self.remote_level = 0
+
+    def _ensure_remote(self) -> None:
+        if not self.remote:
+            self.set_remote(True)
+
+    # --- the Spectroradiometer role ---------------------------------------------------------------
+    def identify(self) -> InstrumentIdentity:
+        self._ensure_remote()
+        fields = self.command("IDDR")
+        raw = ",".join(["OK00", *fields]).encode()
+        if len(fields) != 3 or fields[1] not in ("1", "2") or not fields[2].strip().isdigit():
+            raise self._protocol("IDDR: expected OK00,<name>,<variation>,<serial>", raw)
+        url = str(getattr(self.port, "port", "") or "")
+        return InstrumentIdentity("spectroradiometer", fields[0].strip(),
+                                  serial_number=fields[2].strip(),
+                                  simulated=url.startswith("sim://"),
+                                  extra={"variation": "CS-2000A" if fields[1] == "2"
+                                         else "CS-2000", "port": url})
+
+    def set_speed(self, mode: str, *, time_s: float | None = None, nd: str = "auto") -> None:
+        """SPMS: "normal", "fast", "multi-normal"/"multi-fast" (time_s 1–16 s) or "manual"
+        (time_s 0.005–120 s); ND "off", "on", "auto" (not for manual)."""
+        if mode not in SPEED_MODES:
+            raise ConfigError("<driver call>", 0, "speed",
+                              f"must be one of {', '.join(SPEED_MODES)}")
+        if nd not in ND_MODES or (mode == "manual" and nd == "auto"):
+            raise ConfigError("<driver call>", 0, "nd", "off, on or auto (manual: off or on)")
+        m = SPEED_MODES[mode]
+        if mode in ("normal", "fast"):
+            cmd = f"SPMS,{m},{ND_MODES[nd]}"
+        elif mode.startswith("multi"):
+            if time_s is None or not 1 <= round(time_s) <= 16:
+                raise ConfigError("<driver call>", 0, "time_s", "multi-integ time must be 1–16 s")
+            cmd = f"SPMS,{m},{round(time_s)},{ND_MODES[nd]}"
+        else:
+            if time_s is None or not 0.005 <= time_s <= 120.0:
+                raise ConfigError("<driver call>", 0, "time_s", "manual time must be 0.005–120 s")
+            cmd = f"SPMS,{m},{round(time_s * 1e6)},{ND_MODES[nd]}"
+        self._ensure_remote()
+        self._no_fields("SPMS", self.command(cmd))
+        self.speed, self.nd = mode, nd
+        if time_s is not None:
+            self.time_s = float(time_s)
+
+    def read_speed(self) -> dict[str, object]:
+        """SPMR → {"speed", "time_s" (multi/manual), "nd"}."""
+        self._ensure_remote()
+        fields = self.command("SPMR")
+        raw = ",".join(["OK00", *fields]).encode()
+        names = {v: k for k, v in SPEED_MODES.items()}
+        nds = {v: k for k, v in ND_MODES.items()}
+        if not fields or not all(f.isdigit() for f in fields) or int(fields[0]) not in names:
+            raise self._protocol("SPMR: unexpected reply", raw)
+        mode = names[int(fields[0])]
+        if len(fields) != (2 if mode in ("normal", "fast") else 3) or int(fields[-1]) not in nds:
+            raise self._protocol("SPMR: wrong number of fields", raw)
+        out: dict[str, object] = {"speed": mode, "nd": nds[int(fields[-1])]}
+        if mode.startswith("multi"):
+            out["time_s"] = float(int(fields[1]))
+        elif mode == "manual":
+            out["time_s"] = int(fields[1]) / 1e6
+        self.speed, self.nd = mode, str(out["nd"])
+        if "time_s" in out:
+            self.time_s = float(out["time_s"])  # type: ignore[arg-type]
+        return out
+
+    def status(self) -> dict[str, object]:
+        out: dict[str, object] = {"model": self.model, "remote": self.remote,
+                                  "remote_level": self.remote_level}
+        out.update(self.read_speed())
+        return out
+
+    def measurement_conditions(self) -> dict[str, object]:
+        """MEDR,0,0,1: the conditions of the measurement in the buffer."""
+        self._ensure_remote()
+        return self.with_retries(self.measurement_conditions_once, retry_device=("ER02",))
+
+    def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
+        ttt = measurement_time_s(luminance_cd_m2, self.speed, self.time_s)
+        n_bytes = 7 + 9 + 5 + 4 * (11 + 5 + 100 * 10) + 11 + 5 + 24 * 10 + 11 + 40
+        return pre_measurement_s(luminance_cd_m2) + ttt + n_bytes * 10.0 / self.baud + 7 * 0.02
+
+    def abort(self) -> None:
+        if self.request_abort():
+            return
+        with self._lock:
+            try:
+                self.command("MEAS,0")
+            except DeviceError:
+                pass                              # ER17: nothing was running
+
+    def recover(self) -> None:
+        with self._lock:
+            self._cancel_quietly()
+            self.remote = False
+            self.set_remote(True)
+
+    def close(self) -> None:
+        try:
+            if self.remote:
+                self.set_remote(False)
+        except InstrumentError:
+            pass
+        finally:
+            try:
+                self.port.close()
+            except (SerialException, OSError):
+                pass
+
+    def _cancel_quietly(self) -> None:
+        try:
+            self._resync()
+            self.exchange(b"MEAS,0", timeout_s=3.0)
+        except (InstrumentError, SerialException, OSError):
+            pass
+        self._resync()
+
+    # --- measuring -------------------------------------------------------------------------------------
+    def measure(self) -> SpectralReading:
+        """MEAS,1 → OK00,ttt → OK00, then MEDR spectral blocks 1–4, colorimetry and conditions.
+        Transport faults are retried (bounded); a lost buffer (ER20 after a reconnect) measures
+        again; other device errors, an abort or a persistent fault raise."""
+        with self._lock:
+            self._measuring = True
+            self._abort.clear()
+            try:
+                self._ensure_remote()
+                return self.with_retries(self._measure_once, retry_device=("ER20",),
+                                         busy_wait_s=0.0)
+            finally:
+                self._measuring = False
+
+    def _measure_once(self) -> SpectralReading:
+        ttt = self.with_retries(self._run_measurement, retry_device=("ER02",))
+        f = 1 if self.data_format == "hex" else 0
+        values: list[float] = []
+        raws = b""
+        for block, n in SPECTRAL_BLOCK_SIZES.items():
+            vals, raw = self.with_retries(lambda b=block, n=n: self._data(f"MEDR,1,{f},{b}", n),
+                                          retry_device=("ER02",))
+            values += vals
+            raws += raw + b"\n"
+        spectrum = check_spectrum(values, raws, self.instrument_id)
+        colour_vals, _ = self.with_retries(lambda: self._data(f"MEDR,2,{f},00", 24),
+                                           retry_device=("ER02",))
+        conditions = self.with_retries(self.measurement_conditions_once, retry_device=("ER02",))
+        return SpectralReading(
+            RADIOMETER_WAVELENGTHS_NM.copy(), spectrum, colorimetry_from(colour_vals[:11]),
+            conditions["integration_time_us"] / 1e6, self.clock.wall_time_s(),
+            self.instrument_id,
+            {"model": self.model, "measurement_time_s": ttt, "speed": self.speed,
+             "data_format": self.data_format, "conditions": conditions,
+             "colorimetry_10deg": dict(zip(("X10", "Y10", "Z10", "x10", "y10", "u10", "v10",
+                                            "T10", "duv10"), colour_vals[13:22], strict=True))})
+
+    def measurement_conditions_once(self) -> dict[str, Any]:
+        raw = self.exchange(b"MEDR,0,0,1")
+        fields = self.parse_reply(raw)
+        if len(fields) != 8 or not all(x.isdigit() for x in fields):
+            raise self._protocol("MEDR,0,0,1: expected 8 numeric fields", raw)
+        keys = ("speed_mode", "sync_mode", "integration_time_us", "internal_nd", "close_up_lens",
+                "external_nd", "angle", "calibration_channel")
+        return dict(zip(keys, (int(x) for x in fields), strict=True))
+
+    def _run_measurement(self) -> int:
+        try:
+            self._write(b"MEAS,1")
+            first = self._read_line(FIRST_REPLY_TIMEOUT_S)
+            assert first is not None
+            fields = self.parse_reply(first)
+            if len(fields) != 1 or not fields[0].isdigit() or not 1 <= int(fields[0]) <= 999:
+                raise self._protocol("MEAS,1: expected OK00,ttt", first)
+            ttt = int(fields[0])
+            final = self._read_line(ttt * 1.2 + 10.0, watch_abort=True)
+            if final is None:
+                self._cancel_quietly()
+                raise self._aborted()
+            self._no_fields("MEAS,1", self.parse_reply(final))
+            return ttt
+        except (InstrumentTimeout, ProtocolError):
+            self._cancel_quietly()
+            raise
+        except DeviceError as exc:
+            if exc.code == "ER00":
+                self._enter_remote()
+                raise self._timeout("instrument was in key mode; remote mode re-entered") \
+                    from exc
+            raise
+
+    def _data(self, cmd: str, expected: int) -> tuple[list[float], bytes]:
+        raw = self.exchange(cmd.encode("ascii"))
+        fields = self.parse_reply(raw)
+        if len(fields) != expected:
+            raise self._protocol(f"{cmd}: {len(fields)} values, expected {expected}", raw)
+        if self.data_format == "hex":
+            out = []
+            for x in fields:
+                if len(x) != 8:
+                    raise self._protocol(f"{cmd}: hex value {x!r} is not 8 digits", raw)
+                try:
+                    out.append(struct.unpack(">f", bytes.fromhex(x))[0])
+                except ValueError:
+                    raise self._protocol(f"{cmd}: bad hex value {x!r}", raw) from None
+                if not math.isfinite(out[-1]):
+                    raise self._protocol(f"{cmd}: non-finite value {x!r}", raw)
+            return out, raw
+        return [self.parse_number(x, raw) for x in fields], raw
+
+
+CS2000 = CS2000A
+__all__ = ["CS2000", "CS2000A", "ERRORS", "HEX_UNDEFINED", "SPEED_MODES", "measurement_time_s",
+           "pre_measurement_s"]
