@@ -294,7 +294,7 @@ def fit_material(data: BrdfData, w: float = 2.0, *,
     if full is not coarse:
         polish = _outer(full, x, lo, hi)
         nfev += polish.nfev
-        if polish.cost <= full.cost(*full.inner(*x), *x) + 1e-15:
+        if 2.0 * polish.cost <= full.cost(*full.inner(*x), *x):
             x = polish.x
     alpha, eta, c = (float(v) for v in x)
     kd, ks = full.inner(alpha, eta, c)
