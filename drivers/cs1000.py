@@ -204,8 +204,12 @@ class CS1000A(SerialRadiometer):
             raise ConfigError("<driver call>", 0, "time_s", "manual time must be 0.04–60 s")
         if mode == "multi" and (time_s is None or not 1.0 <= time_s <= 60.0):
             raise ConfigError("<driver call>", 0, "time_s", "multi time must be 1–60 s")
-        arg = {"auto": "", "auto-long": "", "multi": f"{time_s:.2f}",
-               "manual": f"{time_s:.3f}"}[mode]
+        if mode == "multi":
+            arg = f"{time_s:.2f}"
+        elif mode == "manual":
+            arg = f"{time_s:.3f}"
+        else:
+            arg = ""
         self._ensure_remote()
         self._expect_ok("MMS", self.command(f"MMS,{TIME_MODES[mode]},{arg}"))
         self.time_mode = mode
