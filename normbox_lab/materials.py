@@ -245,8 +245,7 @@ def truth_material(name: str | int, truth: str = "default",
     if isinstance(name, (int, np.integer)):
         return truth_patch(int(name), truth)
     s = str(name).strip().lower()
-    if s.startswith("patch-"):
-        s = s[len("patch-"):]
+    s = s.removeprefix("patch-")
     if s.isdigit():
         return truth_patch(int(s), truth)
     if s == "wall":

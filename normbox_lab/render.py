@@ -47,7 +47,8 @@ KM_LM_W = 683.002
 @dataclass(frozen=True)
 class Quality:
     name: str
-    spp: int            # samples per pixel per batch (10 × 10 pixels)
+    spp: int            # samples per pixel per batch (10 × 10 pixels); a square number
+                        # (the stratified sampler uses a √spp × √spp grid)
     batches: int
     pixels: int = 10
 
@@ -287,3 +288,49 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
             "lamp_cct_K": lamp.cct_K, "lamp_luminance_cd_m2": lamp.luminance_cd_m2}
     return RenderResult(BAND_CENTRES_NM.copy(), mean, se, batches_arr, dt, variant, key,
                         cached=False, info=info)
+
+
+# --- a closed-form check: the direct light -------------------------------------------------------
+def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: float,
+                    lamp: Lamp | None = None, wavelength_nm: Any = BAND_CENTRES_NM,
+                    subdivisions: int = 8) -> np.ndarray:
+    """Direct radiance (W·sr⁻¹·m⁻²·nm⁻¹) at the sample centre towards the radiometer, by
+    quadrature over the 25 panel cells (each split `subdivisions`² times):
+
+        L(λ) = Σ f(ωi, ωo, λ) · m_k · L_panel(λ) · cosθ_sample · cosθ_panel / r² · ΔA
+
+    with the truth BRDF in the sample's frame; nothing occludes the panel from the sample."""
+    from normbox_lab.materials import truth_brdf
+    from normbox_lab.scene import (panel_cells_m, radiometer_position_m, sample_centre_m,
+                                   sample_normal)
+
+    g = as_geometry(geometry)
+    lamp = lamp if lamp is not None else Lamp()
+    wl = np.asarray(wavelength_nm, dtype=np.float64)
+    p = sample_centre_m(g)
+    n = sample_normal(angle_deg)
+    t1 = np.array([1.0, 0.0, 0.0])
+    t2 = np.cross(n, t1)
+    frame = np.stack([t1, t2, n])                       # rows: local x, y, z
+    to_eye = radiometer_position_m(g) - p
+    wo = frame @ (to_eye / np.linalg.norm(to_eye))
+    pts, weights = [], []
+    k = int(subdivisions)
+    u = (np.arange(k) + 0.5) / k * 2.0 - 1.0
+    for centre, ex, ey, factor in panel_cells_m(g):
+        xs, ys = np.meshgrid(centre[0] + u * ex, centre[1] + u * ey, indexing="ij")
+        q = np.stack([xs.ravel(), ys.ravel(), np.full(xs.size, centre[2])], axis=-1)
+        pts.append(q)
+        weights.append(np.full(xs.size, factor * (2 * ex) * (2 * ey) / xs.size))
+    q = np.concatenate(pts)
+    dA = np.concatenate(weights)
+    v = q - p
+    r = np.linalg.norm(v, axis=-1)
+    w_world = v / r[:, None]
+    cos_panel = w_world[:, 2]                           # the panel faces −z
+    wi = w_world @ frame.T
+    cos_s = wi[:, 2]
+    ok = (cos_s > 0) & (cos_panel > 0)
+    f = truth_brdf(material, wi[ok], np.broadcast_to(wo, wi[ok].shape), wl)
+    geom = (cos_s * cos_panel / r ** 2 * dA)[ok]
+    return lamp.radiance(wl) * np.sum(f * geom[:, None], axis=0)

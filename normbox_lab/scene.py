@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 #: a 5×5 map of the opal panel's relative radiance (rows: y from −, columns: x from −), the
-#: pattern of an integrating-sphere port: brightest near the centre, a slight gradient in x,
-#: scaled so that the extremes are exactly ±homogeneity (±3 %); its mean is 1 within 0.2 %.
+#: pattern of an integrating-sphere port: brightest near the centre, darker corners; `panel_map`
+#: removes its mean and scales it so that the mean is exactly 1 and the largest deviation is
+#: exactly the homogeneity (3 %).
 _MAP_PATTERN = np.array([[-1.00, -0.55, -0.30, -0.45, -0.85],
                          [-0.50, 0.15, 0.45, 0.25, -0.35],
                          [-0.25, 0.50, 1.00, 0.60, -0.10],
@@ -76,8 +77,9 @@ def as_geometry(obj: Any = None) -> SceneGeometry:
 
 
 def panel_map(homogeneity_percent: float = 3.0) -> np.ndarray:
-    """(5, 5) relative radiance of the opal panel (1 ± homogeneity)."""
-    return 1.0 + homogeneity_percent / 100.0 * _MAP_PATTERN
+    """(5, 5) relative radiance of the opal panel: mean 1, largest deviation ± homogeneity."""
+    p = _MAP_PATTERN - _MAP_PATTERN.mean()
+    return 1.0 + homogeneity_percent / 100.0 * p / np.abs(p).max()
 
 
 def panel_map_at(x_mm: float, y_mm: float, geometry: Any = None) -> float:
@@ -203,7 +205,7 @@ def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: A
                    "near_clip": 0.01, "far_clip": 10.0,
                    "to_world": T().look_at(origin=list(map(float, origin)),
                                            target=list(map(float, c)), up=[0, 0, 1]),
-                   "sampler": {"type": "independent"},
+                   "sampler": {"type": "stratified"},
                    "film": film}
     return d
 

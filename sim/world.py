@@ -1,0 +1,160 @@
+"""The virtual Normbox: the physics behind every emulator (the `World` protocol of sim/core.py).
+
+World state, and who changes it:
+- the patch on the holder: `place_patch(n)` / `remove_patch()` (the operator step, or the
+  virtual operator);
+- the sample angle: the rotator emulator attached with `attach_rotator(obj)` (its
+  `angle_deg()` is read at every measurement), or `set_sample_angle(angle_deg)` when none is
+  attached;
+- the lamp: the sphere emulator attached with `attach_sphere(obj)` (`relative_output()` scales
+  the radiance, `state()` is recorded), or the `lamp_level` attribute (default 1.0);
+- the light-map aim: `aim_panel(x_mm, y_mm)` points the radiometer at a point of the opal panel
+  (until the next `place_patch`/`clear_aim`);
+- the gonioreflectometer's sample: `mount_gonio_material("patch-1".."patch-24" | "wall")`.
+
+What the instruments see:
+- `radiance_in_view()` → (wavelength_nm 380…780 step 1, W·sr⁻¹·m⁻²·nm⁻¹): a Mitsuba render
+  of the box with the truth materials (`normbox_lab.render.render_view`, cached on disk by
+  patch × angle × lamp × quality), interpolated from the 5 nm render bands; the full result with
+  its Monte-Carlo standard error is kept in `last_render`.  The radiometer emulator adds the
+  instrument's own behaviour (noise, wavelength shift, timing) on top.
+- `brdf_truth(θi, θo, tilt, λ)`: the truth BRDF of the mounted material in closed form.
+- `luminance_cd_m2(patch, angle_deg)`: the luminance of a configuration (renders if needed).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.materials import (
+    Material,
+    holder_material,
+    truth_material,
+    truth_patch,
+    truth_wall,
+)
+from normbox_lab.render import Lamp, RenderResult, luminance_cd_m2, render_view
+from normbox_lab.scene import as_geometry, panel_map_at
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
+
+#: render angles are rounded to this (rotator encoder noise must not defeat the cache)
+ANGLE_RESOLUTION_DEG = 0.001
+
+
+class VirtualNormbox:
+    """The `World` protocol, rendered with Mitsuba.  Cheap to construct: nothing renders (and
+    Mitsuba is not imported) until the first `radiance_in_view()`."""
+
+    def __init__(self, config: Any = None, *, geometry: Any = None, truth: str | None = None,
+                 quality: str | None = None, lamp: Lamp | None = None,
+                 cache_dir: str | None = None, variant: str | None = None) -> None:
+        render_cfg = dict(getattr(config, "render", None) or {})
+        self.geometry = as_geometry(geometry if geometry is not None else config)
+        self.truth = truth or render_cfg.get("truth", "default")
+        self.quality = quality or render_cfg.get("quality", "default")
+        self.cache_dir = cache_dir or render_cfg.get("cache_dir")
+        self.variant = variant or render_cfg.get("variant")
+        self.lamp = lamp if lamp is not None else Lamp(
+            cct_K=float(render_cfg.get("lamp_cct_K", 3100.0)),
+            luminance_cd_m2=float(render_cfg.get("panel_luminance_cd_m2", 3000.0)))
+        self.wavelength_nm = RADIOMETER_WAVELENGTHS_NM.copy()
+        self.wall = truth_wall(self.truth, self.geometry.wall_lightness_L)
+        self.holder = holder_material()
+        self.patch: int | None = None
+        self.placed: list[int] = []
+        self.sample_angle_deg = 90.0
+        self.lamp_level = 1.0
+        self.rotator: Any = None
+        self.sphere: Any = None
+        self.aim: tuple[float, float] | None = None
+        self.gonio_material: str | int | None = None
+        self.last_render: RenderResult | None = None
+        self.lamp_state: Any = None
+
+    # --- what the operator and the motors change ----------------------------------------------
+    def place_patch(self, n: int) -> None:
+        if not 1 <= int(n) <= 24:
+            raise ValueError(f"no ColorChecker patch {n} (1..24)")
+        self.patch = int(n)
+        self.placed.append(int(n))
+        self.aim = None
+
+    def remove_patch(self) -> None:
+        self.patch = None
+
+    def set_sample_angle(self, angle_deg: float) -> None:
+        self.sample_angle_deg = float(angle_deg)
+
+    def attach_rotator(self, rotator: Any) -> None:
+        """An object with `angle_deg()` (the rotator emulator); None detaches."""
+        self.rotator = rotator
+
+    def attach_sphere(self, sphere: Any) -> None:
+        """An object with `relative_output()` and `state()` (the sphere emulator)."""
+        self.sphere = sphere
+
+    def aim_panel(self, x_mm: float, y_mm: float) -> None:
+        self.aim = (float(x_mm), float(y_mm))
+
+    def clear_aim(self) -> None:
+        self.aim = None
+
+    def mount_gonio_material(self, name: str | int) -> None:
+        truth_material(name, self.truth)          # validates the name
+        self.gonio_material = name
+
+    # --- state as the instruments see it -------------------------------------------------------
+    def angle_deg(self) -> float:
+        if self.rotator is not None:
+            return float(self.rotator.angle_deg())
+        return float(self.sample_angle_deg)
+
+    def relative_output(self) -> float:
+        if self.sphere is not None:
+            state = getattr(self.sphere, "state", None)
+            self.lamp_state = state() if callable(state) else state
+            return float(self.sphere.relative_output())
+        return float(self.lamp_level)
+
+    def patch_material(self, n: int | None) -> Material:
+        return self.holder if n is None else truth_patch(int(n), self.truth)
+
+    # --- what the instruments see --------------------------------------------------------------
+    def render(self, patch: int | None, angle_deg: float, *, direct_only: bool = False,
+               quality: str | None = None) -> RenderResult:
+        """The render of one configuration at full lamp output (relative output 1)."""
+        angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
+        return render_view(self.geometry, patch=self.patch_material(patch), wall=self.wall,
+                           holder=self.holder, angle_deg=angle, lamp=self.lamp,
+                           quality=quality or self.quality, direct_only=direct_only,
+                           cache_dir=self.cache_dir, variant=self.variant)
+
+    def panel_radiance(self, x_mm: float, y_mm: float) -> np.ndarray:
+        """Spectral radiance of the opal panel at a point (mm from its centre), closed form."""
+        return self.lamp.radiance(self.wavelength_nm) * panel_map_at(x_mm, y_mm, self.geometry)
+
+    def radiance_in_view(self) -> tuple[np.ndarray, np.ndarray]:
+        output = self.relative_output()
+        if self.aim is not None:
+            return self.wavelength_nm.copy(), self.panel_radiance(*self.aim) * output
+        if output == 0.0:
+            return self.wavelength_nm.copy(), np.zeros_like(self.wavelength_nm)
+        result = self.render(self.patch, self.angle_deg())
+        self.last_render = result.scaled(output)
+        _, radiance = self.last_render.to_1nm(self.wavelength_nm)
+        return self.wavelength_nm.copy(), radiance
+
+    def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
+        r = self.render(patch, angle_deg)
+        return luminance_cd_m2(r.wavelength_nm, r.radiance) * self.relative_output()
+
+    def brdf_truth(self, theta_i_deg: float, theta_o_deg: float, tilt_deg: float,
+                   wavelength_nm: np.ndarray) -> np.ndarray:
+        from normbox_lab.materials import truth_brdf_inplane
+
+        material = (self.holder if self.gonio_material is None
+                    else truth_material(self.gonio_material, self.truth,
+                                        self.geometry.wall_lightness_L))
+        return truth_brdf_inplane(material, theta_i_deg, theta_o_deg, wavelength_nm, tilt_deg)
