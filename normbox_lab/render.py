@@ -301,8 +301,12 @@ def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: floa
 
     with the truth BRDF in the sample's frame; nothing occludes the panel from the sample."""
     from normbox_lab.materials import truth_brdf
-    from normbox_lab.scene import (panel_cells_m, radiometer_position_m, sample_centre_m,
-                                   sample_normal)
+    from normbox_lab.scene import (
+        panel_cells_m,
+        radiometer_position_m,
+        sample_centre_m,
+        sample_normal,
+    )
 
     g = as_geometry(geometry)
     lamp = lamp if lamp is not None else Lamp()
