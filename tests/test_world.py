@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from normbox_lab.sim.world import VirtualNormbox
 
 from normbox_lab import brdf_model as bm
 from normbox_lab.materials import truth_brdf_inplane, truth_patch, truth_wall
-from normbox_lab.sim.world import VirtualNormbox
 
 pytest.importorskip("mitsuba")
 
@@ -127,13 +127,13 @@ def test_brdf_truth_of_the_mounted_material(world, cache_dir):
 
 
 def test_constructed_from_a_lab_config(cache_dir):
+    from types import SimpleNamespace
+
     from normbox_lab.config import GeometryConfig
 
-    class Cfg:
-        geometry = GeometryConfig(sample_height_mm=220.0)
-        render = {"quality": "quick", "truth": "model", "cache_dir": cache_dir}
-
-    w = VirtualNormbox(config=Cfg())
+    cfg = SimpleNamespace(geometry=GeometryConfig(sample_height_mm=220.0),
+                          render={"quality": "quick", "truth": "model", "cache_dir": cache_dir})
+    w = VirtualNormbox(config=cfg)
     assert w.geometry.sample_height_mm == 220.0
     assert w.truth == "model" and w.quality == "quick" and w.cache_dir == cache_dir
 
@@ -141,8 +141,9 @@ def test_constructed_from_a_lab_config(cache_dir):
 def test_driver_emulator_world_reading(world):
     """CS-1000A driver ⇄ bytes ⇄ emulator ⇄ VirtualNormbox: the reading is the render."""
     cs1000 = pytest.importorskip("normbox_lab.drivers.cs1000")
-    from normbox_lab.clock import VirtualClock
     from normbox_lab.sim import core
+
+    from normbox_lab.clock import VirtualClock
 
     clock = VirtualClock()
     core.CONTEXT.reset(clock=clock, world=world)
