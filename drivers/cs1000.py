@@ -289,11 +289,14 @@ class CS1000A(SerialRadiometer):
             self._abort.clear()
             try:
                 self._ensure_remote()
-                t_s = self.with_retries(self._run_measurement, retry_device=("ER02",))
-                colour_block = self._transfer(self._read_colorimetry)
-                spectrum = self._transfer(self._read_spectrum)
+                return self.remeasure_on_lost_data(self._measure_once)
             finally:
                 self._measuring = False
+
+    def _measure_once(self) -> SpectralReading:
+        t_s = self.with_retries(self._run_measurement, retry_device=("ER02",))
+        colour_block = self._transfer(self._read_colorimetry)
+        spectrum = self._transfer(self._read_spectrum)
         c = colorimetry_from(colour_block)
         return SpectralReading(RADIOMETER_WAVELENGTHS_NM.copy(), spectrum, c, t_s,
                                self.clock.wall_time_s(), self.instrument_id,

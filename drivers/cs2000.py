@@ -310,8 +310,7 @@ class CS2000A(SerialRadiometer):
             self._abort.clear()
             try:
                 self._ensure_remote()
-                return self.with_retries(self._measure_once, retry_device=("ER20",),
-                                         busy_wait_s=0.0)
+                return self.remeasure_on_lost_data(self._measure_once)
             finally:
                 self._measuring = False
 

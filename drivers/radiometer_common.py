@@ -174,6 +174,17 @@ class SerialRadiometer:
             raise self._timeout(f"link lost: {last}") from last
         raise last
 
+    def remeasure_on_lost_data(self, once: Callable[[], T]) -> T:
+        """Run a whole measurement; when the buffer turned out empty (ER20, e.g. after a power
+        blip between measuring and reading) measure again, up to `attempts` times."""
+        for attempt in range(1, self.attempts + 1):
+            try:
+                return once()
+            except DeviceError as exc:
+                if exc.code != "ER20" or attempt == self.attempts:
+                    raise
+        raise AssertionError("unreachable")
+
     def _resync(self) -> None:
         """After a lost or garbled reply: let stray bytes arrive, then drop them."""
         try:

@@ -86,7 +86,7 @@ def test_undefined_cct_is_nan():
     line = COLOUR_LINE.replace(b"2856,+0.0012", b"-9999,-9.9999")
     script = measure_script()
     script[2] = Exchange(b"&\n", line)
-    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *script])
+    d, _port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *script])
     c = d.measure().colorimetry
     assert np.isnan(c.cct_K) and np.isnan(c.duv)
 
@@ -95,7 +95,7 @@ def test_long_dark_measurement_waits_for_the_announced_time():
     """t = 60 s → the final OK 2·t later is still awaited (read timeout scaled to t)."""
     script = measure_script("60.00")
     script[0] = Exchange(b"MES,1\n", [(9.0, b"OK,60.00\n"), (9.0 + 120.0, b"OK\n")])
-    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *script])
+    d, _port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *script])
     r = d.measure()
     assert r.integration_time_s == 60.0
     assert d.clock.now_s() >= 129.0
@@ -155,7 +155,7 @@ def test_bad_arguments_are_config_errors():
 
 
 def test_device_error_carries_code_and_meaning():
-    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"),
+    d, _port = scripted([Exchange(b"RMT,1\n", b"OK\n"),
                         Exchange(b"MES,1\n", [(3.0, b"ER10\n")])])
     with pytest.raises(DeviceError) as e:
         d.measure()
@@ -178,7 +178,7 @@ def test_busy_is_retried_then_succeeds():
 
 
 def test_silence_is_a_bounded_timeout():
-    d, port = scripted([Exchange(b"RMT,1\n", b"")] * 3)
+    d, _port = scripted([Exchange(b"RMT,1\n", b"")] * 3)
     with pytest.raises(InstrumentTimeout):
         d.set_remote(True)
     assert d.clock.now_s() < 60.0
