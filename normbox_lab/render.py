@@ -338,3 +338,50 @@ def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: floa
     f = truth_brdf(material, wi[ok], np.broadcast_to(wo, wi[ok].shape), wl)
     geom = (cos_s * cos_panel / r ** 2 * dA)[ok]
     return lamp.radiance(wl) * np.sum(f * geom[:, None], axis=0)
+
+
+# --- a benchmark: `python -m normbox_lab.render [--quality default] [--patches 19,13,24] ...` ------
+def main(argv: list[str] | None = None) -> int:
+    import argparse
+
+    from normbox_lab.materials import truth_patch, truth_wall
+
+    ap = argparse.ArgumentParser(prog="python -m normbox_lab.render",
+                                 description="Render time and standard error per configuration")
+    ap.add_argument("--quality", default="default", choices=sorted(QUALITIES))
+    ap.add_argument("--patches", default="19,13,24")
+    ap.add_argument("--angles", default="30,60,90")
+    ap.add_argument("--truth", default="default", choices=("default", "model"))
+    ap.add_argument("--direct-only", action="store_true")
+    ap.add_argument("--variant", default=None)
+    args = ap.parse_args(argv)
+    wall = truth_wall(args.truth)
+    t_first = time.perf_counter()
+    variant = ensure_variant(args.variant)
+    print(f"variant {variant}; quality {args.quality} {QUALITIES[args.quality]}; "
+          f"{BAND_CENTRES_NM.size} bands of {BAND_WIDTH_NM:g} nm; no cache")
+    times, ses = [], []
+    for n in [int(p) for p in args.patches.split(",")]:
+        for a in [float(x) for x in args.angles.split(",")]:
+            r = render_view(patch=truth_patch(n, args.truth), wall=wall, angle_deg=a,
+                            quality=args.quality, direct_only=args.direct_only, cache=False,
+                            variant=variant)
+            rel = r.relative_std_error
+            times.append(r.render_time_s)
+            ses.append(rel)
+            print(f"patch {n:2d} s={a:4.0f}°  {r.render_time_s:6.2f} s  "
+                  f"Lv={luminance_cd_m2(r.wavelength_nm, r.radiance):8.2f} cd/m²  "
+                  f"rel. SE per 5 nm band: median {100 * np.median(rel):.2f} %  "
+                  f"90th pct {100 * np.percentile(rel, 90):.2f} %  max {100 * rel.max():.2f} %")
+    all_se = np.concatenate(ses)
+    t = np.array(times)
+    print(f"first render (includes kernel compile or load) {t[0]:.2f} s; "
+          f"median per configuration {np.median(t[1:] if t.size > 1 else t):.2f} s; "
+          f"rel. SE per band over all: median {100 * np.median(all_se):.2f} %, "
+          f"90th pct {100 * np.percentile(all_se, 90):.2f} %; total "
+          f"{time.perf_counter() - t_first:.1f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
