@@ -293,9 +293,13 @@ class CS2000A(SerialRadiometer):
                 pass
 
     def _cancel_quietly(self) -> None:
+        """MEAS,0 whatever the state.  During the pre-measurement the instrument ignores
+        commands; the OK00,ttt that ends it then arrives instead, and MEAS,0 is sent again."""
         try:
             self._resync()
-            self.exchange(b"MEAS,0", timeout_s=3.0)
+            reply = self.exchange(b"MEAS,0", timeout_s=FIRST_REPLY_TIMEOUT_S)
+            if reply.startswith(b"OK00,"):
+                self.exchange(b"MEAS,0", timeout_s=3.0)
         except (InstrumentError, SerialException, OSError):
             pass
         self._resync()
