@@ -116,7 +116,10 @@ class CS1000A(SerialRadiometer):
 
     @classmethod
     def open(cls, url: str, clock: Clock, *, baud: int = 9600, instrument_id: str = "radiometer",
-             **options: Any) -> CS1000A:
+             data_format: str = "ascii", observer_deg: int = 2, command_timeout_s: float = 10.0,
+             attempts: int = 3, reconnect_timeout_s: float = 10.0) -> CS1000A:
+        """Open `url` (a device path, socket://, sim://cs1000a?…) at 8N1 without flow control.
+        Explicit keywords, so a lab config's extra options are filtered out, not fatal."""
         from normbox_lab.sim.transport import open_port
 
         if int(baud) not in BAUD_RATES:
@@ -127,7 +130,10 @@ class CS1000A(SerialRadiometer):
                              rtscts=False, timeout=1.0)
         except (SerialException, OSError, ValueError) as exc:
             raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
-        return cls(port, clock, instrument_id=instrument_id, baud=int(baud), **options)
+        return cls(port, clock, instrument_id=instrument_id, baud=int(baud),
+                   data_format=data_format, observer_deg=observer_deg,
+                   command_timeout_s=command_timeout_s, attempts=attempts,
+                   reconnect_timeout_s=reconnect_timeout_s)
 
     # --- replies --------------------------------------------------------------------------------
     def parse_reply(self, raw: bytes) -> list[str]:

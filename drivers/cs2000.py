@@ -114,7 +114,11 @@ class CS2000A(SerialRadiometer):
 
     @classmethod
     def open(cls, url: str, clock: Clock, *, baud: int = 115200,
-             instrument_id: str = "radiometer", **options: Any) -> CS2000A:
+             instrument_id: str = "radiometer", data_format: str = "ascii",
+             delimiter: str = "\n", command_timeout_s: float = 10.0, attempts: int = 3,
+             reconnect_timeout_s: float = 10.0) -> CS2000A:
+        """Open `url` (device path, socket://, sim://cs2000a?…) at 8N1 with RTS/CTS.
+        Explicit keywords, so a lab config's extra options are filtered out, not fatal."""
         from normbox_lab.sim.transport import open_port
 
         try:
@@ -122,7 +126,10 @@ class CS2000A(SerialRadiometer):
                              rtscts=True, timeout=1.0)
         except (SerialException, OSError, ValueError) as exc:
             raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
-        return cls(port, clock, instrument_id=instrument_id, baud=int(baud), **options)
+        return cls(port, clock, instrument_id=instrument_id, baud=int(baud),
+                   data_format=data_format, delimiter=delimiter,
+                   command_timeout_s=command_timeout_s, attempts=attempts,
+                   reconnect_timeout_s=reconnect_timeout_s)
 
     # --- replies ----------------------------------------------------------------------------------
     def parse_reply(self, raw: bytes) -> list[str]:

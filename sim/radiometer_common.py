@@ -110,12 +110,16 @@ def colorimetry(radiance_W_sr_m2_nm: np.ndarray, observer_deg: int = 2) -> dict[
 
 
 def resample(wavelength_nm: np.ndarray, radiance: np.ndarray, shift_nm: float = 0.0) -> np.ndarray:
-    """Radiance at RADIOMETER_WAVELENGTHS_NM + shift_nm (linear, 0 outside the data)."""
+    """Radiance at RADIOMETER_WAVELENGTHS_NM + shift_nm: linear, the edge value held up to
+    1 nm beyond the data (so a ±0.3 nm shift does not zero 380/780 nm), 0 further out."""
     wl = np.asarray(wavelength_nm, dtype=float)
     L = np.asarray(radiance, dtype=float)
     if wl.shape != L.shape or wl.ndim != 1 or wl.size < 2:
         raise ValueError("scene must return two 1-D arrays of the same length")
-    return np.interp(RADIOMETER_WAVELENGTHS_NM + shift_nm, wl, L, left=0.0, right=0.0)
+    x = RADIOMETER_WAVELENGTHS_NM + shift_nm
+    out = np.interp(x, wl, L)
+    out[(x < wl[0] - 1.0) | (x > wl[-1] + 1.0)] = 0.0
+    return out
 
 
 def env_time_factor(default: float = 1.0) -> float:
