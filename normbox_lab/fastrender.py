@@ -1,0 +1,776 @@
+"""Fast spectral prediction: every traced path serves all wavelength bands.
+
+In the Normbox nothing geometric depends on wavelength (no dispersion in the fit model, one
+global η per material), so a path's vertices and directions can be shared by all bands and only
+its *throughput* evaluated per band.  Stock Mitsuba spectral rendering carries 4 hero wavelengths
+per path, so a 5 nm band sees a path only ~4/81 of the time; here every path feeds all 81 bands.
+
+How it works (a wavefront path tracer written with Dr.Jit, `BandPathTracer`):
+- Mitsuba does ray intersection, emitter sampling (position, pdf, visibility) and the
+  shape/BSDF bookkeeping, in a *mono* JIT variant (`llvm_ad_mono` on a CPU, `cuda_ad_mono` on a
+  GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.scene.scene_dict` — the
+  same builder as the stock renderer — with geometry-only stand-in BSDFs (one per role, so a hit
+  tells its material) and every panel cell's radiance replaced by its homogeneity-map factor.
+  The spectral radiance of the lamp is applied per band.
+- Directions are sampled independently of λ: a mixture of cosine-hemisphere and GGX (D·cos θh)
+  sampling, emitter sampling with MIS (power heuristic) as in Mitsuba's `path` integrator,
+  Russian roulette after `rr_depth` on a λ-independent survival probability, `max_depth` as in
+  Mitsuba (12 segments by default, as `normbox_lab.render`).
+- The material family (`normbox_lab.materials.Material`, which contains the fit model) separates:
+      f_b(ωi, ωo) = kd_b/π + ks_b · F(ωi·h; η_b) · D·G1·G1/(4 cos cos) + kb_b · B(ωi·ωo) − c
+  so one bounce multiplies band b's throughput by  kd_b·A + ks_b·F_b·S + kb_b·K − C  where
+  A, S, K, C are per-path numbers; F is per path when η does not depend on λ (the fit model)
+  and per band only for a dispersive truth material.
+- Band definition, the same as the stock renderer (`specfilm` triangular SRFs, `render.py`):
+  band b is the average of the radiance under a unit-height triangular hat of half-width 5 nm
+  centred on λ_b.  Each path draws one triangular offset δ shared by all bands and evaluates all
+  spectra at λ_b + δ (linear interpolation in 1 nm tables), so the estimate is unbiased for that
+  band average and all bands of one path use common random numbers (as MIST packs wavelengths
+  into the channels of one RGB render with the same random numbers).
+- Standard error per band from the per-path sample variance (paths are i.i.d.).
+
+Public API:
+    FastNormbox(geometry=None).render_view(patch=..., wall=..., angle_deg=..., lamp=...,
+                                           target_rel_se=0.002, seed=0) -> render.RenderResult
+    FastNormbox.predict(configs, ...) / predict_spectra(...)  (all patch × angle configurations)
+    BandPathTracer (the engine, any mono scene), BandGrid.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+import zlib
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+INV_PI = 1.0 / np.pi
+
+
+# --------------------------------------------------------------------------------------------
+# Bands
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BandGrid:
+    """Bands centred on start…stop every step nm, each a triangular hat of half-width step."""
+
+    start_nm: int = 380
+    stop_nm: int = 780
+    step_nm: int = 5
+
+    @property
+    def centres_nm(self) -> np.ndarray:
+        return np.arange(self.start_nm, self.stop_nm + 1, self.step_nm, dtype=np.float64)
+
+    @property
+    def n_bands(self) -> int:
+        return int((self.stop_nm - self.start_nm) // self.step_nm + 1)
+
+    @property
+    def fine_nm(self) -> np.ndarray:
+        """The 1 nm table grid covering every hat: start − step … stop + step (+1 for lerp)."""
+        return np.arange(self.start_nm - self.step_nm, self.stop_nm + self.step_nm + 2, 1.0)
+
+    def table(self, wavelength_nm: Any, values: Any) -> np.ndarray:
+        """A spectrum on the 1 nm table grid (linear interpolation, constant beyond its ends)."""
+        wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
+        v = np.broadcast_to(np.asarray(values, dtype=np.float64), wl.shape)
+        return np.interp(self.fine_nm, wl, v)
+
+    def band_average(self, wavelength_nm: Any, values: Any) -> np.ndarray:
+        """The exact hat-weighted band averages of a (piecewise-linear) spectrum."""
+        t = self.table(wavelength_nm, values)
+        fine = self.fine_nm
+        out = np.empty(self.n_bands)
+        for b, c in enumerate(self.centres_nm):
+            w = np.clip(1.0 - np.abs(fine - c) / self.step_nm, 0.0, None)
+            out[b] = np.sum(w * t) / np.sum(w)
+        return out
+
+
+# --------------------------------------------------------------------------------------------
+# Mitsuba helpers
+# --------------------------------------------------------------------------------------------
+
+def mono_variant(preferred: str | None = None) -> str:
+    """The JIT mono variant matching the project's spectral one (cuda → cuda_ad_mono, else llvm).
+
+    $NORMBOX_FAST_VARIANT forces one."""
+    if preferred:
+        return preferred
+    import os
+
+    forced = os.environ.get("NORMBOX_FAST_VARIANT")
+    if forced:
+        return forced
+    try:
+        from normbox_lab.mitsuba_setup import choose_variant
+
+        spectral = choose_variant()
+    except RuntimeError:
+        spectral = "llvm_ad_spectral"
+    return "cuda_ad_mono" if spectral.startswith("cuda") else "llvm_ad_mono"
+
+
+@contextlib.contextmanager
+def in_variant(variant: str) -> Iterator[Any]:
+    """Select a Mitsuba variant for a block, restoring the caller's (if one was set)."""
+    import mitsuba as mi
+
+    old = mi.variant()
+    if old != variant:
+        mi.set_variant(variant)
+    try:
+        yield mi
+    finally:
+        if old and old != variant:
+            mi.set_variant(old)
+
+
+@dataclass(frozen=True)
+class Radiometer:
+    """A square view of `fov_deg` (Mitsuba `perspective`, fov on x, square film, box filter),
+    averaged over its area: rays uniform on the film plane."""
+
+    origin_m: tuple[float, float, float]
+    target_m: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fov_deg: float = 1.0
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        o = np.asarray(self.origin_m, dtype=np.float64)
+        f = np.asarray(self.target_m, dtype=np.float64) - o
+        f /= np.linalg.norm(f)
+        left = np.cross(np.asarray(self.up, dtype=np.float64), f)
+        left /= np.linalg.norm(left)
+        return f, left, np.cross(f, left)
+
+
+# --------------------------------------------------------------------------------------------
+# The engine
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class BandEstimate:
+    """Per-band radiance (the emitter table's unit) and its Monte-Carlo standard error."""
+
+    wavelength_nm: np.ndarray
+    radiance: np.ndarray
+    std_error: np.ndarray
+    n_paths: int
+    time_s: float
+
+    @property
+    def relative_std_error(self) -> np.ndarray:
+        return self.std_error / np.maximum(np.abs(self.radiance), 1e-300)
+
+
+def max_rel_se(mean: np.ndarray, se: np.ndarray) -> float:
+    """The largest relative standard error over bands with signal (> 1e-6 of the peak)."""
+    sig = np.abs(mean) > 1e-6 * max(float(np.max(np.abs(mean))), 1e-300)
+    return float(np.max(se[sig] / np.abs(mean[sig]))) if np.any(sig) else 0.0
+
+
+@dataclass(frozen=True)
+class RectEmitter:
+    """An axis-aligned rectangular area light in a plane z = z_m, emitting downwards (−z),
+    Lambertian, with a piecewise-constant spatial factor map (rows along y, columns along x,
+    mean ≈ 1); the spectral radiance is given per render."""
+
+    centre_m: tuple[float, float, float]
+    half_x_m: float
+    half_y_m: float
+    factor_map: tuple[tuple[float, ...], ...] = ((1.0,),)
+
+    @property
+    def area_m2(self) -> float:
+        return 4.0 * self.half_x_m * self.half_y_m
+
+
+class BandPathTracer:
+    """Path tracer carrying all bands per path; Mitsuba (any JIT mono variant) does only the
+    ray casting: `scene.ray_intersect_preliminary` and `scene.ray_test`.
+
+    - `scene`: a Mitsuba scene loaded in `variant`, all shapes meshes (Mitsuba ≥ 3.6 makes
+      rectangles and cubes meshes).  Normals are the meshes' face normals (flat geometry).
+    - `bsdf_slots`: (BSDF object of that scene, material slot name) pairs: a surface whose BSDF
+      is listed takes the material passed for that name at render time; any other is black.
+    - `emitter_slot`: the slot name of the emitting surface (`emitter` gives its geometry for
+      emitter sampling).  Surfaces are two-sided (as the project's `normbox` BSDF).
+    No virtual function call is traced, and every material parameter is array data, so one
+    compiled kernel serves all materials, all sample angles, and later processes (Dr.Jit's
+    kernel cache on disk).
+    """
+
+    def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]], radiometer: Radiometer,
+                 emitter: RectEmitter, *, variant: str, emitter_slot: str = "panel",
+                 grid: BandGrid | None = None, max_depth: int = 12, rr_depth: int = 6,
+                 chunk_paths: int = 1 << 16) -> None:
+        import drjit as dr
+        import mitsuba as mi
+
+        self.m = getattr(mi, variant)
+        self.dr = dr
+        self.variant = variant
+        self.scene = scene
+        self.grid = grid or BandGrid()
+        self.max_depth = int(max_depth)
+        self.rr_depth = int(rr_depth)
+        self.chunk_paths = int(chunk_paths)
+        self.radiometer = radiometer
+        self.emitter = emitter
+        m = self.m
+        self.slot_names = ["<black>"]
+        self._bsdf_slot: dict[int, int] = {}
+        for bsdf, name in bsdf_slots:
+            if name not in self.slot_names:
+                self.slot_names.append(name)
+            reg = int(dr.reinterpret_array(m.UInt32, m.BSDFPtr(bsdf))[0])
+            self._bsdf_slot[reg] = self.slot_names.index(name)
+        if emitter_slot not in self.slot_names:
+            raise KeyError(f"emitter slot {emitter_slot!r} is not among the BSDF slots")
+        self.emitter_slot = self.slot_names.index(emitter_slot)
+        fm = np.asarray(emitter.factor_map, dtype=np.float64)
+        self._factor_map = m.Float(np.concatenate([fm.ravel(), [0.0]]))   # ≥ 2 entries
+        self._map_shape = fm.shape
+        self.refresh_geometry()
+
+    def refresh_geometry(self) -> None:
+        """Rebuild the per-shape tables (call after moving shapes with `mi.traverse`)."""
+        dr, m = self.dr, self.m
+        shapes = list(self.scene.shapes())
+        regs = [int(dr.reinterpret_array(m.UInt32, m.ShapePtr(s))[0]) for s in shapes]
+        size = max(regs) + 2
+        base = np.zeros(size, dtype=np.uint32)
+        slot = np.zeros(size, dtype=np.uint32)
+        normals = []
+        offset = 0
+        for s, reg in zip(shapes, regs, strict=True):
+            if not s.is_mesh():
+                raise TypeError(f"shape {s.id()!r} is not a mesh (need Mitsuba ≥ 3.6)")
+            p = np.asarray(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+            f = np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+            n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+            normals.append(n)
+            base[reg] = offset
+            offset += len(n)
+            b = s.bsdf()
+            breg = int(dr.reinterpret_array(m.UInt32, m.BSDFPtr(b))[0]) if b is not None else -1
+            slot[reg] = self._bsdf_slot.get(breg, 0)
+        nrm = np.concatenate(normals + [np.zeros((1, 3))])
+        self._shape_base = m.UInt32(base)
+        self._shape_slot = m.UInt32(slot)
+        self._normals = [m.Float(nrm[:, i]) for i in range(3)]
+
+    # ---- tables ------------------------------------------------------------------------
+    def _tables(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
+                emitter_radiance: Any) -> dict[str, Any]:
+        m = self.m
+        g = self.grid
+        fine = g.fine_nm
+        n_slots = len(self.slot_names)
+        kd = np.zeros((n_slots, fine.size))
+        ks = np.zeros((n_slots, fine.size))
+        kb = np.zeros((n_slots, fine.size))
+        width = max(n_slots, 2)                   # ≥ 2 entries: arrays, never JIT literals
+        par = {"alpha": np.full(width, 0.5), "eta": np.full(width, 1.5),
+               "c": np.zeros(width), "p_spec": np.zeros(width), "deta": np.zeros(width),
+               "inv_sigma2": np.ones(width)}
+        for s, name in enumerate(self.slot_names):
+            if s == 0 or s == self.emitter_slot:
+                continue                          # black
+            mat = materials.get(name)
+            if mat is None:
+                raise KeyError(f"no material for {name!r}")
+            kd[s] = g.table(mat.wavelength_nm, mat.kd)
+            ks[s] = g.table(mat.wavelength_nm, mat.ks)
+            mkb = getattr(mat, "kb", None)
+            if mkb is not None:
+                kb[s] = g.table(mat.wavelength_nm, mkb)
+            par["alpha"][s] = max(float(mat.alpha), 1e-4)
+            par["eta"][s] = float(mat.eta)
+            par["c"][s] = float(getattr(mat, "c", 0.0))
+            par["deta"][s] = float(getattr(mat, "deta_per_100nm", 0.0)) / 100.0
+            par["inv_sigma2"][s] = 1.0 / float(getattr(mat, "backscatter_sigma", 1.0)) ** 2
+            par["p_spec"][s] = specular_probability(mat)
+        le = g.table(emitter_wavelength_nm, emitter_radiance)
+        tab = {k: m.Float(v) for k, v in par.items()}
+
+        def pair(t: np.ndarray) -> np.ndarray:
+            """(…, n) → (…, n, 2): value and slope to the next 1 nm sample."""
+            return np.stack([t, np.diff(t, axis=-1, append=t[..., -1:])], axis=-1)
+
+        tab.update(kdks=m.Float(np.concatenate([pair(kd), pair(ks)], axis=-1).ravel()),
+                   kb=m.Float(pair(kb).ravel()), le=m.Float(pair(le).ravel()),
+                   n_fine=int(fine.size), has_kb=bool(np.any(kb)),
+                   dispersive=bool(np.any(par["deta"])))
+        return tab
+
+    # ---- geometry helpers ----------------------------------------------------------------
+    def _emitter_factor(self, x: Any, y: Any) -> Any:
+        """The emitter's spatial factor at a point of its plane."""
+        dr, m = self.dr, self.m
+        e = self.emitter
+        ny, nx = self._map_shape
+        i = m.UInt32(dr.clip(dr.floor((x - e.centre_m[0] + e.half_x_m) / (2 * e.half_x_m) * nx),
+                             0, nx - 1))
+        j = m.UInt32(dr.clip(dr.floor((y - e.centre_m[1] + e.half_y_m) / (2 * e.half_y_m) * ny),
+                             0, ny - 1))
+        return dr.gather(m.Float, self._factor_map, j * nx + i)
+
+    def _offset(self, p: Any, n: Any) -> Any:
+        """A ray origin just off the surface on the side of n."""
+        dr = self.dr
+        eps = 2e-5 * (1.0 + dr.max(dr.abs(p)))
+        return p + n * eps
+
+    # ---- one chunk of paths ------------------------------------------------------------
+    def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
+        """Trace n paths; returns (n_bands, n) float64 per-path radiance estimates."""
+        dr, m = self.dr, self.m
+        scene = self.scene
+        g = self.grid
+        em = self.emitter
+        step = g.step_nm
+        n_b = g.n_bands
+        n_fine = tab["n_fine"]
+        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
+        idx = dr.arange(m.UInt64, n)
+        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=idx)
+        # per-path wavelength offset δ ~ triangular(−step, step), shared by all bands
+        delta = step * (rng.next_float32() - rng.next_float32())
+        pos = delta + step                         # ∈ (0, 2·step)
+        k = m.UInt32(dr.floor(pos))
+        frac = pos - dr.floor(pos)
+        offsets = [b * step for b in range(n_b)]
+
+        def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
+            """Spectra at λ_b + δ for every band: `width`/2 interleaved (value, slope) tables,
+            one packet gather per band."""
+            base = slot * n_fine + k
+            arr = m.Array4f if width == 4 else m.Array2f
+            out: list[list[Any]] = [[] for _ in range(width // 2)]
+            for off in offsets:
+                v = dr.gather(arr, table, base + off, active)
+                for t in range(width // 2):
+                    out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
+            return out
+
+        # camera rays, uniform over the square field of view
+        f, left, up = self.radiometer.frame()
+        th = float(np.tan(np.deg2rad(self.radiometer.fov_deg) / 2.0))
+        u1 = (2.0 * rng.next_float32() - 1.0) * th
+        u2 = (2.0 * rng.next_float32() - 1.0) * th
+        d = dr.normalize(m.Vector3f(*map(float, f)) + m.Vector3f(*map(float, left)) * u1
+                         + m.Vector3f(*map(float, up)) * u2)
+        ray = m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
+        lz = float(em.centre_m[2])
+        area = em.area_m2
+
+        thr = [m.Float(1.0) for _ in range(n_b)]      # per-band throughput
+        acc = [m.Float(0.0) for _ in range(n_b)]      # per-band radiance / Le_b
+        active = m.Bool(True)
+        prev_pdf = m.Float(0.0)                       # 0: the camera ray (no MIS)
+        for depth in range(self.max_depth):
+            pi = scene.ray_intersect_preliminary(ray, active=active)
+            active = active & pi.is_valid()
+            reg = dr.reinterpret_array(m.UInt32, pi.shape)
+            slot = dr.gather(m.UInt32, self._shape_slot, reg, active)
+            fidx = dr.gather(m.UInt32, self._shape_base, reg, active) + pi.prim_index
+            ng = m.Vector3f(*(dr.gather(m.Float, c, fidx, active) for c in self._normals))
+            p = ray.o + ray.d * pi.t
+            # the emitter, hit by the camera ray or the previous BSDF sample (MIS with NEE)
+            cos_l = ray.d.z                             # light faces −z: front when going up
+            hit_em = active & (slot == self.emitter_slot) & (cos_l > 0)
+            pdf_em = dr.square(pi.t) / (area * dr.fmax(cos_l, 1e-12))
+            w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
+                          / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
+            e = dr.select(hit_em, self._emitter_factor(p.x, p.y) * w, 0.0)
+            for b in range(n_b):
+                acc[b] = dr.fma(thr[b], e, acc[b])
+            active = active & (slot > 0) & (slot != self.emitter_slot)
+            if depth + 1 >= self.max_depth:
+                break
+            # local frame, normal towards the incoming side (two-sided surfaces)
+            wi_w = -ray.d
+            nf = dr.select(dr.dot(wi_w, ng) < 0, -ng, ng)
+            frame = m.Frame3f(nf)
+            wi = frame.to_local(wi_w)
+            alpha = dr.gather(m.Float, tab["alpha"], slot, active)
+            eta = dr.gather(m.Float, tab["eta"], slot, active)
+            cc = dr.gather(m.Float, tab["c"], slot, active)
+            p_spec = dr.gather(m.Float, tab["p_spec"], slot, active)
+            kd, ks = lookup(tab["kdks"], slot, active, 4)
+            kb = lookup(tab["kb"], slot, active, 2)[0] if has_kb else None
+            inv_s2 = dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None
+            deta = dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None
+
+            vx = SimpleNamespace(wi=wi, alpha=alpha, eta=eta, c=cc, kd=kd, ks=ks, kb=kb,
+                                 inv_s2=inv_s2, deta=deta, delta=delta)
+
+            # emitter sampling (next-event estimation): a uniform point of the rectangle
+            o = self._offset(p, nf)
+            lx = em.centre_m[0] + (2.0 * rng.next_float32() - 1.0) * em.half_x_m
+            ly = em.centre_m[1] + (2.0 * rng.next_float32() - 1.0) * em.half_y_m
+            to_l = m.Vector3f(lx, ly, lz) - o
+            dist2 = dr.squared_norm(to_l)
+            dist = dr.sqrt(dist2)
+            dl = to_l / dist
+            cos_e = dl.z
+            shadow = m.Ray3f(o, dl)
+            shadow.maxt = dist * (1.0 - 1e-4)
+            ok = active & (cos_e > 0)
+            ok = ok & ~scene.ray_test(shadow, ok)
+            pdf_l = dist2 / (area * dr.fmax(cos_e, 1e-12))
+            wo = frame.to_local(dl)
+            bpdf = self._pdf(wi, wo, alpha, p_spec)
+            mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
+            em_w = self._emitter_factor(lx, ly) / dr.fmax(pdf_l, 1e-30)
+            fac = self._band_factors(vx, wo, em_w * mis * wo.z, ok)
+            for b in range(n_b):
+                acc[b] = dr.fma(thr[b], fac[b], acc[b])
+            # BSDF sampling: cosine or GGX, by a λ-independent coin
+            uc = rng.next_float32()
+            us = m.Point2f(rng.next_float32(), rng.next_float32())
+            wo_cos = m.warp.square_to_cosine_hemisphere(us)
+            t2 = alpha * alpha * us.x / dr.fmax(1.0 - us.x, 1e-7)
+            cth = dr.rsqrt(1.0 + t2)
+            sth = dr.safe_sqrt(1.0 - cth * cth)
+            phi = 2.0 * dr.pi * us.y
+            hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
+            wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
+            wo = dr.select(uc < p_spec, wo_spec, wo_cos)
+            bpdf = self._pdf(wi, wo, alpha, p_spec)
+            active = active & (wo.z > 0) & (bpdf > 0)
+            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), active)
+            for b in range(n_b):
+                thr[b] = thr[b] * fac[b]
+            # Russian roulette on a λ-independent survival probability
+            if depth + 1 >= self.rr_depth:
+                probe = dr.abs(thr[0])
+                for b in range(1, n_b, 8):
+                    probe = dr.fmax(probe, dr.abs(thr[b]))
+                q = dr.minimum(probe, 0.95)
+                active = active & (rng.next_float32() < q)
+                inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
+                for b in range(n_b):
+                    thr[b] = thr[b] * inv_q
+            ray = m.Ray3f(o, frame.to_world(wo))
+            prev_pdf = bpdf
+            dr.eval(thr, acc, ray, active, prev_pdf, rng)
+        le_tab = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
+        out = [acc[b] * le_tab[b] for b in range(n_b)]
+        dr.eval(out)
+        return np.stack([np.asarray(o, dtype=np.float64) for o in out])
+
+    def _band_factors(self, vx: Any, wo: Any, weight: Any, mask: Any) -> list[Any]:
+        """weight · f_b(wi, wo) for every band at vertex `vx` (weight includes the cosine); 0
+        where not `mask` (selects, never multiplications by 0, so NaNs cannot leak)."""
+        dr = self.dr
+        wi, alpha = vx.wi, vx.alpha
+        dispersive, has_kb = vx.deta is not None, vx.kb is not None
+        h = dr.normalize(wi + wo)
+        a2 = alpha * alpha
+        dd = h.z * h.z * (a2 - 1.0) + 1.0
+        dist = dr.select(h.z > 0, a2 / (dr.pi * dd * dd), 0.0)
+
+        def g1(c: Any) -> Any:
+            c2 = dr.clip(c * c, 1e-12, 1.0)
+            return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - c2) / c2))
+
+        valid = mask & (wi.z > 0) & (wo.z > 0)
+        geo = dist * g1(wi.z) * g1(wo.z) / (4.0 * dr.select(valid, wi.z * wo.z, 1.0))
+        cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+        a_ = dr.select(valid, weight * INV_PI, 0.0)
+        c_ = dr.select(valid, weight * vx.c, 0.0)
+        s_ = weight * geo
+        if not dispersive:
+            s_ = s_ * fresnel(vx.eta, cb)
+        s_ = dr.select(valid, s_, 0.0)
+        if has_kb:
+            k_ = dr.select(valid, weight * INV_PI * dr.exp((dr.dot(wi, wo) - 1.0) * vx.inv_s2),
+                           0.0)
+        out = []
+        for b in range(self.grid.n_bands):
+            fb = dr.fma(vx.kd[b], a_, -c_)
+            if dispersive:
+                lam = (float(self.grid.centres_nm[b]) - 550.0) + vx.delta
+                fb = dr.fma(vx.ks[b] * fresnel(dr.fma(vx.deta, lam, vx.eta), cb), s_, fb)
+            else:
+                fb = dr.fma(vx.ks[b], s_, fb)
+            if has_kb:
+                fb = dr.fma(vx.kb[b], k_, fb)
+            out.append(fb)
+        return out
+
+    def _pdf(self, wi: Any, wo: Any, alpha: Any, p_spec: Any) -> Any:
+        """Solid-angle pdf of the cosine + GGX(D·cos θh) mixture for the outgoing wo."""
+        dr = self.dr
+        h = dr.normalize(wi + wo)
+        a2 = alpha * alpha
+        dd = h.z * h.z * (a2 - 1.0) + 1.0
+        pdf_h = dr.select(h.z > 0, a2 / (dr.pi * dd * dd), 0.0) * h.z
+        woh = dr.abs(dr.dot(wo, h))
+        pdf_spec = dr.select(woh > 0, pdf_h / (4.0 * dr.fmax(woh, 1e-12)), 0.0)
+        pdf_cos = dr.fmax(wo.z, 0.0) * INV_PI
+        return dr.select(wo.z > 0, p_spec * pdf_spec + (1.0 - p_spec) * pdf_cos, 0.0)
+
+    # ---- public ------------------------------------------------------------------------
+    def render(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
+               emitter_radiance: Any, *, n_paths: int | None = None,
+               target_rel_se: float | None = None, seed: int = 0,
+               max_paths: int = 1 << 23, pilot_paths: int = 1 << 14) -> BandEstimate:
+        """Radiance per band seen by the radiometer, with its standard error.
+
+        Either a fixed `n_paths`, or `target_rel_se` (the largest relative standard error over
+        the bands with signal, `max_rel_se`): a pilot estimates the per-path variance, then paths
+        are added until the target is met (or `max_paths`).  Deterministic for a given seed.
+        """
+        if n_paths is None and target_rel_se is None:
+            raise ValueError("give n_paths or target_rel_se")
+        t0 = time.perf_counter()
+        tab = self._tables(materials, emitter_wavelength_nm, emitter_radiance)
+        n_b = self.grid.n_bands
+        s1 = np.zeros(n_b)
+        s2 = np.zeros(n_b)
+        done = 0
+        chunk_no = 0
+        goal = int(n_paths) if n_paths is not None else min(int(pilot_paths), int(max_paths))
+        while True:
+            while done < goal:
+                n = min(self.chunk_paths, goal - done)
+                vals = self._trace(tab, n, seed=_chunk_seed(seed, chunk_no))
+                chunk_no += 1
+                s1 += vals.sum(axis=1)
+                s2 += np.einsum("ij,ij->i", vals, vals)
+                done += n
+            mean = s1 / done
+            var = np.maximum(s2 / done - mean * mean, 0.0) * done / max(done - 1, 1)
+            se = np.sqrt(var / done)
+            if target_rel_se is None:
+                break
+            rel = max_rel_se(mean, se)
+            if rel <= target_rel_se or done >= max_paths:
+                break
+            need = int(np.ceil(done * (rel / target_rel_se) ** 2 * 1.05))
+            goal = min(int(max_paths), max(need, done + 1024))
+        return BandEstimate(self.grid.centres_nm, mean, se, done, time.perf_counter() - t0)
+
+
+def _chunk_seed(seed: int, chunk_no: int) -> int:
+    return (int(seed) * 0x9E3779B1 + chunk_no * 0x85EBCA6B + 0x2545F491) & 0xFFFFFFFFFFFF
+
+
+def fresnel(eta: Any, cos_beta: Any) -> Any:
+    """Cook-Torrance unpolarised dielectric Fresnel (Dr.Jit; as `brdf_model`)."""
+    import drjit as dr
+
+    g = dr.sqrt(dr.fmax(eta * eta - 1.0 + cos_beta * cos_beta, 0.0))
+    a = (g - cos_beta) / (g + cos_beta)
+    b = (cos_beta * (g + cos_beta) - 1.0) / (cos_beta * (g - cos_beta) + 1.0)
+    return 0.5 * a * a * (1.0 + b * b)
+
+
+def specular_probability(material: Any) -> float:
+    """Share of GGX direction sampling for a material: 0 without ks, else 0.15…0.5 growing with
+    ks/(ks+kd) and smoothness (only efficiency depends on it, never the expected value)."""
+    ks = float(np.mean(np.abs(material.ks)))
+    if ks <= 0.0:
+        return 0.0
+    kd = float(np.mean(np.abs(material.kd)))
+    return float(min(0.5, max(0.15, 0.25 / max(float(material.alpha), 0.1) * ks / (ks + kd))))
+
+
+# --------------------------------------------------------------------------------------------
+# The Normbox: the project's scene, its materials and lamp
+# --------------------------------------------------------------------------------------------
+
+ROLES = ("patch", "wall", "holder")
+#: geometry-only stand-in BSDFs of the mono scene → the material slot they stand for
+STAND_INS = {"patch": "patch", "wall": "wall", "holder": "holder", "post": "holder",
+             "panel": "panel"}
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    """One radiometer reading to predict: a patch material at a sample angle."""
+
+    patch: Any                   # normbox_lab.materials.Material (fitted or truth)
+    angle_deg: float
+    key: str = ""                # e.g. "patch-19@30"; default: "<patch name>@<angle>"
+
+    @property
+    def name(self) -> str:
+        return self.key or f"{self.patch.name}@{self.angle_deg:g}"
+
+
+class FastNormbox:
+    """The virtual Normbox (`normbox_lab.scene.scene_dict`) rendered by `BandPathTracer`.
+
+    One geometry scene for all sample angles: the patch and the holder plate are moved in place
+    (`mi.traverse`), so no kernel is ever recompiled for a new angle or material.  The
+    materials and the lamp are data passed per render.  Results are
+    `normbox_lab.render.RenderResult`s on the stock renderer's bands (`render.BAND_CENTRES_NM`,
+    triangular 5 nm hats), in W·sr⁻¹·m⁻²·nm⁻¹.
+    """
+
+    MOVING = ("patch", "holder_plate")
+
+    def __init__(self, geometry: Any = None, *, variant: str | None = None,
+                 max_depth: int = 12, rr_depth: int = 6, grid: BandGrid | None = None,
+                 chunk_paths: int = 1 << 16) -> None:
+        from normbox_lab.scene import as_geometry
+
+        self.geometry = as_geometry(geometry)
+        self.variant = mono_variant(variant)
+        self.max_depth = int(max_depth)
+        self.rr_depth = int(rr_depth)
+        self.grid = grid or BandGrid()
+        self.chunk_paths = int(chunk_paths)
+        self._scene: Any = None
+        self._angle_deg: float | None = None
+        self._tracers: dict[int, BandPathTracer] = {}
+
+    # ---- the geometry scene ------------------------------------------------------------
+    def _scene_dict(self, mi: Any, angle_deg: float, stand_in: Mapping[str, Any]) -> dict:
+        from normbox_lab import scene as nbscene
+
+        d = nbscene.scene_dict(self.geometry, angle_deg=angle_deg,
+                               patch_bsdf=stand_in["patch"], wall_bsdf=stand_in["wall"],
+                               holder_bsdf=stand_in["holder"], lamp_values=np.ones(2),
+                               lamp_grid_nm=np.array([360.0, 830.0]),
+                               film={"type": "hdrfilm", "width": 1, "height": 1})
+        d.pop("sensor", None)
+        d.pop("integrator", None)
+        # the moving plate must stay its own shape: Mitsuba merges shapes sharing a BSDF
+        if "holder_post" in d:
+            d["holder_post"]["bsdf"] = stand_in["post"]
+        for key, value in d.items():
+            if key.startswith("panel_") and isinstance(value, dict):
+                value.pop("emitter", None)          # emission is the tracer's (RectEmitter)
+                value["bsdf"] = stand_in["panel"]
+        return d
+
+    def _ensure_scene(self, angle_deg: float) -> None:
+        from normbox_lab import scene as nbscene
+
+        if self._scene is not None:
+            self.set_angle(angle_deg)
+            return
+        g = self.geometry
+        with in_variant(self.variant) as mi:
+            self._stand_in = {r: mi.load_dict({"type": "diffuse", "reflectance": 0.1 + 0.1 * i})
+                              for i, r in enumerate(STAND_INS)}
+            d = self._scene_dict(mi, angle_deg, self._stand_in)
+            self._scene = mi.load_dict(d)
+            self._to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
+                              for k in self.MOVING}
+        self._angle_deg = float(angle_deg)
+        cells = nbscene.panel_cells_m(g)
+        z = float(cells[0][0][2])
+        self._emitter = RectEmitter((0.0, 0.0, z), g.aperture_x_mm / 2000.0,
+                                    g.aperture_y_mm / 2000.0,
+                                    tuple(map(tuple, nbscene.panel_map(
+                                        g.panel_homogeneity_percent))))
+        self._radiometer = Radiometer(origin_m=tuple(nbscene.radiometer_position_m(g)),
+                                      target_m=tuple(nbscene.sample_centre_m(g)),
+                                      up=(0.0, 0.0, 1.0), fov_deg=float(g.radiometer_view_deg))
+
+    def set_angle(self, angle_deg: float) -> None:
+        """Rotate the patch and its holder plate in place to `angle_deg`."""
+        if self._scene is None:
+            self._ensure_scene(angle_deg)
+            return
+        if self._angle_deg == float(angle_deg):
+            return
+        with in_variant(self.variant) as mi:
+            d = self._scene_dict(mi, float(angle_deg), self._stand_in)
+            params = mi.traverse(self._scene)
+            for key in self.MOVING:
+                new = np.array(d[key]["to_world"].matrix, dtype=np.float64)
+                rel = new @ np.linalg.inv(self._to_world[key])
+                if f"{key}.to_world" in params:
+                    params[f"{key}.to_world"] = mi.ScalarTransform4f(new)
+                else:
+                    v = np.array(params[f"{key}.vertex_positions"], dtype=np.float64)
+                    v = v.reshape(-1, 3) @ rel[:3, :3].T + rel[:3, 3]
+                    params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+                    nk = f"{key}.vertex_normals"
+                    if nk in params and dr_size(params[nk]) > 0:
+                        nn = np.array(params[nk], dtype=np.float64).reshape(-1, 3)
+                        nn = nn @ np.linalg.inv(rel[:3, :3])
+                        nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-30)
+                        params[nk] = mi.Float(nn.ravel().astype(np.float32))
+                self._to_world[key] = new
+            params.update()
+        self._angle_deg = float(angle_deg)
+        for tr in self._tracers.values():
+            tr.refresh_geometry()
+
+    def tracer(self, angle_deg: float, *, direct_only: bool = False) -> BandPathTracer:
+        """The tracer (max_depth 12, or 2 for the direct light only) with the patch at angle."""
+        self._ensure_scene(angle_deg)
+        depth = 2 if direct_only else self.max_depth
+        tr = self._tracers.get(depth)
+        if tr is None:
+            tr = self._tracers[depth] = BandPathTracer(
+                self._scene, [(self._stand_in[r], STAND_INS[r]) for r in STAND_INS],
+                self._radiometer, self._emitter, variant=self.variant, emitter_slot="panel",
+                grid=self.grid, max_depth=depth, rr_depth=self.rr_depth,
+                chunk_paths=self.chunk_paths)
+        return tr
+
+    def render_view(self, *, patch: Any, wall: Any, angle_deg: float, holder: Any = None,
+                    lamp: Any = None, target_rel_se: float | None = 0.002,
+                    n_paths: int | None = None, seed: int = 0, direct_only: bool = False,
+                    max_paths: int = 1 << 23) -> Any:
+        """Like `render.render_view`: the radiance the radiometer sees, per band, with its MC
+        standard error (`RenderResult`; `batches` holds the mean only, `info["n_paths"]`)."""
+        from normbox_lab.materials import holder_material
+        from normbox_lab.render import LAMP_GRID_NM, Lamp, RenderResult
+
+        holder = holder if holder is not None else holder_material()
+        lamp = lamp if lamp is not None else Lamp()
+        tr = self.tracer(angle_deg, direct_only=direct_only)
+        est = tr.render({"patch": patch, "wall": wall, "holder": holder}, LAMP_GRID_NM,
+                        lamp.radiance(LAMP_GRID_NM), n_paths=n_paths,
+                        target_rel_se=None if n_paths is not None else target_rel_se,
+                        seed=seed, max_paths=max_paths)
+        info = {"angle_deg": float(angle_deg), "patch": patch.name, "wall": wall.name,
+                "renderer": "fastrender", "n_paths": est.n_paths, "seed": int(seed),
+                "max_depth": tr.max_depth, "target_rel_se": target_rel_se,
+                "max_rel_se": max_rel_se(est.radiance, est.std_error)}
+        return RenderResult(est.wavelength_nm, est.radiance, est.std_error,
+                            est.radiance[None, :].copy(), est.time_s, self.variant,
+                            key="", cached=False, info=info)
+
+    def predict(self, configs: Sequence[PredictConfig], *, wall: Any, holder: Any = None,
+                lamp: Any = None, target_rel_se: float | None = 0.002,
+                n_paths: int | None = None, seed: int = 0) -> list[Any]:
+        """Every configuration in process, angle-major (one scene per angle); the seed of each
+        configuration is derived from `seed` and its name, so results do not depend on order."""
+        order = sorted(range(len(configs)), key=lambda i: float(configs[i].angle_deg))
+        out: list[Any] = [None] * len(configs)
+        for i in order:
+            c = configs[i]
+            out[i] = self.render_view(patch=c.patch, wall=wall, angle_deg=c.angle_deg,
+                                      holder=holder, lamp=lamp, target_rel_se=target_rel_se,
+                                      n_paths=n_paths, seed=config_seed(seed, c.name))
+        return out
+
+
+def dr_size(x: Any) -> int:
+    import drjit as dr
+
+    return int(dr.width(x))
+
+
+def config_seed(seed: int, name: str) -> int:
+    """A per-configuration seed from the run seed and the configuration's name."""
+    return (int(seed) << 20) ^ zlib.crc32(name.encode())
