@@ -291,15 +291,34 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
 
 
 # --- a closed-form check: the direct light -------------------------------------------------------
+def band_average(wavelength_nm: Any, values: Any, centres_nm: Any = BAND_CENTRES_NM,
+                 width_nm: float = BAND_WIDTH_NM) -> np.ndarray:
+    """Average of a finely sampled spectrum (…, n_λ) under the render's triangular band hats."""
+    wl = np.asarray(wavelength_nm, dtype=np.float64)
+    c = np.asarray(centres_nm, dtype=np.float64)
+    hats = np.clip(1.0 - np.abs(wl[None, :] - c[:, None]) / width_nm, 0.0, None)
+    hats /= hats.sum(axis=1, keepdims=True)
+    return np.asarray(values, dtype=np.float64) @ hats.T
+
+
 def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: float,
-                    lamp: Lamp | None = None, wavelength_nm: Any = BAND_CENTRES_NM,
+                    lamp: Lamp | None = None, wavelength_nm: Any = None,
                     subdivisions: int = 8) -> np.ndarray:
     """Direct radiance (W·sr⁻¹·m⁻²·nm⁻¹) at the sample centre towards the radiometer, by
     quadrature over the 25 panel cells (each split `subdivisions`² times):
 
         L(λ) = Σ f(ωi, ωo, λ) · m_k · L_panel(λ) · cosθ_sample · cosθ_panel / r² · ΔA
 
-    with the truth BRDF in the sample's frame; nothing occludes the panel from the sample."""
+    with the truth BRDF in the sample's frame; nothing occludes the panel from the sample.
+    `wavelength_nm` None: the render's bands (hat averages, comparable band by band with
+    `render_view`); otherwise the value at each wavelength."""
+    if wavelength_nm is None:
+        fine = np.arange(BAND_CENTRES_NM[0] - BAND_WIDTH_NM,
+                         BAND_CENTRES_NM[-1] + BAND_WIDTH_NM + 0.25, 0.5)
+        return band_average(fine, direct_estimate(geometry, material=material,
+                                                  angle_deg=angle_deg, lamp=lamp,
+                                                  wavelength_nm=fine,
+                                                  subdivisions=subdivisions))
     from normbox_lab.materials import truth_brdf
     from normbox_lab.scene import (
         panel_cells_m,

@@ -257,3 +257,19 @@ def test_fitted_materials_render(cache_dir):
                     direct_only=True, cache_dir=cache_dir)
     assert a.key == b.key                     # same content, same cache entry
     assert np.array_equal(a.radiance, b.radiance)
+
+
+@pytest.mark.slow
+def test_default_quality_error_bars_and_accuracy(tmp_path):
+    """Default quality: < 1 % standard error per 5 nm band at 30°, and the direct-only render
+    agrees with the quadrature band by band within its error bars."""
+    from normbox_lab.render import direct_estimate, render_view
+
+    white = truth_patch(19)
+    est = direct_estimate(material=white, angle_deg=30.0)
+    r = render_view(patch=white, wall=truth_wall(), angle_deg=30.0, quality="default",
+                    direct_only=True, cache_dir=tmp_path)
+    assert np.median(r.relative_std_error) < 0.01
+    assert np.allclose(r.radiance, est, rtol=0.02)
+    z = np.abs(r.radiance - est) / r.std_error
+    assert np.mean(z < 3.0) > 0.9
