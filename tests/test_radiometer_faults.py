@@ -220,3 +220,30 @@ def test_faults_from_the_url_alone(model):
     r = d.measure()
     assert r.colorimetry.Lv_cd_m2 == pytest.approx(100.0, rel=1e-3)   # the default spectrum
     assert core.instance(model).faults.log == ["no-reply#2", "busy#3"]
+
+
+@models
+def test_the_lab_assembly_opens_the_driver_on_the_analytic_world(model):
+    """As `build_lab` does it: config options (baud, …) through `open`, the world's radiance
+    through `sim://`, the ETA from the same timing model as the emulator."""
+    from normbox_lab import lab as labmod
+    from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+
+    text = SIM_CONFIG_TEMPLATE.replace('driver = "cs1000a"', f'driver = "{model}"') \
+        .replace('port = "sim://cs1000a"', f'port = "sim://{model}?noise=off"')
+    if model == "cs2000a":
+        text = text.replace("baud = 9600 ", "baud = 115200 ")
+    lab = labmod.build_lab(parse_config(text), world="analytic")
+    lab.world.place_patch(19)                     # white
+    lab.world.set_sample_angle(30.0)
+    rad = lab.instrument("radiometer")
+    assert type(rad) is MODELS[model][0]
+    lv = lab.world.luminance_cd_m2(19, 30.0)
+    t0 = lab.clock.now_s()
+    r = rad.measure()
+    took = lab.clock.now_s() - t0
+    wl, truth = lab.world.radiance_in_view()
+    np.testing.assert_allclose(r.radiance_W_sr_m2_nm, truth, rtol=1e-4, atol=1e-9)
+    assert r.colorimetry.Lv_cd_m2 == pytest.approx(lv, rel=0.02)
+    assert took == pytest.approx(rad.estimate_measure_time_s(lv), rel=0.1)
+    lab.close()
