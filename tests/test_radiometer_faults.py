@@ -242,7 +242,7 @@ def test_the_lab_assembly_opens_the_driver_on_the_analytic_world(model):
     t0 = lab.clock.now_s()
     r = rad.measure()
     took = lab.clock.now_s() - t0
-    wl, truth = lab.world.radiance_in_view()
+    _, truth = lab.world.radiance_in_view()
     np.testing.assert_allclose(r.radiance_W_sr_m2_nm, truth, rtol=1e-4, atol=1e-9)
     assert r.colorimetry.Lv_cd_m2 == pytest.approx(lv, rel=0.02)
     assert took == pytest.approx(rad.estimate_measure_time_s(lv), rel=0.1)
