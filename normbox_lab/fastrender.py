@@ -774,3 +774,114 @@ def dr_size(x: Any) -> int:
 def config_seed(seed: int, name: str) -> int:
     """A per-configuration seed from the run seed and the configuration's name."""
     return (int(seed) << 20) ^ zlib.crc32(name.encode())
+
+
+# --------------------------------------------------------------------------------------------
+# All patch × angle spectra, in process or on a cluster
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class PredictionSet:
+    """Predicted radiance for every patch × angle: arrays (n_patch, n_angle, n_band)."""
+
+    wavelength_nm: np.ndarray
+    patch_names: list[str]
+    angles_deg: np.ndarray
+    radiance: np.ndarray            # W·sr⁻¹·m⁻²·nm⁻¹ (5 nm triangular bands)
+    std_error: np.ndarray           # Monte-Carlo standard error, same unit
+    n_paths: np.ndarray             # (n_patch, n_angle)
+    render_time_s: np.ndarray       # (n_patch, n_angle)
+    wall_time_s: float = 0.0
+    executor: str = "inprocess"
+
+    @property
+    def relative_std_error(self) -> np.ndarray:
+        return self.std_error / np.maximum(np.abs(self.radiance), 1e-300)
+
+    def spectrum(self, patch: str, angle_deg: float) -> tuple[np.ndarray, np.ndarray]:
+        """(radiance, std_error) of one configuration."""
+        i = self.patch_names.index(patch)
+        j = int(np.argmin(np.abs(self.angles_deg - float(angle_deg))))
+        return self.radiance[i, j], self.std_error[i, j]
+
+
+_WORKER_BOXES: dict[tuple, FastNormbox] = {}
+
+
+def render_task(task: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """One job (module-level, so executors can ship it): render `task["configs"]` — a list of
+    (name, patch material, angle) — in this process's cached `FastNormbox`."""
+    key = (repr(task["geometry"]), task.get("variant"), int(task["max_depth"]))
+    box = _WORKER_BOXES.get(key)
+    if box is None:
+        threads = task.get("threads")
+        if threads:
+            import drjit as dr
+
+            dr.set_thread_count(int(threads))
+        box = _WORKER_BOXES[key] = FastNormbox(task["geometry"], variant=task.get("variant"),
+                                               max_depth=int(task["max_depth"]))
+    out = []
+    for name, patch, angle in task["configs"]:
+        r = box.render_view(patch=patch, wall=task["wall"], angle_deg=angle,
+                            holder=task["holder"], lamp=task["lamp"],
+                            target_rel_se=task["target_rel_se"], n_paths=task["n_paths"],
+                            seed=config_seed(task["seed"], name))
+        out.append({"name": name, "radiance": r.radiance, "std_error": r.std_error,
+                    "n_paths": r.info["n_paths"], "time_s": r.render_time_s})
+    return out
+
+
+def predict_spectra(patches: Sequence[Any] | Mapping[str, Any], angles_deg: Sequence[float], *,
+                    wall: Any, holder: Any = None, lamp: Any = None, geometry: Any = None,
+                    target_rel_se: float | None = 0.002, n_paths: int | None = None,
+                    seed: int = 0, executor: Any = None, variant: str | None = None,
+                    max_depth: int = 12, patches_per_job: int = 6,
+                    threads_per_job: int | None = None) -> PredictionSet:
+    """Predict every patch × angle radiometer spectrum with the given (e.g. fitted) materials.
+
+    `patches`: `materials.Material`s (use `Material.from_fit(MaterialFit)`) or a name → material
+    mapping; `wall`, `holder` likewise; `lamp`: `render.Lamp`.  Noise: `target_rel_se` (largest
+    relative standard error over the bands, per configuration) or a fixed `n_paths`.
+    `executor`: an `executors.make_executor(...)` object (None: in process).  Each
+    configuration's seed derives from `seed` and its name "<patch name>@<angle>", so any executor
+    gives identical spectra.
+    """
+    from normbox_lab.executors import InProcessExecutor
+    from normbox_lab.materials import holder_material
+    from normbox_lab.render import Lamp
+    from normbox_lab.scene import as_geometry
+
+    items = list(patches.items()) if isinstance(patches, Mapping) else \
+        [(p.name, p) for p in patches]
+    names = [n for n, _ in items]
+    if len(set(names)) != len(names):
+        raise ValueError("patch names must be unique")
+    angles = np.asarray([float(a) for a in angles_deg])
+    g = as_geometry(geometry)
+    base = {"geometry": g, "variant": variant, "max_depth": int(max_depth), "wall": wall,
+            "holder": holder if holder is not None else holder_material(),
+            "lamp": lamp if lamp is not None else Lamp(), "target_rel_se": target_rel_se,
+            "n_paths": n_paths, "seed": int(seed), "threads": threads_per_job}
+    tasks = []
+    for a in angles:                                  # angle-major: few patch moves per job
+        for s in range(0, len(items), max(1, int(patches_per_job))):
+            chunk = items[s:s + max(1, int(patches_per_job))]
+            tasks.append({**base, "configs": [(f"{n}@{a:g}", p, float(a)) for n, p in chunk]})
+    ex = executor if executor is not None else InProcessExecutor()
+    t0 = time.perf_counter()
+    results = {r["name"]: r for batch in ex.map(render_task, tasks) for r in batch}
+    wall_s = time.perf_counter() - t0
+    grid = BandGrid()
+    shape = (len(items), len(angles))
+    rad = np.zeros(shape + (grid.n_bands,))
+    se = np.zeros_like(rad)
+    npaths = np.zeros(shape, dtype=np.int64)
+    times = np.zeros(shape)
+    for i, n in enumerate(names):
+        for j, a in enumerate(angles):
+            r = results[f"{n}@{a:g}"]
+            rad[i, j], se[i, j] = r["radiance"], r["std_error"]
+            npaths[i, j], times[i, j] = r["n_paths"], r["time_s"]
+    return PredictionSet(grid.centres_nm, names, angles, rad, se, npaths, times, wall_s,
+                         getattr(ex, "name", type(ex).__name__))
