@@ -51,11 +51,15 @@ class Quality:
                         # (the stratified sampler uses a √spp × √spp grid)
     batches: int
     pixels: int = 10
+    # adaptive: after `batches`, keep adding batches (up to `max_batches`) until the median
+    # relative standard error per band is ≤ `target_rel_se` (0 = fixed batch count)
+    max_batches: int = 0
+    target_rel_se: float = 0.0
 
 
 QUALITIES = {
     "quick": Quality("quick", spp=16, batches=4),
-    "default": Quality("default", spp=256, batches=8),
+    "default": Quality("default", spp=256, batches=8, max_batches=20, target_rel_se=0.006),
     "high": Quality("high", spp=1024, batches=16),
 }
 
@@ -273,18 +277,31 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
                    holder_bsdf=holder_bsdf, lamp_values=base_lamp.radiance(LAMP_GRID_NM),
                    lamp_grid_nm=LAMP_GRID_NM, film=film, max_depth=max_depth)
     scene = mi.load_dict(d)
-    batches = []
-    for b in range(q.batches):
-        img = mi.render(scene, spp=q.spp, seed=seed * 1000 + b)
+    batches: list[np.ndarray] = []
+
+    def stats() -> tuple[np.ndarray, np.ndarray]:
+        arr = np.array(batches)
+        m = arr.mean(axis=0)
+        if len(arr) < 2:
+            return m, np.full_like(m, np.nan)
+        return m, arr.std(axis=0, ddof=1) / np.sqrt(len(arr))
+
+    while True:
+        img = mi.render(scene, spp=q.spp, seed=seed * 1000 + len(batches))
         arr = np.asarray(img, dtype=np.float64)            # (px, px, n_bands)
         batches.append(arr.reshape(-1, arr.shape[-1]).mean(axis=0) / BAND_WIDTH_NM)
+        if len(batches) < q.batches:
+            continue
+        if len(batches) >= max(q.max_batches, q.batches) or q.target_rel_se <= 0:
+            break
+        m, e = stats()
+        if np.median(e / np.maximum(np.abs(m), 1e-300)) <= q.target_rel_se:
+            break
     batches_arr = np.array(batches)
-    mean = batches_arr.mean(axis=0)
-    se = batches_arr.std(axis=0, ddof=1) / np.sqrt(len(batches_arr)) if len(batches_arr) > 1 \
-        else np.full_like(mean, np.nan)
+    mean, se = stats()
     dt = time.perf_counter() - t0
     info = {"angle_deg": float(angle_deg), "patch": patch.name, "wall": wall.name,
-            "quality": q.name, "spp": q.spp, "batches": q.batches, "max_depth": max_depth,
+            "quality": q.name, "spp": q.spp, "batches": len(batches), "max_depth": max_depth,
             "lamp_cct_K": lamp.cct_K, "lamp_luminance_cd_m2": lamp.luminance_cd_m2}
     return RenderResult(BAND_CENTRES_NM.copy(), mean, se, batches_arr, dt, variant, key,
                         cached=False, info=info)
@@ -390,6 +407,7 @@ def main(argv: list[str] | None = None) -> int:
             ses.append(rel)
             print(f"patch {n:2d} s={a:4.0f}°  {r.render_time_s:6.2f} s  "
                   f"Lv={luminance_cd_m2(r.wavelength_nm, r.radiance):8.2f} cd/m²  "
+                  f"{r.info['batches']:2d} batches  "
                   f"rel. SE per 5 nm band: median {100 * np.median(rel):.2f} %  "
                   f"90th pct {100 * np.percentile(rel, 90):.2f} %  max {100 * rel.max():.2f} %")
     all_se = np.concatenate(ses)
