@@ -1,0 +1,102 @@
+"""`normbox-lab fit | predict | compare | report`: the pipeline steps on stored runs."""
+
+from __future__ import annotations
+
+import argparse
+
+from normbox_lab.commands.common import add_store_argument
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    f = sub.add_parser("fit", help="fit Cook-Torrance/GGX BRDFs to a gonio run",
+                       description="Fit every material of a brdf-inplane (or imported) run; "
+                                   "the fits are stored as artifacts.")
+    f.add_argument("run", metavar="BRDF_RUN_ID")
+    f.add_argument("-w", "--weight-exponent", type=float, default=2.0,
+                   help="cost weight cos^w θi (paper: 1…4, sometimes 6; default 2)")
+    add_store_argument(f)
+    f.set_defaults(handler=_fit)
+
+    p = sub.add_parser("predict", help="render a reference run with the fitted materials",
+                       description="Render every patch × angle of a reference sweep with the "
+                                   "latest fits (spectral, with Monte-Carlo standard error).")
+    p.add_argument("run", metavar="REFERENCE_RUN_ID")
+    p.add_argument("--quality", default="default", choices=("quick", "default", "high"))
+    p.add_argument("--light-map", metavar="RUN_ID",
+                   help="take the lamp luminance from this light-map run")
+    add_store_argument(p)
+    p.set_defaults(handler=_predict)
+
+    c = sub.add_parser("compare", help="compare a prediction with its reference run",
+                       description="NSE, RMSE, NRMSE, ΔE00 and the rating scale; with --brdf-run "
+                                   "also the error model.")
+    c.add_argument("run", metavar="REFERENCE_RUN_ID")
+    c.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run the fits came from")
+    add_store_argument(c)
+    c.set_defaults(handler=_compare)
+
+    r = sub.add_parser("report", help="write the HTML report of a compared reference run")
+    r.add_argument("run", metavar="REFERENCE_RUN_ID")
+    r.add_argument("-o", "--output", metavar="PATH", help="default: report-run-ID.html")
+    r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
+    add_store_argument(r)
+    r.set_defaults(handler=_report)
+
+
+def _open(args: argparse.Namespace):  # noqa: ANN202
+    from pathlib import Path
+
+    from normbox_lab.errors import StoreError
+    from normbox_lab.store import Store
+
+    if not Path(args.store).exists():
+        raise StoreError(f"no store at {args.store}")
+    return Store(args.store)
+
+
+def _fit(args: argparse.Namespace) -> int:
+    from normbox_lab.pipeline import fit_run
+
+    with _open(args) as store:
+        fits = fit_run(store, args.run, args.weight_exponent,
+                       progress=lambda s, d, t: print(f"\rfit {d}/{t}", end="", flush=True))
+        print()
+        for name, fit in fits.items():
+            print(f"{name:>6}  α={fit.alpha:.3f}  η={fit.eta:.3f}  c={fit.c:.4f} sr⁻¹  "
+                  f"error {fit.fit_error_pct:.2f} %")
+    return 0
+
+
+def _predict(args: argparse.Namespace) -> int:
+    from normbox_lab.pipeline import lamp_from_light_map, predict_run
+
+    with _open(args) as store:
+        aid = predict_run(store, args.run, quality=args.quality,
+                          lamp=lamp_from_light_map(store, args.light_map),
+                          progress=lambda s, d, t: print(f"\rpredict {d}/{t}", end="",
+                                                         flush=True))
+        print(f"\nprediction stored (artifact {aid})")
+    return 0
+
+
+def _compare(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from normbox_lab.pipeline import compare_run
+
+    with _open(args) as store:
+        c = compare_run(store, args.run, args.brdf_run)
+    print(f"ΔE00 mean {np.nanmean(c.delta_e00):.2f}, max {np.nanmax(c.delta_e00):.2f}; "
+          f"NRMSE mean {100 * np.nanmean(c.nrmse):.2f} %")
+    for label, n in c.rating_counts().items():
+        print(f"  {label}: {n}")
+    return 0
+
+
+def _report(args: argparse.Namespace) -> int:
+    from normbox_lab.pipeline import report_run
+
+    with _open(args) as store:
+        out = report_run(store, args.run, args.output, args.brdf_run)
+    print(f"report: {out}")
+    return 0

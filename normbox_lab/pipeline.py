@@ -1,0 +1,240 @@
+"""The pipeline on stored runs: fit → predict → compare → error model → report.
+
+It reads only the store and writes its results back as artifacts (DESIGN §3), so the report
+and the TUI read one place:
+
+- ``fit`` artifacts, one per material (`p01`…`p24`, `wall`), from a gonio run (`fit.py`);
+- ``prediction`` artifact ``ref-run-<id>``: radiance [patch, angle, λ] rendered with the fitted
+  materials through the shared scene builder, its Monte-Carlo standard error, and the
+  direct-only render of the white patch per angle (for the light shares);
+- ``comparison`` artifact ``ref-run-<id>`` (`compare.py`), ``error-model`` artifact likewise;
+- the HTML report (`report.py`).
+
+The light the predictions use: the lamp model of the virtual Normbox (`render.Lamp`), with its
+luminance taken from the light-map run when there is one (the mean measured panel luminance),
+else the nominal value.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.errors import DataError, StoreError
+
+WHITE_PATCH = 19
+ProgressFn = Callable[[str, int, int], None]
+
+
+def _noop(stage: str, done: int, total: int) -> None:
+    """Default progress callback: silent."""
+
+
+def fit_key(patch: int | str) -> str:
+    """The fit artifact name of a patch number (the brdf-inplane protocol's material key)."""
+    return f"p{int(patch):02d}" if str(patch).isdigit() else str(patch)
+
+
+# --- the reference run ---------------------------------------------------------------------------
+
+@dataclass
+class ReferenceData:
+    patches: list[int]
+    angle_deg: np.ndarray
+    wavelength_nm: np.ndarray
+    radiance: np.ndarray              # [patch, angle, λ], W·sr⁻¹·m⁻²·nm⁻¹
+    patch_names: list[str] = field(default_factory=list)
+
+
+def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
+    """The reference sweep's spectra as [patch, angle, λ]; refuses holes (resume the run)."""
+    rows = [r for r in store.readings(run_ref, kind="spectral")
+            if "patch" in r.metadata and "angle_deg" in r.metadata]
+    if not rows:
+        raise DataError(str(store.path), f"run {run_ref}", "no patch × angle readings")
+    patches = sorted({int(r.metadata["patch"]) for r in rows})
+    angles = sorted({float(r.metadata["angle_deg"]) for r in rows})
+    wl = rows[0].arrays["wavelength_nm"]
+    rad = np.full((len(patches), len(angles), wl.size), np.nan)
+    names: dict[int, str] = {}
+    for r in rows:
+        p, a = patches.index(int(r.metadata["patch"])), angles.index(float(r.metadata["angle_deg"]))
+        rad[p, a] = np.interp(wl, r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
+        names[int(r.metadata["patch"])] = str(r.metadata.get("patch_name", r.metadata["patch"]))
+    missing = np.isnan(rad).all(axis=-1)
+    if missing.any():
+        holes = [f"a{angles[a]:g}/p{patches[p]:02d}" for p, a in zip(*np.nonzero(missing))]
+        raise DataError(str(store.path), f"run {run_ref}",
+                        f"{len(holes)} readings missing (e.g. {holes[0]}); resume the run first")
+    return ReferenceData(patches, np.array(angles), wl, rad, [names[p] for p in patches])
+
+
+# --- fit -----------------------------------------------------------------------------------------
+
+def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
+            progress: ProgressFn = _noop) -> dict[str, Any]:
+    """Fit every material of a gonio run; each fit is stored as a ``fit`` artifact."""
+    from normbox_lab.fit import data_from_store_run, fit_material
+
+    data = data_from_store_run(store, brdf_run)
+    if not data:
+        raise DataError(str(store.path), f"run {brdf_run}", "no BRDF readings to fit")
+    fits = {}
+    for k, name in enumerate(sorted(data)):
+        progress("fit", k, len(data))
+        fit = fit_material(data[name], w)
+        fit.store(store, run_ref=brdf_run)
+        fits[name] = fit
+    progress("fit", len(data), len(data))
+    return fits
+
+
+def latest_fits(store: Any) -> dict[str, Any]:
+    from normbox_lab.brdf_model import MaterialFit
+
+    return {a.name: MaterialFit.from_artifact(a) for a in store.artifacts("fit")}
+
+
+# --- predict -------------------------------------------------------------------------------------
+
+def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
+    """The prediction's lamp: nominal spectrum, luminance from the light-map run if given."""
+    from normbox_lab.render import Lamp, luminance_cd_m2
+
+    if light_map_run is None:
+        return Lamp()
+    lv = [luminance_cd_m2(r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
+          for r in store.readings(light_map_run, kind="spectral")]
+    if not lv:
+        raise DataError(str(store.path), f"run {light_map_run}", "light map has no readings")
+    return Lamp(luminance_cd_m2=float(np.mean(lv)))
+
+
+def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None = None,
+                geometry: Any = None, quality: str = "default", lamp: Any = None,
+                render: Callable[..., Any] | None = None,
+                progress: ProgressFn = _noop) -> int:
+    """Render every patch × angle of the reference run with the fitted materials."""
+    from normbox_lab.materials import Material, holder_material
+    from normbox_lab.render import render_view
+
+    ref = reference_data(store, ref_run)
+    fits = fits if fits is not None else latest_fits(store)
+    need = [fit_key(p) for p in ref.patches] + ["wall"]
+    missing = [n for n in need if n not in fits]
+    if missing:
+        raise StoreError(f"no fits for {', '.join(missing)}: run `normbox-lab fit` on a gonio "
+                         f"run with those materials first")
+    render = render or render_view
+    wall = Material.from_fit(fits["wall"])
+    holder = holder_material()
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
+    err = np.zeros_like(out)
+    total, done, t0 = n_p * n_a + n_a, 0, time.perf_counter()
+    for pi, p in enumerate(ref.patches):
+        mat = Material.from_fit(fits[fit_key(p)])
+        for ai, a in enumerate(ref.angle_deg):
+            progress("predict", done, total)
+            r = render(geometry, patch=mat, wall=wall, holder=holder, angle_deg=float(a),
+                       lamp=lamp, quality=quality)
+            out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+            err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
+            done += 1
+    # direct-only renders of the white patch (or the first) for the light shares per angle
+    wp = WHITE_PATCH if WHITE_PATCH in ref.patches else ref.patches[0]
+    wmat = Material.from_fit(fits[fit_key(wp)])
+    direct = np.zeros((n_a, ref.wavelength_nm.size))
+    for ai, a in enumerate(ref.angle_deg):
+        progress("predict", done, total)
+        r = render(geometry, patch=wmat, wall=wall, holder=holder, angle_deg=float(a),
+                   lamp=lamp, quality=quality, direct_only=True)
+        direct[ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+        done += 1
+    progress("predict", total, total)
+    return store.add_artifact(
+        "prediction", f"ref-run-{store.get_run(ref_run).id}",
+        {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
+         "patches": np.array(ref.patches, dtype=float), "radiance": out, "std_error": err,
+         "direct_white": direct, "full_white": out[ref.patches.index(wp)]},
+        metadata={"quality": quality, "white_patch": wp,
+                  "render_s": time.perf_counter() - t0,
+                  "fits": {n: fits[n].name for n in need}},
+        run_ref=ref_run)
+
+
+# --- compare and error model ---------------------------------------------------------------
+
+def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None) -> Any:
+    """ΔE00, NRMSE… of the latest prediction against the reference; stores the comparison and
+    (when the gonio data are at hand) the error model."""
+    from normbox_lab.compare import compare, direct_light_geometry, error_model
+
+    run_id = store.get_run(ref_run).id
+    ref = reference_data(store, run_id)
+    pred = store.latest_artifact("prediction", f"ref-run-{run_id}").arrays
+    if not np.array_equal(pred["patches"].astype(int), ref.patches) or \
+            not np.array_equal(pred["angle_deg"], ref.angle_deg):
+        raise StoreError(f"the prediction of run {run_id} does not match its readings; "
+                         "run `normbox-lab predict` again")
+    white = ref.patches.index(WHITE_PATCH) if WHITE_PATCH in ref.patches else 0
+    result = compare(ref.radiance, pred["radiance"], ref.wavelength_nm, ref.angle_deg,
+                     [f"{p} {n}" for p, n in zip(ref.patches, ref.patch_names)],
+                     white_patch=white, white_angle_deg=float(ref.angle_deg.min()))
+    result.store(store, f"ref-run-{run_id}", run_ref=run_id)
+    if brdf_run is not None:
+        from normbox_lab.fit import data_from_store_run, fit_error_at
+
+        fits = latest_fits(store)
+        data = data_from_store_run(store, brdf_run)
+        share = np.clip(np.mean(pred["direct_white"], axis=-1)
+                        / np.mean(pred["full_white"], axis=-1), 0.0, 1.0)
+        ti, to = direct_light_geometry(ref.angle_deg)
+        err_d = np.zeros_like(ref.radiance)
+        for pi, p in enumerate(ref.patches):
+            k = fit_key(p)
+            for ai in range(ref.angle_deg.size):
+                e = fit_error_at(fits[k], data[k], float(ti[ai]), float(to[ai]))
+                err_d[pi, ai] = np.interp(ref.wavelength_nm, data[k].wavelength_nm, e)
+        e_wall = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
+        err_i = np.interp(ref.wavelength_nm, data["wall"].wavelength_nm, e_wall)
+        em = error_model(share, np.nan_to_num(err_d), np.nan_to_num(err_i)[None, None, :],
+                         ref.angle_deg, reference=ref.radiance, observed_nrmse=result.nrmse)
+        em.store(store, f"ref-run-{run_id}", run_ref=run_id)
+    return result
+
+
+# --- report --------------------------------------------------------------------------------------
+
+def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
+               brdf_run: int | str | None = None, notes: Iterable[str] = ()) -> Path:
+    from normbox_lab.compare import ComparisonResult, ErrorModelResult
+    from normbox_lab.report import ReportData, write_report
+
+    run_id = store.get_run(ref_run).id
+    comparison = ComparisonResult.from_artifact(
+        store.latest_artifact("comparison", f"ref-run-{run_id}"))
+    em = None
+    found = store.artifacts("error-model", f"ref-run-{run_id}")
+    if found:
+        em = ErrorModelResult(**{k: np.asarray(v) for k, v in found[-1].arrays.items()})
+    fits = latest_fits(store)
+    data = {}
+    if brdf_run is not None:
+        from normbox_lab.fit import data_from_store_run
+
+        data = data_from_store_run(store, brdf_run)
+    patch_fit_names = [fit_key(n.split()[0]) for n in comparison.patch_names]
+    rd = ReportData(comparison=comparison, fits=fits, brdf_data=data, error_model=em,
+                    title=f"Normbox validation report — reference run {run_id}",
+                    polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
+                    patch_fit_names=patch_fit_names, notes=list(notes),
+                    metadata={"store": str(store.path), "reference_run": run_id,
+                              "brdf_run": brdf_run})
+    out = Path(path) if path else Path(f"report-run-{run_id}.html")
+    return write_report(out, rd)
