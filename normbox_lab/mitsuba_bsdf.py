@@ -36,7 +36,19 @@ def bsdf_class() -> Any:
     if variant in _CLASSES:
         return _CLASSES[variant]
 
+    jit = dr.is_jit_v(mi.Float)
+
+    def array(values: Any) -> Any:
+        return mi.Float(np.asarray(values, dtype=np.float32)) if jit \
+            else np.asarray(values, dtype=np.float64)
+
+    def opaque(value: float) -> Any:
+        return dr.opaque(mi.Float, float(value)) if jit else float(value)
+
     def gather_spectrum(values: Any, wavelengths: Any, active: Any) -> Any:
+        if not jit:          # scalar variants: one path at a time, plain numpy
+            return mi.UnpolarizedSpectrum(*[float(np.interp(float(w), GRID_NM, values))
+                                            for w in wavelengths])
         n = len(GRID_NM)
         out = []
         for k in range(len(wavelengths)):
@@ -66,20 +78,20 @@ def bsdf_class() -> Any:
         # -- parameters --------------------------------------------------------------------
         def set_values(self, *, kd: np.ndarray, ks: np.ndarray, kb: np.ndarray, alpha: float,
                        eta: float, c: float, deta_per_100nm: float, sigma: float) -> None:
-            self.kd = mi.Float(np.asarray(kd, dtype=np.float32))
-            self.ks = mi.Float(np.asarray(ks, dtype=np.float32))
-            self.kb = mi.Float(np.asarray(kb, dtype=np.float32))
-            self.alpha = dr.opaque(mi.Float, float(alpha))
-            self.eta = dr.opaque(mi.Float, float(eta))
-            self.c = dr.opaque(mi.Float, float(c))
-            self.deta = dr.opaque(mi.Float, float(deta_per_100nm) / 100.0)
-            self.inv_sigma2 = dr.opaque(mi.Float, 1.0 / float(sigma) ** 2)
+            self.kd = array(kd)
+            self.ks = array(ks)
+            self.kb = array(kb)
+            self.alpha = opaque(alpha)
+            self.eta = opaque(eta)
+            self.c = opaque(c)
+            self.deta = opaque(float(deta_per_100nm) / 100.0)
+            self.inv_sigma2 = opaque(1.0 / float(sigma) ** 2)
             # the lobe choice: more glossy sampling for smooth materials with real ks
             ks_mean = float(np.mean(ks))
             kd_mean = float(np.mean(kd))
             p_glossy = 0.0 if ks_mean <= 0 else min(0.5, max(0.15, 0.25 / max(alpha, 0.1)
                                                              * ks_mean / (ks_mean + kd_mean)))
-            self.p_diffuse = dr.opaque(mi.Float, 1.0 - p_glossy)
+            self.p_diffuse = opaque(1.0 - p_glossy)
 
         def set_material(self, material: Any) -> None:
             """From a `normbox_lab.materials.Material`."""
