@@ -427,10 +427,29 @@ def test_fuzz_measure_with_arbitrary_replies(replies):
 
     clock = VirtualClock()
     d = CS1000A(AnyPort([], clock=clock), clock, attempts=2)
-    try:
-        r = d.measure()
-    except InstrumentError:
-        assert clock.now_s() < 3600
-        return
-    assert r.radiance_W_sr_m2_nm.shape == (401,)
-    assert np.all(np.isfinite(r.radiance_W_sr_m2_nm))
+    for call in (d.status, d.read_speed, d.measure):
+        try:
+            result = call()
+        except InstrumentError:
+            continue
+        if call == d.measure:
+            assert result.radiance_W_sr_m2_nm.shape == (401,)
+            assert np.all(np.isfinite(result.radiance_W_sr_m2_nm))
+    assert clock.now_s() < 3 * 3600
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.binary(max_size=20), max_size=8))
+def test_fuzz_emulator_input_never_crashes_it(chunks):
+    emu = CS1000AEmulator(VirtualClock(), noise="off")
+    emu.feed(b"RMT,1\n")
+    emu.clock.advance(1.0)
+    for chunk in chunks:
+        emu.feed(chunk + b"\n")
+        emu.clock.advance(30.0)
+        emu.poll()
+    out = emu.take_output()
+    assert out.startswith(b"OK\n")
+    emu.feed(b"MES,0\nSTR\n")                    # still answering afterwards
+    emu.clock.advance(1.0)
+    assert emu.take_output().endswith(b"\n")

@@ -378,3 +378,41 @@ def test_silence_is_bounded():
     with pytest.raises(InstrumentTimeout):
         d.set_remote(True)
     assert d.clock.now_s() < 60
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.lists(st.binary(max_size=20), max_size=8))
+def test_fuzz_emulator_input_never_crashes_it(chunks):
+    emu = CS2000AEmulator(VirtualClock(), noise="off")
+    emu.feed(b"RMTS,1\n")
+    emu.clock.advance(1.0)
+    for chunk in chunks:
+        emu.feed(chunk + b"\n")
+        emu.clock.advance(300.0)
+        emu.poll()
+    assert emu.take_output().startswith(b"OK00\n")
+    emu.clock.advance(300.0)
+    emu.feed(b"SPMR\n")
+    emu.clock.advance(1.0)
+    assert emu.take_output().endswith(b"\n")
+
+
+def test_abort_from_another_thread_cancels_the_measurement():
+    from normbox_lab.errors import OperatorAbort
+
+    emu = emulator(scene=lambda: (WL, np.full(401, 1e-5)))      # dark: ttt = 242 s
+
+    class AbortingClock(VirtualClock):
+        def sleep(self, duration_s):
+            super().sleep(duration_s)
+            if self.now_s() > 30.0:
+                d.abort()                                      # as the engine thread would
+
+    clock = AbortingClock()
+    core.CONTEXT.clock = clock
+    emu.clock = clock
+    d = CS2000A.open("sim://cs2000a", clock)
+    with pytest.raises(OperatorAbort):
+        d.measure()
+    assert emu.commands[-1] == b"MEAS,0" and emu.phase == "idle"
+    assert clock.now_s() < 40.0
