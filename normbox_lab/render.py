@@ -152,19 +152,20 @@ _VARIANT: str | None = None
 
 
 def ensure_variant(variant: str | None = None) -> str:
-    """Import Mitsuba and select the spectral variant (once per process)."""
+    """Import Mitsuba and make `variant` (None: this machine's best spectral variant, probed
+    once per process) the active one; Mitsuba's variant is process-global, so this is called
+    before every render."""
     global _VARIANT
     import mitsuba as mi
 
     if variant is None:
-        if _VARIANT is not None:
-            return _VARIANT
-        from normbox_lab.mitsuba_setup import choose_variant
+        if _VARIANT is None:
+            from normbox_lab.mitsuba_setup import choose_variant
 
-        variant = choose_variant()
+            _VARIANT = choose_variant()
+        variant = _VARIANT
     if mi.variant() != variant:
         mi.set_variant(variant)
-    _VARIANT = variant
     return variant
 
 

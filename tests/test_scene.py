@@ -273,3 +273,20 @@ def test_default_quality_error_bars_and_accuracy(tmp_path):
     assert np.allclose(r.radiance, est, rtol=0.02)
     z = np.abs(r.radiance - est) / r.std_error
     assert np.mean(z < 3.0) > 0.9
+
+
+@pytest.mark.slow
+def test_scalar_spectral_fallback_renders_the_same_light(tmp_path):
+    """The fallback variant (no libLLVM) runs the same Python BSDF, one path at a time."""
+    from normbox_lab.render import Quality, direct_estimate, ensure_variant, render_view
+
+    white = truth_patch(19)
+    est = direct_estimate(material=white, angle_deg=30.0)
+    r = render_view(patch=white, wall=truth_wall(), angle_deg=30.0, quality=Quality("t", 16, 4),
+                    direct_only=True, cache=False, variant="scalar_spectral")
+    assert r.variant == "scalar_spectral"
+    assert _lum(r) == pytest.approx(_lum(r, est), rel=0.05)
+    # the next default render switches back to this machine's variant
+    from normbox_lab.mitsuba_setup import choose_variant
+
+    assert ensure_variant() == choose_variant() == mi.variant()
