@@ -412,6 +412,7 @@ def test_abort_from_another_thread_cancels_the_measurement():
     core.CONTEXT.clock = clock
     emu.clock = clock
     d = CS2000A.open("sim://cs2000a", clock)
+    d.set_speed("normal")                     # the factory default (Multi-Integ 1 s) is short
     with pytest.raises(OperatorAbort):
         d.measure()
     assert emu.commands[-1] == b"MEAS,0" and emu.phase == "idle"
