@@ -124,8 +124,22 @@ class Lab:
             cls = driver_class(cfg.driver)
             options = {k: v for k, v in cfg.options.items()}
             inst = _open_driver(cls, cfg.port, self.clock, options)
+            if cfg.simulated and self.world is not None:
+                self._attach_to_world(role, cfg.port)
         self._open[role] = inst
         return inst
+
+    def _attach_to_world(self, role: str, url: str) -> None:
+        """The world reads the rotator's angle and the sphere's output from their emulators."""
+        emu = _emulator_for(url)
+        if emu is None:
+            return
+        if role == "rotator" and hasattr(emu, "angle_deg") and \
+                hasattr(self.world, "attach_rotator"):
+            self.world.attach_rotator(emu)
+        elif role == "sphere" and hasattr(emu, "relative_output") and \
+                hasattr(self.world, "attach_sphere"):
+            self.world.attach_sphere(emu)
 
     def _open_gonio(self) -> Any:
         try:
@@ -144,12 +158,32 @@ class Lab:
 
     # --- what the engine asks of a lab ----------------------------------------------------------
     def luminance_hint_cd_m2(self, step: Any) -> float:
-        """Expected luminance of a measurement, for the radiometer's timing model."""
+        """Expected luminance of a measurement, for the radiometer's timing model (ETA).
+
+        From the closed-form analytic world (the lab's own world when it is analytic, else one
+        built with the render table's lamp): cheap, where the Mitsuba world would render."""
         p = step.params
-        w = self.world
-        if w is not None and hasattr(w, "luminance_cd_m2") and "patch" in p:
-            return float(w.luminance_cd_m2(p.get("patch"), float(p.get("angle_deg", 90.0))))
-        return float(p.get("luminance_cd_m2", 20.0))
+        if "luminance_cd_m2" in p:
+            return float(p["luminance_cd_m2"])
+        est = self._estimator()
+        if "patch" in p:
+            return est.luminance_cd_m2(int(p["patch"]), float(p.get("angle_deg", 90.0)))
+        if "x_mm" in p and "y_mm" in p:
+            return est.panel_luminance_cd_m2(float(p["x_mm"]), float(p["y_mm"]))
+        return 20.0
+
+    def _estimator(self) -> Any:
+        from normbox_lab.sim.analytic_world import AnalyticWorld
+
+        if isinstance(self.world, AnalyticWorld):
+            return self.world
+        if getattr(self, "_est", None) is None:
+            r = self.config.render
+            self._est = AnalyticWorld(
+                lamp_cct_K=float(r.get("lamp_cct_K", 3100.0)),
+                panel_luminance_cd_m2=float(r.get("panel_luminance_cd_m2", 3000.0)),
+                panel_homogeneity_percent=self.config.geometry.panel_homogeneity_percent)
+        return self._est
 
     def identities(self) -> dict[str, dict[str, Any]]:
         out = {}
@@ -176,6 +210,19 @@ class Lab:
                 except (NormboxError, OSError):
                     pass
         self._open.clear()
+
+
+def _emulator_for(url: str) -> Any:
+    import urllib.parse
+
+    from normbox_lab.sim import core
+
+    parts = urllib.parse.urlsplit(url)
+    if parts.scheme != "sim":
+        return None
+    device = parts.netloc or parts.path.lstrip("/")
+    key = urllib.parse.parse_qs(parts.query).get("key", [None])[-1] or device
+    return core.CONTEXT.instances.get(key)
 
 
 def _open_driver(cls: type, port: str, clock: Clock, options: dict[str, Any]) -> Any:

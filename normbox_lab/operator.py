@@ -44,7 +44,10 @@ class VirtualOperator:
             if action == "place_patch" and hasattr(world, "place_patch"):
                 world.place_patch(int(req.data["patch"]))
             elif action == "mount_gonio_material" and hasattr(world, "mount_gonio_material"):
-                world.mount_gonio_material(req.data["material"])
+                material = req.data["material"]
+                if isinstance(material, int) or str(material).isdigit():
+                    material = f"patch-{int(material)}"     # the worlds' material names
+                world.mount_gonio_material(material)
             elif action == "aim_panel" and hasattr(world, "aim_panel"):
                 world.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
         self.log.append((req.key, "ok"))

@@ -4,7 +4,8 @@
 
 - ρ_patch: ColorChecker "N Ohta" reflectances from colour-science (5 nm, interpolated to 1 nm);
   an empty holder is black (ρ = 0.03).
-- L_panel: a Planckian spectrum (default 3000 K) scaled to `panel_luminance_cd_m2`.
+- L_panel: a Planckian spectrum (default 3100 K) scaled to `panel_luminance_cd_m2` (3000 cd/m²,
+  the virtual Normbox's defaults).
 - s: the sample angle (0° = facing the light, 90° = facing the radiometer); the direct term is
   the panel's solid angle seen from the sample times cos s, the indirect term a constant.
 
@@ -20,6 +21,7 @@ from __future__ import annotations
 import os
 import tempfile
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -76,7 +78,7 @@ def _v_lambda() -> np.ndarray:
 class AnalyticWorld:
     """The `World` protocol in closed form; state is changed by the operator and the rotator."""
 
-    def __init__(self, *, lamp_cct_K: float = 3000.0, panel_luminance_cd_m2: float = 2000.0,
+    def __init__(self, *, lamp_cct_K: float = 3100.0, panel_luminance_cd_m2: float = 3000.0,
                  direct_solid_angle_sr: float = 0.25, indirect_solid_angle_sr: float = 0.08,
                  panel_homogeneity_percent: float = 3.0) -> None:
         self.wavelength_nm = RADIOMETER_WAVELENGTHS_NM.copy()
@@ -93,6 +95,8 @@ class AnalyticWorld:
         self.aim: tuple[float, float] | None = None   # (x_mm, y_mm) on the panel, or None
         self.gonio_material: str | int | None = None
         self.placed: list[int] = []
+        self.rotator: Any = None            # attach_rotator: an object with angle_deg()
+        self.sphere: Any = None             # attach_sphere: an object with relative_output()
 
     # --- what the operator and the motors change --------------------------------------------
     def place_patch(self, n: int) -> None:
@@ -108,6 +112,24 @@ class AnalyticWorld:
     def set_sample_angle(self, angle_deg: float) -> None:
         self.sample_angle_deg = float(angle_deg)
 
+    def attach_rotator(self, rotator: Any) -> None:
+        """The rotator emulator (its `angle_deg()` is read at every measurement)."""
+        self.rotator = rotator
+
+    def attach_sphere(self, sphere: Any) -> None:
+        """The sphere emulator (its `relative_output()` scales the light)."""
+        self.sphere = sphere
+
+    def angle_deg(self) -> float:
+        if self.rotator is not None:
+            return float(self.rotator.angle_deg())
+        return self.sample_angle_deg
+
+    def relative_output(self) -> float:
+        if self.sphere is not None:
+            return float(self.sphere.relative_output())
+        return self.lamp_level
+
     def aim_panel(self, x_mm: float, y_mm: float) -> None:
         self.aim = (float(x_mm), float(y_mm))
 
@@ -118,6 +140,8 @@ class AnalyticWorld:
     def _rho(self, material: str | int | None) -> np.ndarray:
         if material is None:
             return np.full_like(self.wavelength_nm, HOLDER_REFLECTANCE)
+        if isinstance(material, str) and material.startswith("patch-"):
+            material = int(material[6:])
         if isinstance(material, str) and not material.isdigit():
             # the wall paint: a flat grey of lightness L≈65 (Y≈0.34)
             return np.full_like(self.wavelength_nm, 0.34)
@@ -129,14 +153,21 @@ class AnalyticWorld:
         return 1.0 + self.homogeneity * (1.0 - r2)
 
     def radiance_at(self, patch: int | None, angle_deg: float) -> np.ndarray:
+        """At full lamp output."""
         geometry = self.direct_sr * max(np.cos(np.radians(angle_deg)), 0.0) + self.indirect_sr
-        return self._rho(patch) / np.pi * self.panel_W_sr_m2_nm * geometry * self.lamp_level
+        return self._rho(patch) / np.pi * self.panel_W_sr_m2_nm * geometry
 
     def radiance_in_view(self) -> tuple[np.ndarray, np.ndarray]:
+        output = self.relative_output()
         if self.aim is not None:
-            return self.wavelength_nm, self.panel_W_sr_m2_nm * self.lamp_level \
-                * self.panel_factor(*self.aim)
-        return self.wavelength_nm, self.radiance_at(self.patch, self.sample_angle_deg)
+            return self.wavelength_nm.copy(), self.panel_radiance(*self.aim) * output
+        return self.wavelength_nm.copy(), self.radiance_at(self.patch, self.angle_deg()) * output
+
+    def panel_radiance(self, x_mm: float, y_mm: float) -> np.ndarray:
+        return self.panel_W_sr_m2_nm * self.panel_factor(x_mm, y_mm)
+
+    def panel_luminance_cd_m2(self, x_mm: float = 0.0, y_mm: float = 0.0) -> float:
+        return KM_LM_W * float(np.sum(self.panel_radiance(x_mm, y_mm) * _v_lambda()))
 
     def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
         return KM_LM_W * float(np.sum(self.radiance_at(patch, angle_deg) * _v_lambda()))

@@ -156,3 +156,42 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
                                                              "a90/p19"}
         assert run.parameters["angles_deg"] == [30, 90]
     assert main(["run", "--resume", run_id, "--store", store, "--param", "patches=[2]"]) == 1
+
+
+def test_world_follows_attached_emulators_and_gonio_names():
+    class Rot:
+        def angle_deg(self):
+            return 30.0
+
+    class Sphere:
+        def relative_output(self):
+            return 0.5
+
+    w = AnalyticWorld()
+    w.place_patch(19)
+    w.attach_rotator(Rot())
+    w.attach_sphere(Sphere())
+    _, seen = w.radiance_in_view()
+    np.testing.assert_allclose(seen, 0.5 * w.radiance_at(19, 30.0))
+    op = VirtualOperator(w, VirtualClock())
+    op(PromptRequest(1, "p07/mount", "operator", "mount", ("ok",),
+                     {"action": "mount_gonio_material", "material": 7}))
+    assert w.gonio_material == "patch-7"
+    wl = np.array([550.0])
+    np.testing.assert_allclose(w.brdf_truth(0, 10, 4, wl),
+                               np.interp(wl, w.wavelength_nm, w.reflectance[6]) / np.pi)
+
+
+def test_luminance_hint_is_closed_form_for_any_world():
+    from normbox_lab import engine as eng
+
+    cfg = parse_config(SIM_CONFIG_TEMPLATE)
+    lab = labmod.build_lab(cfg, world="none")
+    step = eng.build_plan("reference-sweep").steps[2]            # a30/p01/place … a30/p01
+    meas = next(s for s in eng.build_plan("reference-sweep").steps if s.key == "a30/p19")
+    ref = AnalyticWorld().luminance_cd_m2(19, 30.0)
+    assert lab.luminance_hint_cd_m2(meas) == pytest.approx(ref)
+    assert lab.luminance_hint_cd_m2(eng.measure("x", luminance_cd_m2=7.0)) == 7.0
+    panel = next(s for s in eng.build_plan("light-map").steps if s.key == "r3c3")
+    assert lab.luminance_hint_cd_m2(panel) == pytest.approx(3000.0 * 1.03, rel=0.02)
+    assert step.kind == "prompt"
