@@ -57,6 +57,7 @@ from normbox_lab.sim.radiometer_common import (
 SPECTRAL_BLOCKS = {1: (0, 100), 2: (100, 200), 3: (200, 300), 4: (300, 401)}
 COLORIMETRIC_BLOCKS = {0, 1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 100, 101}
 COMMAND_DELAY_S = 0.02
+CR_WAIT_S = 0.01                 # how long a trailing CR waits for its LF
 K_NORMAL_CD_S_M2 = 200.0
 K_FAST_CD_S_M2 = 50.0
 
@@ -116,6 +117,7 @@ class CS2000AEmulator(core.Emulator):
         self.flash_writes = 0
         self._inbuf = bytearray()
         self._delim = b"\n"
+        self._cr_hold_s: float | None = None
         # settings kept in flash survive a power blip
         self.speed_mode, self.nd, self.multi_time_s, self.manual_time_us = 2, 2, 1, 33333
         self.button_enabled = False
@@ -142,22 +144,26 @@ class CS2000AEmulator(core.Emulator):
     # --- wire -------------------------------------------------------------------------------------
     def on_bytes(self, data: bytes) -> None:
         self._inbuf += data
+        self._split_lines(final=False)
+
+    def _split_lines(self, final: bool) -> None:
+        """Cut the input at CR, LF or CR+LF.  A CR that ends the input so far is held for
+        `CR_WAIT_S` in case its LF follows in the next write."""
         while True:
-            i_cr, i_lf = self._inbuf.find(b"\r"), self._inbuf.find(b"\n")
-            ends = [i for i in (i_cr, i_lf) if i >= 0]
+            ends = [i for i in (self._inbuf.find(b"\r"), self._inbuf.find(b"\n")) if i >= 0]
             if not ends:
                 return
             i = min(ends)
-            if self._inbuf[i:i + 2] == b"\r\n":
-                delim = b"\r\n"
-            else:
-                delim = bytes(self._inbuf[i:i + 1])
+            if self._inbuf[i:i + 1] == b"\r" and i == len(self._inbuf) - 1 and not final:
+                self._cr_hold_s = self.clock.now_s() + CR_WAIT_S * self.time_factor
+                return
+            self._cr_hold_s = None
+            delim = b"\r\n" if self._inbuf[i:i + 2] == b"\r\n" else bytes(self._inbuf[i:i + 1])
             line = bytes(self._inbuf[:i])
             del self._inbuf[:i + len(delim)]
-            if not line:
-                continue             # the LF of a CR+LF split across writes
-            self._delim = delim
-            self.on_line(line)
+            if line:
+                self._delim = delim
+                self.on_line(line)
 
     def reply(self, text: str) -> None:
         data = text.encode("ascii") + self._delim
@@ -380,6 +386,8 @@ class CS2000AEmulator(core.Emulator):
         self.phase_end_s = self.clock.now_s() + pre_measurement_s(lv) * self.time_factor
 
     def on_time(self, now_s: float) -> None:
+        if self._cr_hold_s is not None and now_s >= self._cr_hold_s:
+            self._split_lines(final=True)       # a lone CR: the command ends there
         if self.phase_end_s is None or now_s < self.phase_end_s or self._pending is None:
             return
         p = self._pending
@@ -397,10 +405,12 @@ class CS2000AEmulator(core.Emulator):
             self.reply("OK00")
 
     def next_state_s(self) -> float | None:
-        return self.phase_end_s
+        times = [t for t in (self.phase_end_s, self._cr_hold_s) if t is not None]
+        return min(times) if times else None
 
     def on_disconnect(self) -> None:
         self._inbuf.clear()
+        self._cr_hold_s = None
         self._power_on()
 
 

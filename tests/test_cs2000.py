@@ -417,3 +417,14 @@ def test_abort_from_another_thread_cancels_the_measurement():
         d.measure()
     assert emu.commands[-1] == b"MEAS,0" and emu.phase == "idle"
     assert clock.now_s() < 40.0
+
+
+def test_emulator_crlf_split_across_writes_is_one_delimiter():
+    p = open_port("sim://cs2000a", timeout=5)
+    p.write(b"RMTS,1\r")
+    p.write(b"\n")
+    assert p.read_until(b"\r\n") == b"OK00\r\n"
+    p.write(b"RMTS,1\r")
+    assert p.read_until(b"\r") == b"OK00\r"          # a lone CR, answered after a short wait
+    p.timeout = 1
+    assert p.read(10) == b""
