@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import sys
 import time
+from collections.abc import Sequence
 from typing import Any, TextIO
 
 import numpy as np
@@ -91,9 +92,22 @@ def joint_fit(data: BrdfData, w: float = 2.0) -> tuple[np.ndarray, float, int]:
     return res.x, float(np.sum(res.fun ** 2)), int(res.nfev)
 
 
-def run_bench_fit(out: TextIO | None = None, *, grid_step_nm: float = 5.0,
+def run_bench_fit(out: TextIO | Sequence[str] | None = None, *, grid_step_nm: float = 5.0,
                   n_materials: int | None = None, w: float = 2.0) -> int:
-    """Print the benchmark; return 0 when ours is never worse than the baseline by > 1e-6."""
+    """Print the benchmark; return 0 when ours is never worse than the baseline by > 1e-6.
+
+    `out` is a text stream (default stdout) or a list of command-line arguments
+    (`--grid-step-nm X`, `--materials N`, `--w W`; the output then goes to stdout).
+    """
+    if isinstance(out, list | tuple):
+        import argparse
+
+        ap = argparse.ArgumentParser(prog="normbox-lab bench fit")
+        ap.add_argument("--grid-step-nm", type=float, default=grid_step_nm)
+        ap.add_argument("--materials", type=int, default=n_materials)
+        ap.add_argument("--w", type=float, default=w)
+        ns = ap.parse_args([a for a in out if a != "--"])
+        grid_step_nm, n_materials, w, out = ns.grid_step_nm, ns.materials, ns.w, None
     out = out or sys.stdout
 
     def say(msg: str) -> None:
