@@ -13,6 +13,7 @@ from normbox_lab.sim import core
 from normbox_lab.sim.cs1000 import CS1000AEmulator
 from normbox_lab.sim.transport import open_port
 from serial import SerialException
+from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
 from normbox_lab.errors import (
@@ -25,7 +26,6 @@ from normbox_lab.errors import (
 )
 from normbox_lab.interfaces import Spectroradiometer
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
-from tests.wire import Exchange, ScriptedPort
 
 WL = RADIOMETER_WAVELENGTHS_NM
 SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)          # a known ramp, W·sr⁻¹·m⁻²·nm⁻¹

@@ -12,6 +12,7 @@ from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
 from normbox_lab.sim import core
 from normbox_lab.sim.cs2000 import CS2000AEmulator, fmt_hex, fmt_lv
 from normbox_lab.sim.transport import open_port
+from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
 from normbox_lab.errors import (
@@ -23,7 +24,6 @@ from normbox_lab.errors import (
 )
 from normbox_lab.interfaces import Spectroradiometer
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
-from tests.wire import Exchange, ScriptedPort
 
 WL = RADIOMETER_WAVELENGTHS_NM
 SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)

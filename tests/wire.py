@@ -1,5 +1,8 @@
 """`ScriptedPort`: a pyserial-like fake port for wire-level driver tests.
 
+Import it as ``from wire import Exchange, ScriptedPort`` (pytest puts tests/ on sys.path, as
+for ``engine_fakes``).  Pass it to a driver's constructor in place of a serial port.
+
 The script is a list of exchanges: the exact bytes the driver must write, and the bytes the
 "instrument" answers (after an optional delay on the test's clock).  A write that differs from
 the script fails the test at once with both byte strings; `assert_done()` checks that the
