@@ -35,9 +35,10 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.materials import Material, holder_material
-from normbox_lab.scene import as_geometry, band_film, scene_dict
+from normbox_lab.scene import as_geometry, band_film, panel_map, scene_dict
 
-RENDER_VERSION = 1
+#: bump when the scene code changes what a render returns (invalidates every cache entry)
+RENDER_VERSION = 2
 BAND_CENTRES_NM = np.arange(380.0, 781.0, 5.0)
 BAND_WIDTH_NM = 5.0
 LAMP_GRID_NM = np.arange(360.0, 831.0, 5.0)
@@ -183,6 +184,7 @@ def render_key(geometry: Any, patch: Material, wall: Material, holder: Material,
     payload = {"v": RENDER_VERSION, "geometry": asdict(g), "patch": patch.digest(),
                "wall": wall.digest(), "holder": holder.digest(),
                "angle_deg": round(float(angle_deg), 6), "lamp": lamp_key,
+               "panel_map": np.round(panel_map(g.panel_homogeneity_percent), 9).tolist(),
                "quality": asdict(quality), "max_depth": int(max_depth), "seed": int(seed),
                "bands": [float(BAND_CENTRES_NM[0]), float(BAND_CENTRES_NM[-1]), BAND_WIDTH_NM]}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
