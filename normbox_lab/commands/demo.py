@@ -1,0 +1,62 @@
+"""`normbox-lab demo [--quick] [--truth default|model] [--noise on|off] [--store FILE]`."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "demo", help="run the whole virtual campaign (BRDFs, fits, light map, sweep, report)",
+        description="The whole virtual campaign through the real code path: BRDF runs for 25 "
+                    "materials, fits, light map, the 312-reading reference sweep, predictions "
+                    "with the fitted materials, comparison and the HTML report. The last line "
+                    "is 'report: PATH'.")
+    p.add_argument("--quick", action="store_true",
+                   help="reduced version: 4 patches × 3 angles, coarse renders (for tests)")
+    p.add_argument("--truth", choices=("default", "model"), default="default",
+                   help="truth materials: richer than the fit model (default), or inside it "
+                        "(model: the closure test)")
+    p.add_argument("--noise", choices=("on", "off"), default="on",
+                   help="instrument noise of the emulators")
+    p.add_argument("--renderer", choices=("fast", "stock"), default="fast",
+                   help="fast: band-vector renderer (default); stock: Mitsuba's spectral path "
+                        "tracer")
+    p.add_argument("--out", default="demo-out", metavar="DIR",
+                   help="where the lab config, the store and the report go (default demo-out)")
+    p.add_argument("--store", metavar="FILE", help="default: DIR/normbox-demo.sqlite")
+    p.set_defaults(handler=_demo)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from normbox_lab.demo import DemoOptions, run_demo
+
+    console = Console(stderr=True)
+    opts = DemoOptions(quick=args.quick, truth=args.truth, noise=args.noise == "on",
+                       store=args.store, out_dir=args.out, renderer=args.renderer)
+    tasks: dict[str, int] = {}
+    with Progress(TextColumn("[bold]{task.description:<16}"), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console) as progress:
+        def on_progress(stage: str, done: int, total: int) -> None:
+            if stage not in tasks:
+                tasks[stage] = progress.add_task(stage, total=total)
+            progress.update(tasks[stage], completed=done, total=total)
+
+        result = run_demo(opts, on_progress, log=lambda s: progress.console.print(s))
+    total = sum(result.timings_s.values())
+    print("timing breakdown:")
+    for k, v in result.timings_s.items():
+        print(f"  {k:<16} {v:8.1f} s  {100 * v / total:5.1f} %")
+    print(f"  {'total':<16} {total:8.1f} s")
+    s = result.summary
+    print(f"ΔE00 mean {s['delta_e00_mean']:.2f} (max {s['delta_e00_max']:.2f}); "
+          f"NRMSE mean {s['nrmse_mean_pct']:.2f} % (max {s['nrmse_max_pct']:.2f} %)")
+    print("NRMSE by angle (%): " + ", ".join(f"{a}° {v:.2f}"
+                                            for a, v in s["nrmse_by_angle_pct"].items()))
+    print("ratings: " + ", ".join(f"{k}: {v}" for k, v in s["ratings"].items()))
+    print(f"store: {result.store} (runs {result.runs})")
+    print(f"report: {result.report}")
+    return 0

@@ -1,0 +1,206 @@
+"""The whole virtual campaign (`normbox-lab demo`, `make demo`).
+
+    1. a simulated lab (every instrument a wire-level emulator; the virtual Normbox behind them)
+    2. brdf-inplane: 153 geometries × 25 materials (24 patches + wall) on the gonioreflectometer
+    3. fit: Cook-Torrance/GGX per material (artifacts)
+    4. light-map: the 25 points of the opal panel
+    5. reference-sweep: 24 patches × 13 angles = 312 radiometer readings
+    6. predict: every patch × angle rendered with the fitted materials
+    7. compare (+ error model) and the HTML report
+
+Everything goes through the same code the lab uses: the engine drives the drivers, the drivers
+talk bytes to the emulators, the store keeps every reading, the pipeline reads the store.
+
+Rendering: by default both the world (truth materials) and the prediction (fitted materials)
+use the band-vector renderer `fastrender.FastNormbox` with per-configuration seeds, one scene
+per process; `--renderer stock` uses Mitsuba's own spectral path tracer (`render.render_view`,
+cached on disk), slower.  `--quick` is the reduced version for tests: 4 patches × 3 angles,
+coarse renders.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+QUICK_PATCHES = [19, 13, 7, 24]
+QUICK_ANGLES = [30, 60, 90]
+FULL_ANGLES = list(range(30, 91, 5))
+
+#: target largest relative standard error per 5 nm band of the fast renderer, per quality
+FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
+
+
+@dataclass
+class DemoOptions:
+    quick: bool = False
+    truth: str = "default"          # default | model (closure)
+    noise: bool = True              # instrument noise of the emulators
+    store: str | None = None
+    out_dir: str = "demo-out"
+    renderer: str = "fast"          # fast | stock
+    seed: int = 1
+
+
+@dataclass
+class DemoResult:
+    report: Path
+    store: Path
+    runs: dict[str, int]
+    timings_s: dict[str, float] = field(default_factory=dict)
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def _lab_config_text(opts: DemoOptions, quality: str, cache_dir: Path) -> str:
+    from normbox_lab.config import SIM_CONFIG_TEMPLATE
+
+    text = SIM_CONFIG_TEMPLATE.replace('quality = "default"     # quick | default | high',
+                                       f'quality = "{quality}"\ntruth = "{opts.truth}"\n'
+                                       f'cache_dir = "{cache_dir}"')
+    text = text.replace("seed = 1", f"seed = {opts.seed}")
+    if not opts.noise:
+        text = text.replace('port = "sim://cs1000a"', 'port = "sim://cs1000a?noise=off"')
+        text = text.replace('port = "sim://qepro"', 'port = "sim://qepro?noise=off"')
+        text = text.replace('port = "sim://sphere"', 'port = "sim://sphere?noise=off"')
+    return text
+
+
+class _FastRenderWorld:
+    """Mixin for the virtual Normbox: render truth through `FastNormbox` (shared scene)."""
+
+    fast: Any = None
+    target_rel_se: float = 0.004
+
+    def render(self, patch, angle_deg, *, direct_only=False, quality=None):  # noqa: ANN001, ANN201
+        from normbox_lab.fastrender import config_seed
+        from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG
+
+        angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
+        mat = self.patch_material(patch)
+        return self.fast.render_view(patch=mat, wall=self.wall, holder=self.holder,
+                                     angle_deg=angle, lamp=self.lamp,
+                                     target_rel_se=self.target_rel_se, direct_only=direct_only,
+                                     seed=config_seed(1, f"{mat.name}@{angle:g}"))
+
+
+def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Callable | None]:
+    """The virtual Normbox, and the render function the prediction should use."""
+    from normbox_lab.sim.world import VirtualNormbox
+
+    if opts.renderer == "stock":
+        return VirtualNormbox(config=config), None
+    from normbox_lab.fastrender import FastNormbox, config_seed
+
+    fast = FastNormbox(config.geometry)
+    world_cls = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})
+    world = world_cls(config=config)
+    world.fast = fast
+    world.target_rel_se = FAST_TARGET_REL_SE[quality]
+
+    def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,  # noqa: ANN001, ANN202
+               direct_only=False):
+        name = f"{_truth_name(patch.name)}@{float(angle_deg):g}"
+        return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
+                                lamp=lamp, target_rel_se=world.target_rel_se,
+                                direct_only=direct_only, seed=config_seed(1, name))
+    return world, render
+
+
+def _truth_name(fit_name: str) -> str:
+    """Fit artifact names (p07, wall) → the truth material names (patch-7, wall), so truth and
+    prediction of one configuration share their random numbers."""
+    if fit_name.startswith("p") and fit_name[1:].isdigit():
+        return f"patch-{int(fit_name[1:])}"
+    return fit_name
+
+
+def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
+                 on_progress: Callable[[str, int, int], None]) -> Any:
+    from normbox_lab import engine as eng
+
+    module = eng.load_protocol(protocol)
+    full = eng.resolve_parameters(module, lab.config.protocol_defaults(protocol), params)
+    plan = eng.build_plan(protocol, full, lab, module=module)
+    engine = eng.Engine(lab, store, plan)
+
+    def on_event(ev: Any) -> None:
+        if ev.kind == "progress":
+            on_progress(protocol, int(ev.data["done"]), int(ev.data["planned"]))
+    engine.subscribe(on_event)
+    result = engine.run()
+    if result.status != "done":
+        from normbox_lab.errors import NormboxError
+
+        raise NormboxError(f"{protocol} ended {result.status} ({result.done}/{result.planned}); "
+                           f"resume with: normbox-lab run --resume {result.uuid}")
+    return result
+
+
+def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | None = None,
+             log: Callable[[str], None] = print) -> DemoResult:
+    import numpy as np
+
+    from normbox_lab.config import parse_config
+    from normbox_lab.lab import build_lab
+    from normbox_lab.pipeline import (compare_run, fit_run, lamp_from_light_map, predict_run,
+                                      report_run)
+    from normbox_lab.store import Store
+
+    progress = on_progress or (lambda stage, done, total: None)
+    out = Path(opts.out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    store_path = Path(opts.store) if opts.store else out / "normbox-demo.sqlite"
+    quality = "quick" if opts.quick else "default"
+    config_path = out / "lab.toml"
+    config_path.write_text(_lab_config_text(opts, quality, out / "render-cache"))
+    config = parse_config(config_path.read_text(), str(config_path))
+    patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
+    angles = QUICK_ANGLES if opts.quick else FULL_ANGLES
+    timings: dict[str, float] = {}
+    runs: dict[str, int] = {}
+
+    def timed(name: str, fn: Callable[[], Any]) -> Any:
+        t0 = time.perf_counter()
+        value = fn()
+        timings[name] = time.perf_counter() - t0
+        log(f"{name}: {timings[name]:.1f} s")
+        return value
+
+    world, render = timed("set-up", lambda: make_world(config, opts, quality))
+    lab = build_lab(config, world=world)
+    store = Store(store_path)
+    try:
+        brdf = timed("brdf-inplane", lambda: run_protocol(
+            lab, store, "brdf-inplane", {"materials": [*patches, "wall"]}, progress))
+        runs["brdf-inplane"] = brdf.run_id
+        timed("fit", lambda: fit_run(store, brdf.run_id, 2.0, progress))
+        light = timed("light-map", lambda: run_protocol(lab, store, "light-map", {}, progress))
+        runs["light-map"] = light.run_id
+        ref = timed("reference-sweep", lambda: run_protocol(
+            lab, store, "reference-sweep", {"angles_deg": angles, "patches": patches},
+            progress))
+        runs["reference-sweep"] = ref.run_id
+        lamp = lamp_from_light_map(store, light.run_id)
+        timed("predict", lambda: predict_run(store, ref.run_id, geometry=config.geometry,
+                                             quality=quality, lamp=lamp, render=render,
+                                             progress=progress))
+        comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id))
+        notes = [f"Virtual campaign: truth={opts.truth}, instrument noise "
+                 f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, quality {quality}.",
+                 "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())]
+        report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
+                                                    brdf.run_id, notes))
+    finally:
+        lab.close()
+        store.close()
+    de, nr = comparison.delta_e00, comparison.nrmse
+    summary = {"delta_e00_mean": float(np.nanmean(de)), "delta_e00_max": float(np.nanmax(de)),
+               "nrmse_mean_pct": 100 * float(np.nanmean(nr)),
+               "nrmse_max_pct": 100 * float(np.nanmax(nr)),
+               "nrmse_by_angle_pct": {f"{a:g}": 100 * float(np.nanmean(nr[:, i]))
+                                      for i, a in enumerate(comparison.angle_deg)},
+               "ratings": comparison.rating_counts()}
+    return DemoResult(report, store_path, runs, timings, summary)

@@ -1,0 +1,86 @@
+"""The pipeline on stored runs, with data written straight from the virtual Normbox.
+
+The closure test: truth materials inside the fit model's family (`truth="model"`), no
+instrument noise → the fits recover the materials and the prediction matches the reference.
+(The full campaign through the instruments is `normbox-lab demo`; its test is in test_demo.py.)
+"""
+
+import numpy as np
+import pytest
+
+from normbox_lab.brdf_model import gonio_geometry
+from normbox_lab.materials import truth_brdf_inplane, truth_material
+from normbox_lab.pipeline import compare_run, fit_run, predict_run, reference_data, report_run
+from normbox_lab.store import Store
+from normbox_lab.types import BrdfReading, SpectralReading
+
+PATCHES = (19, 13, 7)
+ANGLES = (30.0, 60.0, 90.0)
+
+
+def _gonio_run(store, truth):
+    run = store.create_run("brdf-inplane", status="running")
+    wl = np.arange(380.0, 781.0, 5.0)
+    ti, to = gonio_geometry()
+    for name in [f"p{p:02d}" for p in PATCHES] + ["wall"]:
+        mat = truth_material(int(name[1:]) if name != "wall" else "wall", truth)
+        f = truth_brdf_inplane(mat, ti, to, wl, 4.0)
+        for k in range(ti.size):
+            store.add_brdf(run.id, f"{name}/i{ti[k]:+.0f}/o{to[k]:+.0f}",
+                           BrdfReading(float(ti[k]), float(to[k]), 4.0, wl, f[k]))
+    store.set_run_status(run.id, "done")
+    return run.id
+
+
+def _reference_run(store, world):
+    run = store.create_run("reference-sweep", status="running")
+    for a in ANGLES:
+        world.set_sample_angle(a)
+        for p in PATCHES:
+            world.place_patch(p)
+            wl, rad = world.radiance_in_view()
+            store.add_spectral(run.id, f"a{a:g}/p{p:02d}",
+                               SpectralReading(wl, rad, None, 1.0, 0.0, "world"),
+                               {"patch": p, "angle_deg": a, "patch_name": str(p)})
+    store.set_run_status(run.id, "done")
+    return run.id
+
+
+def _world(truth):
+    from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.demo import DemoOptions, make_world
+
+    config = parse_config(SIM_CONFIG_TEMPLATE.replace('quality = "default"',
+                                                      f'quality = "quick"\ntruth = "{truth}"'))
+    return make_world(config, DemoOptions(truth=truth), "quick")
+
+
+def test_closure_truth_model_no_noise(tmp_path):
+    """Truth inside the model family, no instrument: the pipeline closes on itself.  Truth and
+    prediction of one configuration share their random numbers (fast renderer, one scene)."""
+    world, render = _world("model")
+    with Store(tmp_path / "s.sqlite") as store:
+        brdf = _gonio_run(store, "model")
+        ref = _reference_run(store, world)
+        fits = fit_run(store, brdf)
+        assert max(f.fit_error_pct for f in fits.values()) < 0.1
+        predict_run(store, ref, quality="quick", render=render)
+        c = compare_run(store, ref, brdf)
+        assert np.nanmax(c.nrmse) <= 0.005, c.nrmse
+        assert np.nanmax(c.delta_e00) <= 0.2, c.delta_e00
+        out = report_run(store, ref, tmp_path / "r.html", brdf)
+        assert out.exists() and "<img" in out.read_text()
+
+
+def test_reference_data_refuses_holes(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("reference-sweep")
+        wl = np.arange(380.0, 781.0)
+        for a, p in ((30.0, 1), (30.0, 2), (60.0, 1)):
+            store.add_spectral(run.id, f"a{a:g}/p{p}", SpectralReading(wl, np.ones(401), None,
+                                                                       1.0, 0.0, "x"),
+                               {"patch": p, "angle_deg": a})
+        from normbox_lab.errors import DataError
+
+        with pytest.raises(DataError, match="1 readings missing"):
+            reference_data(store, run.id)
