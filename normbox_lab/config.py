@@ -211,6 +211,8 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             b = options["baud"]
             if isinstance(b, bool) or not isinstance(b, int) or b not in BAUD_RATES:
                 raise err(tab, "baud", f"must be one of {BAUD_RATES}, got {b!r}")
+            if driver == "cs2000a" and b != 115200:
+                raise err(tab, "baud", "the CS-2000A runs at 115200 baud only; remove the line")
         for lim in ("min_angle_deg", "max_angle_deg", "timeout_s"):
             if lim in options:
                 options[lim] = number(tab, options, lim, 0.0)

@@ -41,6 +41,14 @@ def test_errors_name_file_line_and_field(old, new, field):
     assert str(err).startswith(f"lab.toml:{line}: {field}:")
 
 
+def test_cs2000a_has_a_fixed_baud_rate():
+    text = SIM_CONFIG_TEMPLATE.replace('driver = "cs1000a"', 'driver = "cs2000a"', 1)
+    with pytest.raises(ConfigError, match="115200 baud only"):
+        parse_config(text, "lab.toml")
+    assert parse_config(text.replace("baud = 9600", "baud = 115200")).instruments[
+        "radiometer"].options["baud"] == 115200
+
+
 def test_syntax_error_has_its_line():
     with pytest.raises(ConfigError) as info:
         parse_config("[lab]\nname = \"x\"\nseed = = 3\n", "bad.toml")
