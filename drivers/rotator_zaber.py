@@ -1,0 +1,276 @@
+"""Zaber rotation stage over the Zaber ASCII protocol (pyserial).
+
+Facts: "Zaber's ASCII Protocol" as summarised in /work/shared/reference/instruments.md §2.2.
+Line: 115200 baud 8N1 (*assumed* default of current firmware), commands end in LF, replies
+end in CR LF.
+
+    command   /<device> <axis> <command> [args]\\n        e.g. ``/1 1 move abs 256000``
+    reply     @<device> <axis> <OK|RJ> <IDLE|BUSY> <flag> <data>\\r\\n
+              e.g. ``@01 1 OK BUSY -- 0``; RJ carries the reason in the data field
+              (BADCOMMAND, BADDATA, BADAXIS, …) → `DeviceError(reason)`
+    info      #… lines (ignored); alerts !… (ignored; alerts are off by default)
+
+Commands sent:  ``/1 get deviceid``, ``/1 get system.serial``, ``/1 get version`` (identity);
+``/1 1 get maxspeed``, ``/1 1 get accel`` (timing model); ``/1 1 warnings`` (flags, e.g.
+``@01 1 OK IDLE WR 01 WR``); ``/1 1 warnings clear``; ``/1 1 home``; ``/1 1 move abs N``;
+``/1 1 get pos``; ``/1 1 get encoder.pos``; ``/1 1`` (empty command = status poll);
+``/1 1 stop``.
+
+Warning flags acted on: ``WR`` no reference position (→ not homed), ``FS`` stalled and
+stopped (→ `DeviceError("FS")`), ``WL`` unexpected limit trigger (→ `DeviceError("WL")`),
+``NI`` command interrupted (after a stop; informative).
+
+Units: positions in microsteps (`steps_per_deg`, default 4266.667 = 0.000234375 °/µstep, the
+X-RSW60A rotary stage, *assumed* profile).  ``maxspeed`` native = µsteps/s × 1.6384,
+``accel`` native = µsteps/s² × 1.6384 / 10000 (Zaber's ASCII unit conversions, *not
+re-verified*).  Moves are followed by status polls: the driver sleeps until the estimated end
+of the move, then polls every `poll_s`.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+from normbox_lab.drivers.rotation import RotationStageBase
+from serial import SerialException
+
+from normbox_lab.clock import Clock
+from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
+from normbox_lab.interfaces import InstrumentIdentity
+
+X_RSW60A_STEPS_PER_DEG = 1.0 / 0.000234375
+SPEED_NATIVE_PER_STEP_S = 1.6384
+ACCEL_NATIVE_PER_STEP_S2 = 1.6384 / 10000.0
+
+REPLY = re.compile(rb"^@(\d{2}) (\d+) (OK|RJ) (IDLE|BUSY) (\S\S) ?(.*)$")
+
+REJECTIONS = {
+    "BADCOMMAND": "the command is not recognised",
+    "BADDATA": "a parameter is out of range or malformed",
+    "BADAXIS": "no such axis",
+    "DEVICEONLY": "the command applies to the whole device, not an axis",
+    "AGAIN": "the device is busy; try again",
+    "PARKED": "the axis is parked",
+    "STATUSBUSY": "the axis is busy",
+}
+FLAGS = {
+    "FS": "stalled and stopped",
+    "FQ": "encoder error",
+    "WR": "no reference position (not homed)",
+    "WL": "unexpected limit trigger",
+    "NI": "command interrupted",
+    "--": "no warning",
+}
+
+
+class ZaberReply:
+    def __init__(self, device: int, axis: int, ok: bool, busy: bool, flag: str, data: str):
+        self.device, self.axis, self.ok, self.busy, self.flag, self.data = (
+            device, axis, ok, busy, flag, data)
+
+
+class ZaberRotationStage(RotationStageBase):
+    model = "X-RSW60A"
+
+    def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "rotator",
+                 device: int = 1, axis: int = 1, steps_per_deg: float = X_RSW60A_STEPS_PER_DEG,
+                 min_angle_deg: float = -170.0, max_angle_deg: float = 170.0,
+                 max_velocity_deg_s: float = 10.0, acceleration_deg_s2: float = 20.0,
+                 home_velocity_deg_s: float | None = None, position_tolerance_deg: float = 0.05,
+                 auto_home: bool = False, command_timeout_s: float = 1.0, poll_s: float = 0.1,
+                 reconnect_timeout_s: float = 10.0, connect: bool = True) -> None:
+        super().__init__(port, clock, instrument_id=instrument_id, min_angle_deg=min_angle_deg,
+                         max_angle_deg=max_angle_deg, max_velocity_deg_s=max_velocity_deg_s,
+                         acceleration_deg_s2=acceleration_deg_s2,
+                         home_velocity_deg_s=home_velocity_deg_s or max_velocity_deg_s,
+                         position_tolerance_deg=position_tolerance_deg, auto_home=auto_home)
+        self.device = int(device)
+        self.axis = int(axis)
+        self.steps_per_deg = float(steps_per_deg)
+        self.command_timeout_s = float(command_timeout_s)
+        self.poll_s = float(poll_s)
+        self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self._ident: dict[str, str] = {}
+        self._lost = False
+        self._expected_end_s = 0.0
+        self._last_flag = "--"
+        self._homing = False
+        if connect:
+            self.connect()
+
+    @classmethod
+    def open(cls, url: str, clock: Clock, **options: Any) -> ZaberRotationStage:
+        from normbox_lab.sim.transport import open_port
+
+        port = open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
+                         timeout=0.05)
+        return cls(port, clock, **options)
+
+    # --- lines --------------------------------------------------------------------------------
+    def _command(self, text: str, *, axis: bool = True, check: bool = True) -> ZaberReply:
+        self._ensure_link()
+        prefix = f"/{self.device} {self.axis}" if axis else f"/{self.device}"
+        line = f"{prefix} {text}".rstrip() + "\n"
+        try:
+            self.port.write(line.encode("ascii"))
+            reply = self._read_reply()
+        except (SerialException, OSError) as exc:
+            self._lost = True
+            raise InstrumentError(f"link lost: {exc}", instrument=self.instrument_id) from exc
+        self._last_flag = reply.flag
+        if check and not reply.ok:
+            raise DeviceError(reply.data, REJECTIONS.get(reply.data, "command rejected") +
+                              f" ({text!r})", instrument=self.instrument_id)
+        return reply
+
+    def _read_reply(self) -> ZaberReply:
+        deadline = self.clock.now_s() + self.command_timeout_s
+        buf = bytearray()
+        while True:
+            now = self.clock.now_s()
+            if now >= deadline:
+                raise InstrumentTimeout(f"no reply (got {bytes(buf)!r})",
+                                        instrument=self.instrument_id)
+            chunk = self.port.read_until(b"\n")
+            buf += chunk
+            if not buf.endswith(b"\n"):
+                if not chunk and self.clock.now_s() == now:
+                    self.clock.sleep(min(0.01, deadline - now))
+                continue
+            line = bytes(buf).rstrip(b"\r\n")
+            buf.clear()
+            if line.startswith((b"#", b"!")) or not line:
+                continue                               # info / alert lines
+            m = REPLY.match(line)
+            if m is None:
+                raise ProtocolError("not a Zaber reply", raw=line, instrument=self.instrument_id)
+            dev, ax, flag_ok, status, flag, data = m.groups()
+            if int(dev) != self.device:
+                continue
+            return ZaberReply(int(dev), int(ax), flag_ok == b"OK", status == b"BUSY",
+                              flag.decode(), data.decode("ascii", "replace").strip())
+
+    def _ensure_link(self) -> None:
+        if not self._lost:
+            return
+        deadline = self.clock.now_s() + self.reconnect_timeout_s
+        last: Exception | None = None
+        while self.clock.now_s() < deadline:
+            try:
+                if hasattr(self.port, "is_open") and not self.port.is_open:
+                    self.port.open()
+                self.port.reset_input_buffer()
+                self._lost = False
+                self.connect()
+                return
+            except (SerialException, OSError, InstrumentError) as exc:
+                last = exc
+                self._lost = True
+                self.clock.sleep(0.5)
+        raise InstrumentError(f"cannot reconnect within {self.reconnect_timeout_s:g} s: {last}",
+                              instrument=self.instrument_id)
+
+    def _int(self, reply: ZaberReply) -> int:
+        try:
+            return int(reply.data.split()[0])
+        except (ValueError, IndexError):
+            raise ProtocolError("expected a number", raw=reply.data.encode(),
+                                instrument=self.instrument_id) from None
+
+    # --- connection ---------------------------------------------------------------------------
+    def connect(self) -> None:
+        self._ident = {
+            "deviceid": self._command("get deviceid", axis=False).data,
+            "serial": self._command("get system.serial", axis=False).data,
+            "version": self._command("get version", axis=False).data,
+        }
+        speed = self._int(self._command("get maxspeed"))
+        accel = self._int(self._command("get accel"))
+        self.max_velocity_deg_s = speed / SPEED_NATIVE_PER_STEP_S / self.steps_per_deg
+        self.acceleration_deg_s2 = accel / ACCEL_NATIVE_PER_STEP_S2 / self.steps_per_deg
+        self.home_velocity_deg_s = self.max_velocity_deg_s
+
+    def identify(self) -> InstrumentIdentity:
+        return InstrumentIdentity("rotation-stage", self.model, self._ident.get("serial", ""),
+                                  self._ident.get("version", ""),
+                                  extra={"protocol": "zaber-ascii",
+                                         "deviceid": self._ident.get("deviceid", "")})
+
+    def close(self) -> None:
+        try:
+            self.port.close()
+        except (SerialException, OSError):
+            pass
+
+    # --- status -------------------------------------------------------------------------------
+    def warnings(self, clear: bool = False) -> list[str]:
+        reply = self._command("warnings clear" if clear else "warnings")
+        parts = reply.data.split()
+        return parts[1:] if parts else []
+
+    def status(self) -> dict[str, Any]:
+        reply = self._command("")
+        flags = self.warnings()
+        pos = self._int(self._command("get pos"))
+        return {
+            "position_deg": pos / self.steps_per_deg,
+            "homed": "WR" not in flags,
+            "moving": reply.busy,
+            "limit_hit": "WL" in flags,
+            "stalled": "FS" in flags,
+            "warnings": flags,
+            "soft_limits_deg": (self.min_angle_deg, self.max_angle_deg),
+            "errors": [f"{f}: {FLAGS.get(f, '?')}" for f in flags if f[0] in "FW"],
+        }
+
+    def is_homed(self) -> bool:
+        return "WR" not in self.warnings()
+
+    def is_moving(self) -> bool:
+        return self._command("").busy
+
+    def position_deg(self) -> float:
+        return self._int(self._command("get pos")) / self.steps_per_deg
+
+    def _readback_deg(self) -> float:
+        return self._int(self._command("get encoder.pos")) / self.steps_per_deg
+
+    # --- motion -------------------------------------------------------------------------------
+    def _begin_move(self, angle_deg: float) -> None:
+        self.warnings(clear=True)         # old NI / FS flags must not be read as this move's
+        steps = round(angle_deg * self.steps_per_deg)
+        self._command(f"move abs {steps}")
+        self._expected_end_s = self.clock.now_s() + self.estimate_move_time_s(
+            self._move_start_deg, angle_deg)
+
+    def _begin_home(self) -> None:
+        self.warnings(clear=True)
+        self._command("home")
+        self._expected_end_s = 0.0        # distance unknown until homed: poll from the start
+
+    def _wait_done(self, timeout_s: float) -> None:
+        deadline = self.clock.now_s() + timeout_s
+        if self._expected_end_s > self.clock.now_s():
+            self.clock.sleep(min(self._expected_end_s, deadline) - self.clock.now_s())
+        while True:
+            reply = self._command("")
+            if not reply.busy:
+                break
+            if self.clock.now_s() >= deadline:
+                raise InstrumentTimeout(f"still moving after {timeout_s:.1f} s",
+                                        instrument=self.instrument_id)
+            self.clock.sleep(self.poll_s)
+        if reply.flag in ("FS", "FQ", "WL"):
+            self.warnings(clear=True)
+            self._commanded_deg = None
+            raise DeviceError(reply.flag, FLAGS[reply.flag], instrument=self.instrument_id)
+
+    def stop(self) -> None:
+        self._command("stop")
+        self._commanded_deg = None
+
+
+Zaber = ZaberRotationStage
+
+__all__ = ["X_RSW60A_STEPS_PER_DEG", "Zaber", "ZaberRotationStage"]
