@@ -1,0 +1,76 @@
+"""`normbox-lab tui [--lab LAB.toml] [--store FILE] [--world normbox|analytic|none]`: the operator
+console.  Textual is imported only inside the handler (`normbox-lab --help` stays fast)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "tui", help="the operator console (instruments, run, spectrum, runs, results)",
+        description="A keyboard-first terminal console: run, pause, resume and abort protocols, "
+                    "answer operator and fault prompts, watch spectra and the ΔE00 results. "
+                    "Quitting mid-run pauses the run after the current reading; resume it here "
+                    "or with `normbox-lab run --resume ID`.")
+    p.add_argument("--lab", metavar="LAB.toml",
+                   help="lab config (default: ./lab.toml, else the simulated template)")
+    p.add_argument("--store", default=None, metavar="FILE",
+                   help="measurement store (default: normbox.sqlite)")
+    p.add_argument("--world", choices=("normbox", "analytic", "none"), default="normbox",
+                   help="simulated labs: the virtual Normbox (Mitsuba, loaded after the first "
+                        "paint), the closed-form analytic world, or none")
+    p.add_argument("--time-scale", type=float, default=None, metavar="S",
+                   help="simulated labs: override the lab's time scale (0 = instant)")
+    p.add_argument("--virtual-operator", action="store_true",
+                   help="simulated labs: let the virtual operator answer prompts (default: "
+                        "you answer them in the console)")
+    p.add_argument("--no-resume-offer", action="store_true",
+                   help="do not offer to resume interrupted runs at start")
+    p.add_argument("--exit-after-first-paint", action="store_true",
+                   help=argparse.SUPPRESS)   # startup measurement (docs/tui.md)
+    p.set_defaults(handler=_tui)
+
+
+def _load_config(lab: str | None):
+    from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
+
+    if lab:
+        return load_config(lab)
+    if Path("lab.toml").exists():
+        return load_config("lab.toml")
+    return parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
+
+
+def _tui(args: argparse.Namespace) -> int:
+    from normbox_lab.store import DEFAULT_STORE
+    from normbox_lab.tui.app import NormboxConsole
+    from normbox_lab.tui.controller import Session
+
+    config = _load_config(args.lab)
+    session = Session(config, args.store or DEFAULT_STORE, world=args.world,
+                      virtual_operator=args.virtual_operator, time_scale=args.time_scale)
+    app = NormboxConsole(session, exit_after_paint=args.exit_after_first_paint,
+                         offer_resume=not args.no_resume_offer)
+    app.run()
+    if args.exit_after_first_paint:
+        print(f"first-paint-wall-time {app.first_paint_wall_s:.6f}")
+        return 0
+    if session.busy:
+        # the window closed while the run was still finishing its reading: let it commit
+        print("waiting for the current reading to be committed…", file=sys.stderr)
+        session.wait(600.0)
+    result = session.result
+    engine = session.engine
+    if engine is not None and engine.run_uuid:
+        rec = session.open_store().get_run(engine.run_uuid)
+        print(f"run {rec.uuid} (id {rec.id}): {rec.status}, {rec.done}/{rec.planned} readings")
+        if rec.status != "done":
+            store_arg = f" --store {args.store}" if args.store else ""
+            print(f"resume with: normbox-lab run --resume {rec.uuid}{store_arg} "
+                  "(or from the console: r)")
+    session.close()
+    del result
+    return 0

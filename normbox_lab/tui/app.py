@@ -1,0 +1,802 @@
+"""The operator console (Textual): Instruments, Run, Spectrum, Runs, Results.
+
+Keyboard first, laid out for 80×24.  The engine runs in a worker thread (`Session`); its events
+arrive as `EngineMessage`s (posted thread-safely), so the screen never waits for an
+instrument.  First paint happens before the store, the lab or its world are opened: those load
+in a background thread right after it (a Mitsuba world may take seconds; the analytic one
+milliseconds), as does the plot library.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Any, ClassVar
+
+from textual import on, work
+from textual.app import App, ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.message import Message
+from textual.screen import ModalScreen
+from textual.widgets import (
+    Button,
+    DataTable,
+    Footer,
+    Input,
+    Label,
+    ProgressBar,
+    RichLog,
+    Select,
+    Static,
+    TabbedContent,
+    TabPane,
+)
+
+from normbox_lab.tui.controller import Session
+
+TABS = ("instruments", "run", "spectrum", "runs", "results")
+
+
+class EngineMessage(Message):
+    """An engine event (or ("error", exc) / ("finished", result)) for the UI thread."""
+
+    def __init__(self, event: Any) -> None:
+        super().__init__()
+        self.event = event
+
+
+class LabReady(Message):
+    def __init__(self, error: str = "") -> None:
+        super().__init__()
+        self.error = error
+
+
+# --- modals ----------------------------------------------------------------------------------
+
+class PromptScreen(ModalScreen[str]):
+    """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
+
+    BINDINGS: ClassVar = [Binding("enter", "choose(0)", "answer", show=True),
+                Binding("r", "pick('retry')", "retry", show=False),
+                Binding("s", "pick('skip')", "skip", show=False),
+                Binding("a", "pick('abort')", "abort", show=False)]
+    DEFAULT_CSS = """
+    PromptScreen { align: center middle; }
+    PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
+                              background: $panel; }
+    PromptScreen.fault > Vertical { border: thick $error; }
+    PromptScreen Horizontal { height: auto; }
+    PromptScreen Button { margin: 0 1 0 0; }
+    """
+
+    def __init__(self, request: Any) -> None:
+        super().__init__(classes="fault" if request.kind == "fault" else "")
+        self.request = request
+
+    def compose(self) -> ComposeResult:
+        req = self.request
+        title = "Fault" if req.kind == "fault" else "Operator"
+        hint = ("r retry · s skip · a abort · Enter retry" if req.kind == "fault"
+                else "do it, then press Enter")
+        with Vertical():
+            yield Label(f"[b]{title}[/b]  {req.key}")
+            yield Static(prompt_text(req), id="prompt-message")
+            yield Label(f"[dim]{hint}[/dim]")
+            with Horizontal():
+                for i, c in enumerate(req.choices):
+                    yield Button(c, id=f"choice-{c}", compact=True,
+                                 variant="primary" if i == 0 else
+                                 ("error" if c == "abort" else "default"))
+
+    def action_choose(self, index: int) -> None:
+        self.dismiss(self.request.choices[int(index)])
+
+    def action_pick(self, choice: str) -> None:
+        if choice in self.request.choices:
+            self.dismiss(choice)
+
+    @on(Button.Pressed)
+    def _pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(str(event.button.id).removeprefix("choice-"))
+
+
+def prompt_text(req: Any) -> str:
+    """"Place patch 7 (orange) on the holder, then press Enter" for a place_patch prompt."""
+    msg = str(req.message)
+    if req.kind == "operator":
+        msg = msg[:1].upper() + msg[1:]
+        if req.data.get("action") == "place_patch":
+            msg += " on the holder"
+        msg += " — then Enter"
+    return msg
+
+
+class ResumeScreen(ModalScreen[int | None]):
+    """Offered at start when the store holds runs that are not done."""
+
+    BINDINGS: ClassVar = [Binding("enter", "resume", "resume"), Binding("escape,n", "later", "not now")]
+    DEFAULT_CSS = """
+    ResumeScreen { align: center middle; }
+    ResumeScreen > Vertical { width: 74; height: auto; max-height: 18; border: thick $warning;
+                              padding: 0 1; background: $panel; }
+    ResumeScreen DataTable { height: auto; max-height: 10; }
+    """
+
+    def __init__(self, runs: list[Any]) -> None:
+        super().__init__()
+        self.runs = runs
+
+    def compose(self) -> ComposeResult:
+        from normbox_lab.tui.views import run_row
+
+        with Vertical():
+            yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
+            table: DataTable = DataTable(id="resume-table", cursor_type="row")
+            table.add_columns("id", "uuid", "protocol", "status", "readings", "created")
+            for r in reversed(self.runs):
+                table.add_row(*run_row(r), key=str(r.id))
+            yield table
+            yield Label("[dim]↑↓ pick · Enter resume · n / Esc not now[/dim]")
+
+    def action_resume(self) -> None:
+        table = self.query_one(DataTable)
+        row = table.cursor_row
+        runs = list(reversed(self.runs))
+        self.dismiss(runs[row].id if 0 <= row < len(runs) else None)
+
+    def action_later(self) -> None:
+        self.dismiss(None)
+
+    @on(DataTable.RowSelected)
+    def _selected(self, _event: DataTable.RowSelected) -> None:
+        self.action_resume()
+
+
+# --- the app ---------------------------------------------------------------------------------
+
+class NormboxConsole(App):
+    """normbox-lab tui."""
+
+    TITLE = "normbox-lab"
+    CSS = """
+    #status { height: 1; background: $boost; padding: 0 1; }
+    TabbedContent { height: 1fr; }
+    TabPane { padding: 0; }
+    #inst-table { height: auto; max-height: 10; }
+    #live { height: auto; padding: 0 1; }
+    #run-top { height: 1; }
+    #run-top Select { width: 26; }
+    #params { height: 6; border: round $surface-lighten-2; }
+    .param { height: 1; }
+    .param Label { width: 16; }
+    .param Input { width: 1fr; }
+    #run-info { height: 2; padding: 0 1; }
+    #progress { height: 1; padding: 0 1; }
+    #progress Bar { width: 1fr; }
+    #events { height: 1fr; }
+    #runs-table { height: 1fr; }
+    #readings-table { height: 1fr; }
+    #res-head { height: 2; padding: 0 1; }
+    #heatmap { height: 1fr; }
+    #drill { height: auto; max-height: 8; padding: 0 1; }
+    #spectrum-head { height: 1; padding: 0 1; }
+    """
+    BINDINGS: ClassVar = [
+        Binding("q", "quit_console", "quit"),
+        Binding("s", "start", "start"),
+        Binding("d", "dry_run", "dry-run"),
+        Binding("p", "pause_resume", "pause/resume"),
+        Binding("a", "abort", "abort"),
+        Binding("r", "resume_selected", "resume run"),
+        Binding("e", "export", "export"),
+        Binding("i", "poll", "poll"),
+        Binding("escape", "leave_input", "", show=False),
+        *[Binding(str(k + 1), f"tab('{t}')", t, show=False) for k, t in enumerate(TABS)],
+    ]
+
+    def __init__(self, session: Session, *, exit_after_paint: bool = False,
+                 offer_resume: bool = True) -> None:
+        super().__init__()
+        self.session = session
+        session.post = lambda ev: self.post_message(EngineMessage(ev))
+        self.exit_after_paint = exit_after_paint
+        self.offer_resume = offer_resume
+        self.first_paint_wall_s: float | None = None
+        self.lab_ready = False
+        self.protocol = "reference-sweep"
+        self.quitting = False
+        self.prompt_screen: PromptScreen | None = None
+        self.latest: Any = None          # (key, wavelength, radiance) of the latest reading
+        self.previous: Any = None
+        self._spectrum_dirty = False
+        self._runs_dirty = True
+        self._plot: Any = None
+        self._heatmap: Any = None
+        self.progress_done = 0
+        self.progress_planned = 0
+        self.run_status = "idle"
+        self.current_step = ""
+        self.events_seen: list[str] = []
+
+    # --- layout ------------------------------------------------------------------------------
+    def compose(self) -> ComposeResult:
+        yield Static("normbox-lab · starting…", id="status")
+        with TabbedContent(initial="run", id="tabs"):
+            with TabPane("1 Instruments", id="instruments"):
+                yield DataTable(id="inst-table", cursor_type="row", zebra_stripes=True)
+                yield Static("", id="live")
+            with TabPane("2 Run", id="run"):
+                with Horizontal(id="run-top"):
+                    yield Select([(n, n) for n in _protocol_names()], value="reference-sweep",
+                                 allow_blank=False, compact=True, type_to_search=False,
+                                 id="protocol")
+                    yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
+                yield VerticalScroll(id="params")
+                yield Static("idle", id="run-info")
+                with Horizontal(id="progress"):
+                    yield ProgressBar(total=1, show_eta=False, id="bar")
+                yield RichLog(id="events", max_lines=500, wrap=False, markup=True)
+            with TabPane("3 Spectrum", id="spectrum"):
+                yield Static("no reading yet", id="spectrum-head")
+                yield Vertical(id="plot-box")
+            with TabPane("4 Runs", id="runs"):
+                yield DataTable(id="runs-table", cursor_type="row", zebra_stripes=True)
+                yield DataTable(id="readings-table", cursor_type="row", zebra_stripes=True)
+            with TabPane("5 Results", id="results"):
+                yield Static("no comparison in the store yet (normbox-lab compare …)",
+                             id="res-head")
+                yield DataTable(id="heatmap", cursor_type="cell")
+                yield Static("", id="drill")
+        yield Footer()
+
+    def on_mount(self) -> None:
+        self.query_one("#inst-table", DataTable).add_columns(
+            "role", "link", "driver", "port", "identity", "state")
+        self.query_one("#runs-table", DataTable).add_columns(
+            "id", "uuid", "protocol", "status", "readings", "created")
+        self.query_one("#readings-table", DataTable).add_columns(
+            "key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s")
+        self._show_params(self.protocol)
+        self.call_after_refresh(self._first_paint)
+        self.set_interval(0.5, self._tick)
+
+    def _first_paint(self) -> None:
+        self.first_paint_wall_s = time.time()
+        if self.exit_after_paint:
+            self.exit()
+            return
+        self._load()
+
+    @work(thread=True, exclusive=True, group="load")
+    def _load(self) -> None:
+        s = self.session
+        try:
+            s.open_store()
+            runs = s.unfinished_runs()
+            if self.offer_resume and runs:
+                self.call_from_thread(self._offer_resume, runs)
+            self._runs_dirty = True
+            s.ensure_lab()
+            rows = s.poll_instruments()
+            self.call_from_thread(self._show_instruments, rows)
+            self.post_message(LabReady())
+        except Exception as exc:  # noqa: BLE001 - shown to the operator, the console stays up
+            self.post_message(LabReady(f"{type(exc).__name__}: {exc}"))
+
+    def on_lab_ready(self, message: LabReady) -> None:
+        if message.error:
+            self._set_status(f"lab not ready: {message.error}")
+            self._log(f"[red]lab not ready[/] {message.error}")
+            return
+        self.lab_ready = True
+        s = self.session
+        kind = "simulated" if s.config.simulated else "real"
+        scale = getattr(s.lab.clock, "time_scale", None)
+        clock = "real clock" if scale is None else f"virtual clock ×{scale:g}"
+        self._set_status(f"{s.config.name} · {kind} · world {s.world_kind} · {clock} · "
+                         f"store {s.store_path.name}")
+        self._refresh_results()
+
+    # --- helpers -----------------------------------------------------------------------------
+    def _set_status(self, text: str) -> None:
+        self.query_one("#status", Static).update(text)
+
+    def _log(self, text: str) -> None:
+        self.query_one("#events", RichLog).write(text)
+
+    def _show_params(self, protocol: str) -> None:
+        box = self.query_one("#params", VerticalScroll)
+        box.remove_children()
+        try:
+            params = self.session.default_parameters(protocol)
+        except Exception as exc:  # noqa: BLE001 - a broken protocol file is shown, not fatal
+            box.mount(Label(f"[red]{exc}[/]"))
+            return
+        import json
+
+        for k, v in params.items():
+            text = v if isinstance(v, str) else json.dumps(v)   # as `--param K=V` takes it
+            box.mount(Horizontal(Label(k), Input(text, id=f"param-{k}", compact=True),
+                                 classes="param"))
+
+    def parameters(self) -> dict[str, Any]:
+        """The parameters as typed in the Run tab (JSON, like `--param K=V`)."""
+        from normbox_lab import engine as eng
+
+        module = eng.load_protocol(self.protocol)
+        out: dict[str, Any] = {}
+        for inp in self.query("#params Input").results(Input):
+            key = str(inp.id).removeprefix("param-")
+            out[key] = eng.coerce_param(module.PARAMETERS[key], inp.value)
+        return out
+
+    def set_parameter(self, key: str, value: str) -> None:
+        self.query_one(f"#param-{key}", Input).value = value
+
+    # --- actions -----------------------------------------------------------------------------
+    def action_tab(self, tab: str) -> None:
+        self.query_one(TabbedContent).active = tab
+
+    def action_leave_input(self) -> None:
+        if isinstance(self.focused, Input):
+            self.set_focus(None)
+
+    @on(Select.Changed, "#protocol")
+    def _protocol_changed(self, event: Select.Changed) -> None:
+        if event.value != self.protocol and isinstance(event.value, str):
+            self.protocol = event.value
+            self._show_params(self.protocol)
+
+    def action_dry_run(self) -> None:
+        if not self._ready_for_run():
+            return
+        try:
+            params = self.parameters()
+        except Exception as exc:  # noqa: BLE001
+            self._log(f"[red]parameters:[/] {exc}")
+            return
+        self._dry_run(self.protocol, params)
+
+    @work(thread=True, exclusive=True, group="dry")
+    def _dry_run(self, protocol: str, params: dict[str, Any]) -> None:
+        from normbox_lab.engine import format_duration
+
+        try:
+            dry = self.session.dry_run(protocol, params)
+        except Exception as exc:  # noqa: BLE001
+            self.call_from_thread(self._log, f"[red]dry-run failed:[/] {exc}")
+            return
+        text = (f"dry-run {protocol}: {len(dry.plan)} steps, {dry.plan.planned} readings, "
+                f"{len(dry.executed)} executed · ETA {format_duration(dry.total_s)} "
+                f"({dry.total_s:.0f} s lab clock)")
+        self.dry = dry
+        self.call_from_thread(self._after_dry, text)
+
+    def _after_dry(self, text: str) -> None:
+        self.query_one("#run-info", Static).update(text)
+        self._log(text)
+
+    def _ready_for_run(self) -> bool:
+        if not self.lab_ready:
+            self.notify("the lab is still loading", severity="warning")
+            return False
+        if self.session.busy:
+            self.notify("a run is active", severity="warning")
+            return False
+        return True
+
+    def action_start(self) -> None:
+        if not self._ready_for_run():
+            return
+        try:
+            params = self.parameters()
+            self.session.start(self.protocol, params)
+        except Exception as exc:  # noqa: BLE001 - shown, the console stays up
+            self._log(f"[red]cannot start:[/] {exc}")
+            self.notify(str(exc), severity="error")
+            return
+        self.action_tab("run")
+        self._log(f"starting {self.protocol} {params}")
+
+    def action_resume_selected(self) -> None:
+        """Resume the run selected in the Runs tab (or the latest unfinished one)."""
+        if not self._ready_for_run():
+            return
+        run_id = self._selected_run_id()
+        if run_id is None:
+            unfinished = self.session.unfinished_runs()
+            if not unfinished:
+                self.notify("no interrupted run to resume")
+                return
+            run_id = unfinished[-1].id
+        self.resume_run(run_id)
+
+    def resume_run(self, run_id: int) -> None:
+        try:
+            self.session.resume_run(run_id)
+        except Exception as exc:  # noqa: BLE001
+            self._log(f"[red]cannot resume run {run_id}:[/] {exc}")
+            self.notify(str(exc), severity="error")
+            return
+        self.action_tab("run")
+        self._log(f"resuming run {run_id}")
+
+    def _offer_resume(self, runs: list[Any]) -> None:
+        def chosen(run_id: int | None) -> None:
+            if run_id is None:
+                return
+            if self.lab_ready:
+                self.resume_run(run_id)
+            else:
+                self._pending_resume = run_id
+        self.push_screen(ResumeScreen(runs), chosen)
+
+    def action_pause_resume(self) -> None:
+        engine = self.session.engine
+        if engine is None or not self.session.busy:
+            return
+        if engine.state == "paused":
+            self.session.resume()
+            self._log("resume requested")
+        else:
+            self.session.pause()
+            self._log("pause requested: after the current reading")
+            self._set_run_status("pausing…")
+
+    def action_abort(self) -> None:
+        if self.session.busy:
+            self.session.abort()
+            self._log("[red]abort requested[/]")
+
+    def action_quit_console(self) -> None:
+        if not self.session.busy:
+            self.exit()
+            return
+        if self.quitting:                      # second q: abort now
+            self.session.abort()
+            self._log("[red]abort requested (second q)[/]")
+            return
+        self.quitting = True
+        self.session.quit()
+        if self.prompt_screen is not None:
+            self.prompt_screen.dismiss("")
+        self._log("quitting: the run pauses after the current reading (q again: abort)")
+        self.notify("pausing the run before quitting… (q again: abort now)")
+
+    def action_poll(self) -> None:
+        if self.lab_ready:
+            self._poll()
+
+    @work(thread=True, exclusive=True, group="poll")
+    def _poll(self) -> None:
+        try:
+            rows = self.session.poll_instruments()
+        except Exception as exc:  # noqa: BLE001
+            self.call_from_thread(self._log, f"[red]poll failed:[/] {exc}")
+            return
+        self.call_from_thread(self._show_instruments, rows)
+
+    def action_export(self) -> None:
+        run_id = self._selected_run_id()
+        if run_id is None:
+            self.notify("select a run in the Runs tab (4) first")
+            return
+        self._export(run_id)
+
+    @work(thread=True, group="export")
+    def _export(self, run_id: int) -> None:
+        from normbox_lab.export import export_run
+
+        try:
+            path = export_run(self.session.open_store(), run_id, "csv")
+        except Exception as exc:  # noqa: BLE001
+            self.call_from_thread(self.notify, f"export failed: {exc}", severity="error")
+            return
+        self.call_from_thread(self.notify, f"exported run {run_id} → {path}")
+        self.call_from_thread(self._log, f"exported run {run_id} → {path}")
+
+    # --- engine events -----------------------------------------------------------------------
+    def on_engine_message(self, message: EngineMessage) -> None:
+        ev = message.event
+        if isinstance(ev, tuple):
+            what, payload = ev
+            if what == "error":
+                self._log(f"[red]run failed:[/] {payload!r}")
+            elif what == "finished":
+                self._finished(payload)
+            return
+        self.events_seen.append(ev.kind)
+        from normbox_lab.engine import format_duration
+
+        k = ev.kind
+        d = ev.data
+        if k == "run-started":
+            self.progress_planned, self.progress_done = d["planned"], d["done"]
+            self._bar(d["done"], d["planned"])
+            self._set_run_status("running")
+            self.eta = format_duration(d["eta_s"])
+            self._log(f"run {d['run_uuid'][:8]} segment {d['segment']}: {d['done']}/"
+                      f"{d['planned']} done, ETA {self.eta}")
+            self._runs_dirty = True
+        elif k == "step-started":
+            self.current_step = f"{ev.key} · {d.get('label', d.get('kind', ''))}"
+            self._update_run_info()
+        elif k == "progress":
+            self.progress_done = d["done"]
+            self.eta = format_duration(d["eta_s"])
+            self._bar(d["done"], d["planned"])
+            self._update_run_info()
+        elif k == "reading-stored":
+            r = d.get("reading")
+            if hasattr(r, "radiance_W_sr_m2_nm"):
+                self.previous = self.latest
+                self.latest = (ev.key, r.wavelength_nm, r.radiance_W_sr_m2_nm,
+                               getattr(r, "colorimetry", None))
+                self._spectrum_dirty = True
+            self._runs_dirty = True
+            self._live_dirty = True
+        elif k == "prompt":
+            self._show_prompt(d["prompt"])
+        elif k == "answer":
+            self._log(f"{ev.key}: answered {d.get('answer')}")
+        elif k in ("warning", "fault", "suspended", "unsuspended"):
+            msg = d.get("message") or d.get("error") or d.get("role") or ""
+            self._log(f"[yellow]{k}[/] {ev.key} {msg}")
+        elif k == "paused":
+            self._set_run_status("paused")
+            self._log(f"paused before {ev.key or 'the end'} (p: resume)")
+        elif k == "resumed":
+            self._set_run_status("running")
+            self._log("resumed")
+        elif k == "run-finished":
+            self._set_run_status(d.get("status", "finished"))
+            self._log(f"run finished: {d.get('status')} ({d.get('done', '?')}/"
+                      f"{d.get('planned', '?')} readings)")
+            self._runs_dirty = True
+
+    def _finished(self, result: Any) -> None:
+        if self.prompt_screen is not None:
+            self.prompt_screen.dismiss("")
+        self._runs_dirty = True
+        self._poll_after_run()
+        if self.quitting:
+            self.exit()
+
+    def _poll_after_run(self) -> None:
+        if self.lab_ready and not self.session.busy:
+            self._poll()
+
+    def _bar(self, done: int, planned: int) -> None:
+        self.query_one("#bar", ProgressBar).update(total=max(planned, 1), progress=done)
+
+    def _set_run_status(self, status: str) -> None:
+        self.run_status = status
+        self._update_run_info()
+
+    def _update_run_info(self) -> None:
+        eta = getattr(self, "eta", "?")
+        self.query_one("#run-info", Static).update(
+            f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings "
+            f"· ETA {eta} (lab clock)\nstep: {self.current_step}")
+
+    def _show_prompt(self, req: Any) -> None:
+        if self.session.operator is None:      # the virtual operator answered already
+            self._log(f"{req.key}: {req.message} (virtual operator)")
+            return
+        if self.quitting:
+            return
+        self._log(f"[b]prompt[/b] {req.key}: {req.message}")
+        screen = PromptScreen(req)
+        self.prompt_screen = screen
+
+        def answered(choice: str | None) -> None:
+            if self.prompt_screen is screen:
+                self.prompt_screen = None
+            if choice:
+                try:
+                    self.session.answer(choice)
+                except Exception as exc:  # noqa: BLE001 - the prompt was withdrawn
+                    self._log(f"answer not taken: {exc}")
+        self.push_screen(screen, answered)
+
+    # --- periodic refresh (throttled: at time scale 0 readings arrive in bursts) -------------
+    def _tick(self) -> None:
+        if self._spectrum_dirty:
+            self._spectrum_dirty = False
+            self._draw_spectrum()
+        if getattr(self, "_live_dirty", False):
+            self._live_dirty = False
+            self._show_live()
+        if self._runs_dirty and self.session.store is not None:
+            self._runs_dirty = False
+            self._refresh_runs()
+        pending = getattr(self, "_pending_resume", None)
+        if pending is not None and self.lab_ready:
+            self._pending_resume = None
+            self.resume_run(pending)
+
+    def _show_instruments(self, rows: list[dict[str, Any]]) -> None:
+        table = self.query_one("#inst-table", DataTable)
+        table.clear()
+        for r in rows:
+            table.add_row(r["role"], "sim" if r["simulated"] else "real", r["driver"],
+                          r["port"], r["identity"] or "-", r["state"] or "-")
+        self._show_live()
+
+    def _show_live(self) -> None:
+        live = self.session.live
+        angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
+        lamp = live.lamp + ("" if live.lamp_stable is None else
+                            (" (stable)" if live.lamp_stable else " (NOT stable)"))
+        temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
+        last = "-"
+        if live.last_key:
+            lv = "?" if live.last_Lv_cd_m2 is None else f"{live.last_Lv_cd_m2:.3g} cd/m²"
+            xy = "" if live.last_xy is None else f"  x {live.last_xy[0]:.4f} y {live.last_xy[1]:.4f}"
+            last = f"{live.last_key}: Lv {lv}{xy}"
+        patch = "-" if live.patch is None else str(live.patch)
+        self.query_one("#live", Static).update(
+            f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
+            f"spectrometer temperature {temp}\nlast reading {last}")
+
+    def _draw_spectrum(self) -> None:
+        if self.latest is None:
+            return
+        key, wl, rad, colo = self.latest
+        head = f"latest {key}"
+        if colo is not None:
+            head += f" · Lv {colo.Lv_cd_m2:.3g} cd/m² · x {colo.x:.4f} y {colo.y:.4f}"
+        if self.previous is not None:
+            head += f" · previous {self.previous[0]}"
+        self.query_one("#spectrum-head", Static).update(head)
+        if self._plot is None:
+            from textual_plotext import PlotextPlot
+
+            self._plot = PlotextPlot(id="plot")
+            self.query_one("#plot-box", Vertical).mount(self._plot)
+        plt = self._plot.plt
+        plt.clear_data()
+        plt.title("spectral radiance W·sr⁻¹·m⁻²·nm⁻¹")
+        plt.xlabel("wavelength nm")
+        step = max(1, len(wl) // 100)
+        if self.previous is not None:
+            pk, pwl, prad, _ = self.previous
+            plt.plot(list(pwl[::step]), list(prad[::step]), label=pk, marker="dot",
+                     color="gray")
+        plt.plot(list(wl[::step]), list(rad[::step]), label=key, marker="braille",
+                 color="cyan")
+        self._plot.refresh()
+
+    def spectrum_series(self) -> list[str]:
+        """Labels of the plotted series (tests)."""
+        out = []
+        if self.previous is not None:
+            out.append(self.previous[0])
+        if self.latest is not None:
+            out.append(self.latest[0])
+        return out
+
+    def _refresh_runs(self) -> None:
+        from normbox_lab.tui.views import run_row
+
+        store = self.session.store
+        table = self.query_one("#runs-table", DataTable)
+        selected = self._selected_run_id()
+        table.clear()
+        runs = store.runs()
+        for r in runs:
+            table.add_row(*run_row(r), key=str(r.id))
+        if runs:
+            ids = [r.id for r in runs]
+            row = ids.index(selected) if selected in ids else len(ids) - 1
+            table.move_cursor(row=row)
+            self._show_readings(ids[row])
+
+    def _selected_run_id(self) -> int | None:
+        table = self.query_one("#runs-table", DataTable)
+        if table.row_count == 0:
+            return None
+        try:
+            key = table.coordinate_to_cell_key((table.cursor_row, 0)).row_key
+        except Exception:  # noqa: BLE001 - no valid cursor
+            return None
+        return int(str(key.value)) if key.value is not None else None
+
+    @on(DataTable.RowHighlighted, "#runs-table")
+    def _run_highlighted(self, event: DataTable.RowHighlighted) -> None:
+        if event.row_key.value is not None:
+            self._show_readings(int(str(event.row_key.value)))
+
+    def _show_readings(self, run_id: int) -> None:
+        from normbox_lab.tui.views import reading_row
+
+        table = self.query_one("#readings-table", DataTable)
+        if getattr(self, "_readings_shown", None) == (run_id, self.session.store.get_run(run_id).done):
+            return
+        table.clear()
+        for r in self.session.store.readings(run_id):
+            table.add_row(*reading_row(r))
+        self._readings_shown = (run_id, table.row_count)
+
+    @on(TabbedContent.TabActivated)
+    def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
+        pane = event.pane.id
+        target = {"instruments": "#inst-table", "runs": "#runs-table",
+                  "results": "#heatmap"}.get(str(pane))
+        if target is not None:
+            self.query_one(target).focus()
+        if pane == "results":
+            self._refresh_results()
+        elif pane == "runs":
+            self._runs_dirty = True
+        elif pane == "spectrum":
+            self._spectrum_dirty = self.latest is not None
+
+    def _refresh_results(self) -> None:
+        from normbox_lab.tui.views import latest_heatmap
+
+        store = self.session.store
+        if store is None:
+            return
+        hm = latest_heatmap(store)
+        if hm is None or (self._heatmap is not None and self._heatmap.artifact_id == hm.artifact_id):
+            return
+        self.show_heatmap(hm)
+
+    def show_heatmap(self, hm: Any) -> None:
+        from rich.text import Text
+
+        from normbox_lab.tui.views import RATING_STYLES, rating_class
+
+        self._heatmap = hm
+        counts = hm.counts()
+        legend = Text("ΔE00: ")
+        for (style, label), n in zip(RATING_STYLES, counts, strict=True):
+            legend.append(f" {label} ({n}) ", style=style)
+            legend.append(" ")
+        head = Text(f"comparison {hm.name!r} (artifact {hm.artifact_id}"
+                    f"{'' if hm.run_id is None else f', run {hm.run_id}'}) · "
+                    f"mean ΔE00 {float(hm.delta_e00.mean()):.2f}\n")
+        head.append_text(legend)
+        self.query_one("#res-head", Static).update(head)
+        table = self.query_one("#heatmap", DataTable)
+        table.clear(columns=True)
+        table.add_column("patch", key="patch")
+        for a in hm.angle_deg:
+            table.add_column(f"{a:g}°", key=f"{a:g}")
+        for i, name in enumerate(hm.patch_names):
+            cells: list[Any] = [Text(f"{i + 1:>2} {name[:10]}")]
+            for j in range(hm.angle_deg.size):
+                de = float(hm.delta_e00[i, j])
+                cells.append(Text(f"{de:4.1f}", style=RATING_STYLES[rating_class(de)][0]))
+            table.add_row(*cells, key=f"p{i}")
+        table.add_row(Text("NRMSE %", style="bold"),
+                      *[Text(f"{100 * v:4.1f}", style="bold") for v in hm.nrmse_per_angle],
+                      key="nrmse")
+        self._drill(0)
+
+    @on(DataTable.CellHighlighted, "#heatmap")
+    def _cell(self, event: DataTable.CellHighlighted) -> None:
+        self._drill(event.coordinate.row)
+
+    def _drill(self, row: int) -> None:
+        hm = self._heatmap
+        if hm is None:
+            return
+        drill = self.query_one("#drill", Static)
+        if 0 <= row < len(hm.patch_names):
+            drill.update("\n".join(hm.drill_down(row)))
+        else:
+            drill.update("NRMSE per angle (mean over patches): " + ", ".join(
+                f"{a:g}° {100 * v:.1f}%" for a, v in zip(hm.angle_deg, hm.nrmse_per_angle,
+                                                         strict=True)))
+
+    def on_unmount(self) -> None:
+        if not self.session.busy:
+            self.session.close()
+
+
+def _protocol_names() -> list[str]:
+    from normbox_lab.engine import PROTOCOL_NAMES
+
+    return list(PROTOCOL_NAMES)

@@ -1,0 +1,355 @@
+"""The console's model: the lab, the store and one engine run in a worker thread.
+
+No Textual here (tested without a UI).  The UI calls `start()`, `resume_run()`, `pause()`,
+`resume()`, `abort()`, `quit()` and `answer()` from its own thread; engine events reach the UI
+through the `post` callback (the app wraps them in a message: `App.post_message` is
+thread-safe), so the engine never waits for the screen.
+
+Prompts: the engine runs with a `ConsoleOperator` — it blocks the *engine* thread until the
+UI answers (`answer(choice)`), and in a simulated lab it carries out what the operator was asked
+to do on the virtual world (place the patch, mount the material, aim at the panel), as the
+person in front of the box would.  Quitting while a prompt waits ends the segment as
+`paused` (nothing is being measured), like Ctrl-C at a prompt in `normbox-lab run`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from normbox_lab.errors import NormboxError, OperatorAbort
+
+log = logging.getLogger("normbox_lab.tui")
+
+UNFINISHED = ("created", "running", "paused", "interrupted", "aborted", "failed")
+
+
+class _Quit(KeyboardInterrupt):
+    """Raised in the engine thread when the operator leaves the console at a prompt: the
+    engine ends the segment as `paused` (it treats KeyboardInterrupt as a resumable stop)."""
+
+
+class ConsoleOperator:
+    """Answers the engine's prompts with what the person at the console chose."""
+
+    expected_response_s = 20.0      # for the ETA: one prompt ≈ 20 s of a person's time
+
+    def __init__(self, world: Any = None) -> None:
+        self.world = world
+        self._event = threading.Event()
+        self._choice: str | None = None
+        self._cancel: str | None = None      # "quit" | "abort"
+        self.pending: Any = None             # the PromptRequest being asked
+
+    def __call__(self, req: Any) -> str:
+        self.pending = req
+        try:
+            while self._cancel is None and not self._event.wait(0.05):
+                pass
+            self._event.clear()
+            if self._cancel == "quit":
+                raise _Quit("operator left the console at a prompt")
+            if self._cancel == "abort":
+                if "abort" in req.choices:
+                    return "abort"
+                raise OperatorAbort(f"operator aborted at {req.key}")
+            choice = self._choice or req.choices[0]
+            self._choice = None
+        finally:
+            self.pending = None
+        if req.kind == "operator" and choice == "ok":
+            self._act(req)
+        return choice
+
+    def _act(self, req: Any) -> None:
+        """In a simulated lab, do on the world what the operator confirmed doing."""
+        w, action = self.world, req.data.get("action")
+        if w is None:
+            return
+        if action == "place_patch" and hasattr(w, "place_patch"):
+            w.place_patch(int(req.data["patch"]))
+        elif action == "mount_gonio_material" and hasattr(w, "mount_gonio_material"):
+            w.mount_gonio_material(req.data["material"])
+        elif action == "aim_panel" and hasattr(w, "aim_panel"):
+            w.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
+
+    def answer(self, choice: str) -> None:
+        req = self.pending
+        if req is None:
+            raise NormboxError("no prompt is waiting for an answer")
+        if choice not in req.choices:
+            raise NormboxError(f"answer {choice!r} is not one of {', '.join(req.choices)}")
+        self._choice, self._cancel = choice, None
+        self._event.set()
+
+    def cancel(self, why: str) -> None:
+        """Release a waiting prompt, and refuse every later one: `quit` (the segment ends
+        paused) or `abort`."""
+        self._cancel = why
+        self._event.set()
+
+    def reset(self) -> None:
+        self._event.clear()
+        self._choice = self._cancel = None
+
+
+@dataclass
+class LiveState:
+    """What the Instruments tab shows, updated from engine events (never by polling a port
+    the engine is using) and by `Session.poll_instruments()` while no run is active."""
+
+    angle_deg: float | None = None
+    lamp: str = "?"
+    lamp_stable: bool | None = None
+    temperature_c: float | None = None
+    last_key: str = ""
+    last_Lv_cd_m2: float | None = None
+    last_xy: tuple[float, float] | None = None
+    patch: int | None = None
+
+
+class Session:
+    """One console session: config, store, lab (built lazily), the current engine run."""
+
+    def __init__(self, config: Any, store_path: str | Path, *, world: str = "normbox",
+                 virtual_operator: bool = False, time_scale: float | None = None,
+                 post: Callable[[Any], None] | None = None) -> None:
+        self.config = config
+        self.store_path = Path(store_path)
+        self.world_kind = world if config.simulated else "none"
+        self.virtual_operator = virtual_operator
+        self.time_scale = time_scale
+        self.post = post or (lambda ev: None)
+        self.store: Any = None
+        self.lab: Any = None
+        self.engine: Any = None
+        self.operator: ConsoleOperator | None = None
+        self.thread: threading.Thread | None = None
+        self.result: Any = None
+        self.error: BaseException | None = None
+        self.live = LiveState()
+        self._lock = threading.Lock()
+
+    # --- setup (call from a worker thread: the world may take seconds) -------------------------
+    def open_store(self) -> Any:
+        from normbox_lab.store import Store
+
+        with self._lock:
+            if self.store is None:
+                self.store = Store(self.store_path)
+        return self.store
+
+    def ensure_lab(self) -> Any:
+        from normbox_lab.lab import build_lab
+
+        with self._lock:
+            if self.lab is None:
+                cfg = self.config
+                if self.time_scale is not None and cfg.simulated:
+                    from dataclasses import replace
+
+                    cfg = replace(cfg, time_scale=self.time_scale)
+                self.lab = build_lab(cfg, world=self.world_kind,
+                                     virtual_operator=self.virtual_operator)
+        return self.lab
+
+    def unfinished_runs(self) -> list[Any]:
+        return [r for r in self.open_store().runs() if r.status in UNFINISHED]
+
+    # --- protocols ---------------------------------------------------------------------------
+    def default_parameters(self, protocol: str) -> dict[str, Any]:
+        from normbox_lab import engine as eng
+
+        module = eng.load_protocol(protocol)
+        return eng.resolve_parameters(module, self.config.protocol_defaults(protocol))
+
+    def make_engine(self, protocol: str, params: Mapping[str, Any]) -> Any:
+        from normbox_lab import engine as eng
+
+        lab = self.ensure_lab()
+        self.open_store()
+        plan = eng.build_plan(protocol, dict(params), lab)
+        if lab.operator is not None:           # --virtual-operator: the simulation answers
+            self.operator = None
+            operator = lab.operator
+        else:
+            self.operator = ConsoleOperator(lab.world)
+            operator = self.operator
+        engine = eng.Engine(lab, self.store, plan, operator=operator, wait_when_paused=True)
+        engine.subscribe(self._on_event)
+        return engine
+
+    def dry_run(self, protocol: str, params: Mapping[str, Any],
+                committed: set[str] | frozenset[str] = frozenset()) -> Any:
+        if self.busy:
+            raise NormboxError("a run is active; dry-run when it has finished")
+        return self.make_engine(protocol, params).dry_run(committed)
+
+    # --- running -----------------------------------------------------------------------------
+    @property
+    def busy(self) -> bool:
+        return self.thread is not None and self.thread.is_alive()
+
+    def start(self, protocol: str, params: Mapping[str, Any]) -> None:
+        if self.busy:
+            raise NormboxError("a run is already active")
+        self.engine = self.make_engine(protocol, params)
+        self._launch(None)
+
+    def resume_run(self, run_ref: int | str) -> None:
+        """Continue an interrupted run with its stored protocol and parameters."""
+        from normbox_lab import engine as eng
+
+        if self.busy:
+            raise NormboxError("a run is already active")
+        rec = self.open_store().get_run(run_ref)
+        if rec.status == "done":
+            raise NormboxError(f"run {rec.uuid[:8]} is done; nothing to resume")
+        module = eng.load_protocol(rec.protocol)
+        params = eng.resolve_parameters(module, None, rec.parameters)
+        self.engine = self.make_engine(rec.protocol, params)
+        self._launch(rec.id)
+
+    def _launch(self, resume: int | None) -> None:
+        self.result, self.error = None, None
+        engine = self.engine
+
+        def work() -> None:
+            try:
+                self.result = engine.run(resume=resume)
+            except _Quit:
+                self.result = None                 # engine stored status `paused`
+            except BaseException as exc:
+                self.error = exc
+                log.exception("engine run failed")
+                self.post(("error", exc))
+            finally:
+                self.post(("finished", self.result))
+
+        self.thread = threading.Thread(target=work, name="normbox-engine", daemon=True)
+        self.thread.start()
+
+    def pause(self) -> None:
+        if self.engine is not None:
+            self.engine.pause()
+
+    def resume(self) -> None:
+        if self.engine is not None:
+            self.engine.resume()
+
+    def abort(self) -> None:
+        if self.engine is not None:
+            self.engine.abort()
+        if self.operator is not None:
+            self.operator.cancel("abort")
+
+    def quit(self) -> None:
+        """Leave safely: the current reading finishes and is committed, the segment ends
+        `paused` (resumable from the console or `normbox-lab run --resume`)."""
+        if self.engine is not None:
+            self.engine.stop()
+        if self.operator is not None:
+            self.operator.cancel("quit")
+
+    def answer(self, choice: str) -> None:
+        if self.operator is None:
+            raise NormboxError("prompts are answered by the virtual operator")
+        self.operator.answer(choice)
+
+    def wait(self, timeout_s: float | None = None) -> bool:
+        """Join the worker thread (tests, shutdown).  True when it has ended."""
+        if self.thread is None:
+            return True
+        self.thread.join(timeout_s)
+        return not self.thread.is_alive()
+
+    def close(self) -> None:
+        if self.lab is not None:
+            self.lab.close()
+        if self.store is not None:
+            self.store.close()
+
+    # --- live state ----------------------------------------------------------------------------
+    def _on_event(self, ev: Any) -> None:
+        """Engine thread: keep the live state current, then hand the event to the UI."""
+        live = self.live
+        if ev.kind == "step-finished":
+            step = self._step(ev.key)
+            if step is not None and step.kind == "move":
+                live.angle_deg = float(step.params["angle_deg"])
+            elif step is not None and step.kind == "wait-stable":
+                live.lamp, live.lamp_stable = "stable", True
+        elif ev.kind in ("suspended", "unsuspended"):
+            live.lamp_stable = ev.kind == "unsuspended"
+            live.lamp = "stable" if live.lamp_stable else "unstable"
+        elif ev.kind == "answer" and ev.data.get("answer") == "ok":
+            w = getattr(self.lab, "world", None)
+            live.patch = getattr(w, "patch", live.patch)
+        elif ev.kind == "reading-stored":
+            r = ev.data.get("reading")
+            live.last_key = ev.key
+            colo = getattr(r, "colorimetry", None)
+            if colo is not None:
+                live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
+                live.last_xy = (float(colo.x), float(colo.y))
+            temp = (getattr(r, "metadata", None) or {}).get("temperature_c")
+            if temp is not None:
+                live.temperature_c = float(temp)
+        self.post(ev)
+
+    def _step(self, key: str) -> Any:
+        plan = getattr(self.engine, "plan", None)
+        if plan is None:
+            return None
+        index = getattr(self, "_step_index", None)
+        if index is None or index[0] is not plan:
+            index = (plan, {s.key: s for s in plan.steps})
+            self._step_index = index
+        return index[1].get(key)
+
+    def poll_instruments(self) -> list[dict[str, Any]]:
+        """Connection, identity and state of every configured instrument (only while no run is
+        active: the engine owns the ports during a run).  One dict per role."""
+        lab = self.ensure_lab()
+        rows: list[dict[str, Any]] = []
+        for role in lab.roles():
+            cfg = lab.config.instruments.get(role)
+            row: dict[str, Any] = {"role": role, "driver": cfg.driver if cfg else "composite",
+                                   "port": cfg.port if cfg else "-",
+                                   "simulated": bool(cfg.simulated) if cfg else lab.simulated,
+                                   "identity": "", "state": ""}
+            if self.busy:
+                row["state"] = "in use by the run"
+                rows.append(row)
+                continue
+            try:
+                inst = lab.instrument(role)
+                ident = inst.identify() if hasattr(inst, "identify") else None
+                if ident is not None:
+                    row["identity"] = " ".join(str(x) for x in (
+                        ident.model, ident.serial_number, ident.firmware) if x)
+                row["state"] = self._state_of(role, inst)
+            except (NormboxError, OSError) as exc:
+                row["state"] = f"unavailable: {exc}"
+            rows.append(row)
+        return rows
+
+    def _state_of(self, role: str, inst: Any) -> str:
+        live = self.live
+        if hasattr(inst, "position_deg"):
+            pos = float(inst.position_deg())
+            if role == "rotator":
+                live.angle_deg = pos
+            return f"{pos:.2f}°" + ("" if not hasattr(inst, "is_homed") or inst.is_homed()
+                                    else " (not homed)")
+        if hasattr(inst, "is_stable") and hasattr(inst, "state"):
+            live.lamp, live.lamp_stable = str(inst.state()), bool(inst.is_stable())
+            return live.lamp
+        if hasattr(inst, "tec_temperature_c"):
+            live.temperature_c = float(inst.tec_temperature_c())
+            return f"{live.temperature_c:.1f} °C"
+        return "connected"

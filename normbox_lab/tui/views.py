@@ -1,0 +1,121 @@
+"""What the console's tables show, computed from the store (no Textual; rich for colour).
+
+- `heatmap(artifact)`: ΔE00 patches × angles from a pipeline `comparison` artifact
+  (`normbox_lab.compare.ComparisonResult.store`), coloured by the paper's rating scale, with the
+  NRMSE per angle and a per-patch drill-down.
+- `reading_row(stored)`: one line of the Runs tab's readings table.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+#: rating class (index into normbox_lab.compare.RATING_SCALE) → cell style and legend label
+RATING_STYLES: tuple[tuple[str, str], ...] = (
+    ("black on green", "≤1 below JND"),
+    ("black on yellow", "≤2 just noticeable"),
+    ("black on dark_orange", "≤5 discernible"),
+    ("white on red", ">5 easily seen"),
+)
+
+
+def rating_class(delta_e: float) -> int:
+    """0 (ΔE00 ≤ 1) … 3 (> 5): the class of `normbox_lab.compare.RATING_SCALE`."""
+    from normbox_lab.compare import rating_index
+
+    return int(rating_index(delta_e))
+
+
+@dataclass
+class HeatMap:
+    artifact_id: int
+    name: str
+    run_id: int | None
+    patch_names: list[str]
+    angle_deg: np.ndarray          # [angle]
+    delta_e00: np.ndarray          # [patch, angle]
+    nrmse: np.ndarray              # [patch, angle]
+    radiance_mean: np.ndarray | None
+    lab_reference: np.ndarray | None
+    lab_prediction: np.ndarray | None
+
+    @property
+    def nrmse_per_angle(self) -> np.ndarray:
+        return np.nanmean(self.nrmse, axis=0)
+
+    def counts(self) -> list[int]:
+        from normbox_lab.compare import rating_index
+
+        idx = rating_index(self.delta_e00)
+        return [int(np.sum(idx == k)) for k in range(len(RATING_STYLES))]
+
+    def drill_down(self, patch_index: int) -> list[str]:
+        """Per-patch lines: ΔE00, rating, NRMSE and L*a*b* per angle."""
+        name = self.patch_names[patch_index]
+        de = self.delta_e00[patch_index]
+        lines = [(f"#{patch_index + 1} {name}   mean ΔE00 {np.nanmean(de):.2f}, "
+                  f"max {np.nanmax(de):.2f}, "
+                  f"mean NRMSE {100 * np.nanmean(self.nrmse[patch_index]):.1f} %"),
+                 (f"{'angle':>6} {'ΔE00':>6}  {'rating':<18} {'NRMSE':>7}  "
+                  f"{'L*a*b* measured':<20} {'predicted'}")]
+        for j, a in enumerate(self.angle_deg):
+            lab_r = _lab(self.lab_reference, patch_index, j)
+            lab_p = _lab(self.lab_prediction, patch_index, j)
+            lines.append(f"{a:5.0f}° {de[j]:6.2f}  {RATING_STYLES[rating_class(de[j])][1]:<18} "
+                         f"{100 * self.nrmse[patch_index, j]:6.1f} %  {lab_r:<20} {lab_p}")
+        return lines
+
+
+def _lab(arr: np.ndarray | None, i: int, j: int) -> str:
+    if arr is None:
+        return "-"
+    L, a, b = arr[i, j]
+    return f"{L:5.1f} {a:+6.1f} {b:+6.1f}"
+
+
+def heatmap(artifact: Any) -> HeatMap:
+    arrays, md = artifact.arrays, artifact.metadata
+    de = np.asarray(arrays["delta_e00"], dtype=float)
+    names = list(md.get("patch_names") or [str(k + 1) for k in range(de.shape[0])])
+    return HeatMap(artifact.id, artifact.name, artifact.run_id, names,
+                   np.asarray(arrays["angle_deg"], dtype=float), de,
+                   np.asarray(arrays.get("nrmse", np.full(de.shape, np.nan)), dtype=float),
+                   arrays.get("radiance_mean"), arrays.get("lab_reference"),
+                   arrays.get("lab_prediction"))
+
+
+def latest_heatmap(store: Any) -> HeatMap | None:
+    found = store.artifacts(kind="comparison")
+    return heatmap(found[-1]) if found else None
+
+
+def reading_row(r: Any) -> tuple[str, ...]:
+    """key, angle, patch, Lv, x, y, integration time — for the Runs tab."""
+    m = r.metadata
+    colo = m.get("colorimetry") or {}
+
+    def num(v: Any, fmt: str) -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
+    angle = m.get("angle_deg", m.get("theta_o_deg"))
+    patch = m.get("patch", m.get("material", ""))
+    return (r.key, num(angle, ".1f"), str(patch), num(colo.get("Lv_cd_m2"), ".3g"),
+            num(colo.get("x"), ".4f"), num(colo.get("y"), ".4f"),
+            num(m.get("integration_time_s"), ".2f"))
+
+
+def run_row(run: Any) -> tuple[str, ...]:
+    import time
+
+    created = time.strftime("%m-%d %H:%M", time.localtime(run.created_s))
+    return (str(run.id), run.uuid[:8], _short_protocol(run.protocol), run.status,
+            f"{run.done}/{run.planned}", created)
+
+
+def _short_protocol(protocol: str) -> str:
+    if protocol.endswith(".py"):
+        return protocol.rsplit("/", 1)[-1]
+    return protocol

@@ -1,0 +1,265 @@
+"""Pilot tests of the operator console (`normbox-lab tui`): Textual's `App.run_test()` at 80×24,
+driven with keys like an operator, on a simulated lab (analytic world, virtual clock at time
+scale 0; the CS-1000A driver against its wire-level emulator, fake stage and lamp drivers from
+`engine_fakes`).  No pytest-asyncio: each test runs its coroutine with `asyncio.run`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import numpy as np
+import pytest
+
+from normbox_lab import lab as labmod
+from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.store import Store
+
+pytest.importorskip("textual")
+
+from normbox_lab.tui.app import NormboxConsole, PromptScreen, ResumeScreen
+from normbox_lab.tui.controller import Session
+
+ANGLES = "[30, 90]"
+PATCHES = "[1, 9, 19]"
+KEYS = {f"a{a}/p{p:02d}" for a in (30, 90) for p in (1, 9, 19)}
+
+
+@pytest.fixture
+def lab_env(monkeypatch, tmp_path):
+    """Real CS-1000A driver + emulator; fake stage/lamp drivers (deterministic timing)."""
+    from engine_fakes import FAKE_DRIVERS
+
+    drivers = dict(labmod.DRIVERS)
+    for name in ("apt-k10cr1", "zaber", "sphere-scpi"):
+        drivers[name] = FAKE_DRIVERS[name]
+    monkeypatch.setattr(labmod, "DRIVERS", drivers)
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def new_session(path) -> Session:
+    return Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), path / "tui.sqlite",
+                   world="analytic", time_scale=0.0)
+
+
+async def until(pilot, condition, what: str, timeout_s: float = 30.0) -> None:
+    t0 = time.monotonic()
+    while not condition():
+        if time.monotonic() - t0 > timeout_s:
+            raise AssertionError(f"timed out waiting for {what}")
+        await pilot.pause(0.02)
+
+
+async def answer_prompt(pilot, app, expect: str | None = None) -> str:
+    """Wait for the operator prompt modal, check its text, press Enter; returns the text."""
+    await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                and app.session.operator is not None and app.session.operator.pending is not None,
+                "an operator prompt")
+    screen = app.screen
+    text = str(screen.query_one("#prompt-message").render())
+    if expect is not None:
+        assert expect in text, text
+    await pilot.press("enter")
+    # at time scale 0 the next prompt may already be up: wait for *this* one to close
+    await until(pilot, lambda: app.screen is not screen, "the prompt to close")
+    return text
+
+
+async def set_reduced_parameters(pilot, app) -> None:
+    await until(pilot, lambda: app.lab_ready, "the lab")
+    app.set_parameter("angles_deg", ANGLES)
+    app.set_parameter("patches", PATCHES)
+    assert app.parameters()["patches"] == [1, 9, 19]
+
+
+def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            # dry-run: step count and ETA from the timing models
+            await pilot.press("d")
+            info = app.query_one("#run-info")
+            await until(pilot, lambda: "dry-run" in str(info.render()), "the dry-run")
+            text = str(info.render())
+            assert "6 readings" in text and "ETA" in text
+            assert app.dry.plan.planned == 6 and app.dry.total_s > 0
+
+            await pilot.press("s")
+            texts = [await answer_prompt(pilot, app, "Place patch 1 (dark skin) on the holder")]
+            await until(pilot, lambda: app.progress_done == 1, "the first reading")
+            texts.append(await answer_prompt(pilot, app, "patch 9 (moderate red)"))
+            await until(pilot, lambda: app.progress_done == 2, "the second reading")
+            assert "then Enter" in texts[0]
+            # the progress bar follows the engine
+            bar = app.query_one("#bar")
+            assert bar.total == 6 and bar.progress == 2
+            # pause while the third prompt waits: the third reading is taken, then it pauses
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 3")
+            app.action_pause_resume()
+            await answer_prompt(pilot, app, "patch 19")
+            await until(pilot, lambda: app.run_status == "paused", "the pause")
+            assert app.progress_done == 3
+            with Store(lab_env / "tui.sqlite") as s:
+                (run,) = s.runs()
+                assert run.status == "paused" and s.keys(run.id) == {"a30/p01", "a30/p09",
+                                                                     "a30/p19"}
+            await pilot.press("p")                 # resume in-process
+            await until(pilot, lambda: app.run_status == "running", "the resume")
+            for p in (1, 9, 19):
+                await answer_prompt(pilot, app, f"patch {p} ")
+            await until(pilot, lambda: app.run_status == "done", "the end of the run")
+            assert app.progress_done == 6 and app.query_one("#bar").progress == 6
+            assert "paused" in app.events_seen and "resumed" in app.events_seen
+
+            # live state and spectrum come from the engine's events
+            live = session.live
+            assert live.angle_deg == 90.0 and live.last_key == "a90/p19"
+            assert live.last_Lv_cd_m2 is not None and live.last_Lv_cd_m2 > 0
+            await until(pilot, lambda: app.spectrum_series() == ["a90/p09", "a90/p19"],
+                        "the spectrum")
+            await pilot.press("3")
+            await until(pilot, lambda: app._plot is not None, "the plot")
+
+            # Runs tab: the run and its six readings
+            await pilot.press("4")
+            await until(pilot, lambda: app.query_one("#readings-table").row_count == 6,
+                        "the readings table")
+
+            # Results: a comparison artifact (pipeline code, synthetic prediction) → heat map
+            run_id = session.store.runs()[0].id
+            expected = write_comparison(session.store, run_id)
+            await pilot.press("5")
+            table = app.query_one("#heatmap")
+            await until(pilot, lambda: table.row_count == 4, "the heat map")
+            assert len(table.columns) == 3           # patch + 2 angles
+            cell = table.get_cell_at((1, 1))          # patch 9 at 30°
+            assert cell.plain.strip() == f"{expected[1, 0]:.1f}"
+            from normbox_lab.tui.views import RATING_STYLES, rating_class
+
+            assert str(cell.style) == RATING_STYLES[rating_class(expected[1, 0])][0]
+            # drill-down follows the cursor
+            await pilot.press("down")
+            drill = str(app.query_one("#drill").render())
+            assert drill.startswith("#2 moderate red")
+        assert session.wait(5.0)
+        with Store(lab_env / "tui.sqlite") as s:
+            (run,) = s.runs()
+            assert run.status == "done" and s.keys(run.id) == KEYS
+            kinds = [k for _, k, _ in s.events(run.id)]
+            assert "status:paused" in kinds
+
+    asyncio.run(scenario())
+
+
+def write_comparison(store: Store, run_id: int) -> np.ndarray:
+    """A `comparison` artifact as `normbox-lab compare` writes it, with a prediction that
+    differs from the measured spectra by a known factor per patch; returns its ΔE00."""
+    from normbox_lab.compare import compare
+
+    patches, angles = [1, 9, 19], [30.0, 90.0]
+    ref = np.stack([np.stack([store.reading(run_id, f"a{int(a)}/p{p:02d}")
+                              .arrays["radiance_W_sr_m2_nm"] for a in angles])
+                    for p in patches])
+    wl = store.reading(run_id, "a30/p01").arrays["wavelength_nm"]
+    tilt = np.linspace(-1.0, 1.0, wl.size)
+    pred = ref * (1.0 + np.array([0.02, 0.15, 0.40])[:, None, None] * tilt)
+    result = compare(ref, pred, wl, angles, ["dark skin", "moderate red", "white"],
+                     white_patch=2)
+    result.store(store, f"ref-run-{run_id}", run_ref=run_id)
+    de = result.delta_e00
+    assert len({int(rating_class_of(v)) for v in de.ravel()}) >= 2   # colours differ
+    return de
+
+
+def rating_class_of(v: float) -> int:
+    from normbox_lab.compare import rating_index
+
+    return int(rating_index(v))
+
+
+def test_quit_at_a_prompt_leaves_a_resumable_run(lab_env):
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app)
+            await answer_prompt(pilot, app)
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 3")
+            await pilot.press("q")              # the modal has no q: it goes to the app
+            if isinstance(app.screen, PromptScreen):
+                app.action_quit_console()
+            await until(pilot, lambda: not app.is_running, "the console to close",
+                        timeout_s=10.0)
+    asyncio.run(scenario())
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused"
+        assert s.keys(run.id) == {"a30/p01", "a30/p09"}
+        run_uuid = run.uuid
+
+    # resume through the engine (what `normbox-lab run --resume` does), virtual operator
+    from normbox_lab import engine as eng
+
+    lab = labmod.build_lab(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), world="analytic")
+    with Store(lab_env / "tui.sqlite") as s:
+        rec = s.get_run(run_uuid)
+        plan = eng.build_plan(rec.protocol, rec.parameters, lab)
+        result = eng.Engine(lab, s, plan).run(resume=rec.id)
+        assert result.status == "done" and result.taken == 4
+        assert s.keys(rec.id) == KEYS and s.get_run(rec.id).status == "done"
+    lab.close()
+
+
+def test_quit_while_paused_then_resume_offered_at_start(lab_env):
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def first() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app)
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            app.action_pause_resume()              # pause requested during a prompt
+            await answer_prompt(pilot, app)
+            await until(pilot, lambda: app.run_status == "paused", "the pause")
+            await pilot.press("q")
+            await until(pilot, lambda: not app.is_running, "the console to close")
+    asyncio.run(first())
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused" and run.done == 2
+
+    session2 = new_session(lab_env)
+    app2 = NormboxConsole(session2)
+
+    async def second() -> None:
+        async with app2.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: isinstance(app2.screen, ResumeScreen), "the offer")
+            assert "1 interrupted run" in str(app2.screen.query_one("Label").render())
+            await pilot.press("enter")
+            # the first missing reading is a30/p19: a fresh process knows nothing of the
+            # physical state, so it asks for that patch again, and never for a committed one
+            for p in (19, 1, 9, 19):
+                await answer_prompt(pilot, app2, f"patch {p} ")
+            await until(pilot, lambda: app2.run_status == "done", "the end of the run")
+    asyncio.run(second())
+    assert session2.wait(5.0)
+    session2.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "done" and s.keys(run.id) == KEYS
+        segments = [d for _, k, d in s.events(run.id) if k == "segment"]
+        assert len(segments) == 2 and segments[1]["committed"] == 2
