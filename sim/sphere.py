@@ -1,0 +1,277 @@
+"""Integrating-sphere light source (Image Engineering LE7-4x stand-in), emulated at the wire.
+
+PLACEHOLDER PROTOCOL.  Image Engineering publish no remote-control protocol for the LE7; this
+emulator speaks the SCPI-like command set *proposed* in /work/shared/reference/instruments.md
+§1.3 (every name there is invented), so the app, its tests and outside programs have something
+real to talk to.  The real adapter is written when the vendor document arrives, behind the same
+`LightSource` interface (drivers/sphere.py).
+
+Line: ASCII, commands end in LF (CR tolerated), every command gets exactly one reply line
+ending in LF (two for ``MEAS:SPEC?``): ``OK``, a value, or ``ERR <code>`` (the error is also
+queued for ``SYST:ERR?``).
+
+    *IDN?                vendor,model,serial,firmware
+    *RST / *CLS          OK (reset: output off, level 100, preset D65, queue cleared / clear queue)
+    SYST:ERR?            <code>,"<text>"  (0,"No error" when empty)
+    OUTP ON|OFF / OUTP?  OK / 1|0
+    INT <0..100> / INT?  OK / level in %
+    SPEC:PRES <D65|A> / SPEC:PRES?
+    STAT?                OFF | SETTLING | STABLE | ERROR
+    STAB:TIME?           seconds since the output became stable (0 when not stable)
+    STAB:REM?            estimated seconds until stable (full warm-up when off, 0 when stable)
+    MEAS:SPEC?           "380,1,401,REL" then 401 comma-separated relative values (internal
+                         spectrometer: preset spectrum × relative output, 0.2 % noise)
+    MEAS:LUM?            panel luminance, cd/m² (nominal × relative output)
+    PANEL:MAP?           25 relative radiances of the opal panel, row-major 5 × 5, mean 1
+    PANEL:MAP? r,c       the one at row r, column c (0-based)
+    TEMP? / HOUR?        LED board °C / lamp hours
+    ABOR                 OK
+Errors: -100 "Command error", -222 "Data out of range", -224 "Illegal parameter value",
+-350 "Queue overflow" (queue of 10), 201 "Lamp failure".
+
+Behaviour (all on the injected clock):
+- switch-on: output starts at 80 % of the set level and rises as 1 − 0.2·exp(−t/τ), τ = 60 s;
+  STABLE once within 0.1 % (t = τ·ln 200 ≈ 318 s); a level change re-settles for 30 s;
+- slow drift −0.05 %/h while on, noise 0.02 % rms per reading;
+- the opal panel's 25-point map (`normbox_lab.scene.panel_map`, ±3 % homogeneity).
+
+Device faults: ``unstable`` (at a command: the regulation loses lock, a 2 % dip and SETTLING
+for `parameter` s, default 60), ``lamp-fail`` (at a command: output 0, state ERROR, error 201
+queued; cleared by OUTP OFF then ON).
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from typing import Any
+
+import numpy as np
+from normbox_lab.sim import core
+
+from normbox_lab.scene import panel_map as truth_panel_map
+
+WARMUP_TAU_S = 60.0
+WARMUP_DEFICIT = 0.2
+STABLE_TOLERANCE = 0.001
+WARMUP_S = WARMUP_TAU_S * math.log(WARMUP_DEFICIT / STABLE_TOLERANCE)
+LEVEL_SETTLE_S = 30.0
+DRIFT_PER_H = -0.0005
+NOISE_RMS = 0.0002
+NOMINAL_LUMINANCE_CD_M2 = 2000.0
+WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
+ERRORS = {-100: "Command error", -222: "Data out of range", -224: "Illegal parameter value",
+          -350: "Queue overflow", 201: "Lamp failure"}
+
+
+def preset_spectrum(name: str) -> np.ndarray:
+    """Relative spectral power of a preset on 380–780 nm (1 at 560 nm)."""
+    if name == "A":
+        c2 = 1.4388e7  # nm·K
+        s = WAVELENGTHS_NM ** -5 / (np.exp(c2 / (WAVELENGTHS_NM * 2856.0)) - 1.0)
+    else:
+        import colour
+
+        sd = colour.SDS_ILLUMINANTS["D65"]
+        s = np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values)
+    return s / np.interp(560.0, WAVELENGTHS_NM, s)
+
+
+class SphereEmulator(core.LineEmulator):
+    device_name = "sphere"
+    device_faults = ("unstable", "lamp-fail")
+    terminators = (b"\n", b"\r")
+    presets = ("D65", "A")
+
+    def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
+                 homogeneity_percent: float = 3.0, serial: str = "LE7-SIM-0001") -> None:
+        super().__init__(clock, faults, seed)
+        self.rng = random.Random(seed)
+        self.serial = serial
+        self.map = truth_panel_map(homogeneity_percent)
+        self.reset()
+
+    def reset(self) -> None:
+        self.on = False
+        self.failed = False
+        self.level_percent = 100.0
+        self.preset = "D65"
+        self.on_since_s = 0.0
+        self.settle_until_s = 0.0      # extra settling (level change, lost lock)
+        self.dip = 0.0
+        self.dip_since_s = 0.0
+        self.errors: list[int] = []
+        self.hours = 412.0
+
+    # --- physics the world reads -------------------------------------------------------------
+    def _warm(self, now_s: float) -> float:
+        return 1.0 - WARMUP_DEFICIT * math.exp(-(now_s - self.on_since_s) / WARMUP_TAU_S)
+
+    def state(self) -> str:
+        """"off", "settling", "stable" (or "error" after a lamp failure)."""
+        if self.failed:
+            return "error"
+        if not self.on:
+            return "off"
+        now = self.clock.now_s()
+        if now - self.on_since_s < WARMUP_S or now < self.settle_until_s:
+            return "settling"
+        return "stable"
+
+    def relative_output(self) -> float:
+        """Output relative to the nominal stable output (1.0), drift and noise included."""
+        if not self.on or self.failed:
+            return 0.0
+        now = self.clock.now_s()
+        hours_on = (now - self.on_since_s) / 3600.0
+        dip = self.dip * math.exp(-(now - self.dip_since_s) / 20.0) if self.dip else 0.0
+        return (self.level_percent / 100.0 * self._warm(now) * (1.0 + DRIFT_PER_H * hours_on)
+                * (1.0 - dip) * (1.0 + self.rng.gauss(0.0, NOISE_RMS)))
+
+    def panel_map(self) -> np.ndarray:
+        """(5, 5) relative radiance of the opal panel (mean 1)."""
+        return self.map.copy()
+
+    def stable_for_s(self) -> float:
+        if self.state() != "stable":
+            return 0.0
+        return self.clock.now_s() - max(self.on_since_s + WARMUP_S, self.settle_until_s)
+
+    def remaining_s(self) -> float:
+        st = self.state()
+        if st in ("off", "error"):
+            return WARMUP_S
+        now = self.clock.now_s()
+        return max(0.0, self.on_since_s + WARMUP_S - now, self.settle_until_s - now)
+
+    # --- protocol ------------------------------------------------------------------------------
+    def _error(self, code: int) -> None:
+        if len(self.errors) >= 10:
+            self.errors[-1] = -350
+        else:
+            self.errors.append(code)
+        self.emit(f"ERR {code}\n".encode())
+
+    def _ok(self, text: str = "OK") -> None:
+        self.emit(f"{text}\n".encode())
+
+    def on_line(self, line: bytes, terminator: bytes) -> None:
+        text = line.decode("ascii", "replace").strip()
+        if not text:
+            return
+        now = self.clock.now_s()
+        if self.on and not self.failed and self.faults.fires("lamp-fail"):
+            self.failed = True
+            self.errors.append(201)
+        if self.on and not self.failed and self.faults.fires("unstable"):
+            self.settle_until_s = now + self.faults.parameter("unstable", 60.0)
+            self.dip, self.dip_since_s = 0.02, now
+        head, _, arg = text.partition(" ")
+        head = head.upper()
+        arg = arg.strip()
+        if head == "*IDN?":
+            self._ok(f"Image Engineering (placeholder protocol),LE7-4x,{self.serial},0.1-sim")
+        elif head == "*RST":
+            self.reset()
+            self._ok()
+        elif head == "*CLS":
+            self.errors.clear()
+            self._ok()
+        elif head == "SYST:ERR?":
+            code = self.errors.pop(0) if self.errors else 0
+            self._ok(f'{code},"{ERRORS.get(code, "No error")}"')
+        elif head == "OUTP":
+            if arg.upper() not in ("ON", "OFF", "1", "0"):
+                self._error(-224)
+                return
+            want = arg.upper() in ("ON", "1")
+            if want and not self.on:
+                self.on_since_s = now
+                self.dip = 0.0
+            if not want:
+                self.failed = False
+            self.on = want
+            self._ok()
+        elif head == "OUTP?":
+            self._ok("1" if self.on else "0")
+        elif head == "INT":
+            try:
+                level = float(arg)
+            except ValueError:
+                self._error(-224)
+                return
+            if not 0.0 <= level <= 100.0:
+                self._error(-222)
+                return
+            if level != self.level_percent and self.on:
+                self.settle_until_s = now + LEVEL_SETTLE_S
+            self.level_percent = level
+            self._ok()
+        elif head == "INT?":
+            self._ok(f"{self.level_percent:.2f}")
+        elif head == "SPEC:PRES":
+            if arg.upper() not in self.presets:
+                self._error(-224)
+                return
+            self.preset = arg.upper()
+            if self.on:
+                self.settle_until_s = now + LEVEL_SETTLE_S
+            self._ok()
+        elif head == "SPEC:PRES?":
+            self._ok(self.preset)
+        elif head == "STAT?":
+            self._ok(self.state().upper())
+        elif head == "STAB:TIME?":
+            self._ok(f"{self.stable_for_s():.1f}")
+        elif head == "STAB:REM?":
+            self._ok(f"{self.remaining_s():.1f}")
+        elif head == "MEAS:SPEC?":
+            rel = self.relative_output()
+            spd = preset_spectrum(self.preset) * rel
+            spd = spd * (1.0 + np.array([self.rng.gauss(0.0, 0.002) for _ in spd]))
+            self.emit(b"380,1,401,REL\n" + ",".join(f"{v:.5f}" for v in spd).encode() + b"\n")
+        elif head == "MEAS:LUM?":
+            self._ok(f"{NOMINAL_LUMINANCE_CD_M2 * self.relative_output():.2f}")
+        elif head == "PANEL:MAP?":
+            if not arg:
+                self._ok(",".join(f"{v:.5f}" for v in self.map.ravel()))
+                return
+            try:
+                r, c = (int(x) for x in arg.split(","))
+            except ValueError:
+                self._error(-224)
+                return
+            if not (0 <= r < 5 and 0 <= c < 5):
+                self._error(-222)
+                return
+            self._ok(f"{self.map[r, c]:.5f}")
+        elif head == "TEMP?":
+            warm = 0.0 if not self.on else 1.0 - math.exp(-(now - self.on_since_s) / 300.0)
+            self._ok(f"{25.0 + 10.0 * warm:.1f}")
+        elif head == "HOUR?":
+            self._ok(f"{self.hours:.1f}")
+        elif head == "ABOR":
+            self._ok()
+        else:
+            self._error(-100)
+
+    def next_state_s(self) -> float | None:
+        """When the state changes next by itself (the end of settling)."""
+        if not self.on or self.failed:
+            return None
+        t = max(self.on_since_s + WARMUP_S, self.settle_until_s)
+        return t if t > self.clock.now_s() else None
+
+
+def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = None,
+             **options: Any) -> SphereEmulator:
+    kw: dict[str, Any] = {}
+    if "homogeneity_percent" in options:
+        kw["homogeneity_percent"] = float(options["homogeneity_percent"])
+    elif world is not None and hasattr(world, "geometry"):
+        kw["homogeneity_percent"] = float(getattr(world.geometry, "panel_homogeneity_percent",
+                                                  3.0))
+    return SphereEmulator(clock, faults, seed, **kw)
+
+
+core.register("sphere", _factory)
