@@ -35,7 +35,14 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.materials import Material, holder_material
-from normbox_lab.scene import as_geometry, band_film, panel_map, scene_dict
+from normbox_lab.scene import (
+    MOVING_SHAPES,
+    as_geometry,
+    band_film,
+    moving_transforms,
+    panel_map,
+    scene_dict,
+)
 
 #: bump when the scene code changes what a render returns (invalidates every cache entry)
 RENDER_VERSION = 2
@@ -216,24 +223,66 @@ def _save_cached(path: Path, r: RenderResult) -> None:
 
 
 # --- rendering ----------------------------------------------------------------------------------
-class _SceneCache:
-    """The BSDF objects are reused between renders so the kernel is traced identically."""
+class _PersistentScene:
+    """One loaded Mitsuba scene per (variant, geometry, lamp, pixels, max_depth), reused for
+    every render: the materials change through the BSDF objects (`set_material`), the sample
+    angle by moving the patch and holder plate in place (`mi.traverse`).  Reuse keeps the
+    render kernel, and it makes renders repeatable: Mitsuba orders a freshly loaded scene's
+    shapes and emitters differently from one load to the next, so the same seed gives another
+    noise realisation after a reload (unbiased either way)."""
 
-    def __init__(self) -> None:
-        self.bsdfs: dict[str, Any] = {}
+    def __init__(self, g: Any, lamp: Lamp, pixels: int, max_depth: int, angle_deg: float,
+                 materials: dict[str, Material]) -> None:
+        import mitsuba as mi
 
-    def bsdf(self, role: str, material: Material) -> Any:
         from normbox_lab.mitsuba_bsdf import make_bsdf
 
-        obj = self.bsdfs.get(role)
-        if obj is None:
-            obj = self.bsdfs[role] = make_bsdf(material)
-        else:
-            obj.set_material(material)
-        return obj
+        self.bsdfs = {role: make_bsdf(m) for role, m in materials.items()}
+        self.bsdfs["post"] = make_bsdf(materials["holder"])
+        self.geometry = g
+        film = band_film(BAND_CENTRES_NM, BAND_WIDTH_NM, pixels)
+        d = scene_dict(g, angle_deg=angle_deg, patch_bsdf=self.bsdfs["patch"],
+                       wall_bsdf=self.bsdfs["wall"], holder_bsdf=self.bsdfs["holder"],
+                       lamp_values=lamp.radiance(LAMP_GRID_NM), lamp_grid_nm=LAMP_GRID_NM,
+                       film=film, max_depth=max_depth, post_bsdf=self.bsdfs["post"])
+        self.scene = mi.load_dict(d, parallel=False)
+        self.to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
+                         for k in MOVING_SHAPES}
+        self.angle_deg = float(angle_deg)
+
+    def set_materials(self, materials: dict[str, Material]) -> None:
+        for role, m in materials.items():
+            self.bsdfs[role].set_material(m)
+        self.bsdfs["post"].set_material(materials["holder"])
+
+    def set_angle(self, angle_deg: float) -> None:
+        import mitsuba as mi
+
+        if float(angle_deg) == self.angle_deg:
+            return
+        params = mi.traverse(self.scene)
+        for key, tr in moving_transforms(self.geometry, angle_deg).items():
+            new = np.array(tr.matrix, dtype=np.float64)
+            if f"{key}.to_world" in params:
+                params[f"{key}.to_world"] = tr
+            else:                                     # a mesh: move its vertices
+                rel = new @ np.linalg.inv(self.to_world[key])
+                rot = rel[:3, :3]
+                v = np.array(params[f"{key}.vertex_positions"], dtype=np.float64)
+                v = v.reshape(-1, 3) @ rot.T + rel[:3, 3]
+                params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+                nk = f"{key}.vertex_normals"
+                if nk in params:
+                    nn = np.array(params[nk], dtype=np.float64)
+                    if nn.size:
+                        nn = nn.reshape(-1, 3) @ rot.T
+                        params[nk] = mi.Float(nn.ravel().astype(np.float32))
+            self.to_world[key] = new
+        params.update()
+        self.angle_deg = float(angle_deg)
 
 
-_SCENES: dict[str, _SceneCache] = {}
+_SCENES: dict[str, _PersistentScene] = {}
 
 
 def render_view(geometry: Any = None, *, patch: Material, wall: Material,
@@ -269,17 +318,17 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
 
     variant = ensure_variant(variant)
     t0 = time.perf_counter()
-    sc = _SCENES.setdefault(variant, _SceneCache())
-    # separate BSDF objects per role (a patch and the wall may hold the same material)
-    patch_bsdf = sc.bsdf("patch", patch)
-    wall_bsdf = sc.bsdf("wall", wall)
-    holder_bsdf = sc.bsdf("holder", holder)
+    materials = {"patch": patch, "wall": wall, "holder": holder}
     base_lamp = Lamp(lamp.cct_K, lamp.luminance_cd_m2, 1.0)
-    film = band_film(BAND_CENTRES_NM, BAND_WIDTH_NM, q.pixels)
-    d = scene_dict(g, angle_deg=angle_deg, patch_bsdf=patch_bsdf, wall_bsdf=wall_bsdf,
-                   holder_bsdf=holder_bsdf, lamp_values=base_lamp.radiance(LAMP_GRID_NM),
-                   lamp_grid_nm=LAMP_GRID_NM, film=film, max_depth=max_depth)
-    scene = mi.load_dict(d)
+    scene_key = json.dumps([variant, asdict(g), base_lamp.key(), q.pixels, max_depth],
+                           sort_keys=True)
+    ps = _SCENES.get(scene_key)
+    if ps is None:
+        ps = _SCENES[scene_key] = _PersistentScene(g, base_lamp, q.pixels, max_depth,
+                                                   angle_deg, materials)
+    ps.set_materials(materials)
+    ps.set_angle(angle_deg)
+    scene = ps.scene
     batches: list[np.ndarray] = []
 
     def stats() -> tuple[np.ndarray, np.ndarray]:

@@ -140,14 +140,39 @@ def _box(T: Any, centre: Any, angle_deg: float, half: tuple[float, float, float]
     return {"type": "cube", "to_world": tr, "bsdf": bsdf}
 
 
+#: the shapes that turn with the sample angle (everything else is fixed)
+MOVING_SHAPES = ("patch", "holder_plate")
+HOLDER_PLATE_THICKNESS_M = 0.005
+
+
+def moving_transforms(geometry: Any, angle_deg: float) -> dict[str, Any]:
+    """`mi.ScalarTransform4f` to_world of the patch (a rectangle) and the holder plate (a cube)
+    at a sample angle; the plate's front face is 0.5 mm behind the patch."""
+    import mitsuba as mi
+
+    T = mi.ScalarTransform4f
+    g = as_geometry(geometry)
+    c = sample_centre_m(g)
+    n = sample_normal(angle_deg)
+    ps = g.patch_size_mm / 2000.0
+    hs = g.holder_size_mm / 2000.0
+    t = HOLDER_PLATE_THICKNESS_M
+    return {"patch": _rect(T, c, [((1, 0, 0), angle_deg)], (ps, ps), None)["to_world"],
+            "holder_plate": _box(T, c - n * (t + 0.0005), angle_deg, (hs, hs, t),
+                                 None)["to_world"]}
+
+
 def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: Any,
                holder_bsdf: Any, lamp_values: np.ndarray, lamp_grid_nm: np.ndarray,
-               film: dict[str, Any], max_depth: int = 12) -> dict[str, Any]:
+               film: dict[str, Any], max_depth: int = 12,
+               post_bsdf: Any = None) -> dict[str, Any]:
     """The Mitsuba scene (a `mi.load_dict` dictionary) for one sample angle.
 
     The BSDFs are Mitsuba objects (or plugin dicts); `lamp_values` (W·sr⁻¹·m⁻²·nm⁻¹ on
     `lamp_grid_nm`, evenly spaced) is the panel's mean spectral radiance; each of the 25
-    sub-panels gets it times its map factor.  `film` is the sensor's film dict."""
+    sub-panels gets it times its map factor.  `film` is the sensor's film dict.  `post_bsdf`
+    (default: the holder's) should be a separate object when the plate is moved in place:
+    Mitsuba merges meshes that share a BSDF, and a merged plate is no longer addressable."""
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
@@ -188,19 +213,16 @@ def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: A
         d[f"panel_{k:02d}"] = cell
     # holder and patch, rotated about x through the sample centre
     h = g.sample_height_mm / 1000.0
-    c = sample_centre_m(g)
-    n = sample_normal(angle_deg)
-    ps = g.patch_size_mm / 2000.0
+    moving = moving_transforms(g, angle_deg)
+    d["patch"] = {"type": "rectangle", "to_world": moving["patch"], "bsdf": patch_bsdf}
+    d["holder_plate"] = {"type": "cube", "to_world": moving["holder_plate"], "bsdf": holder_bsdf}
     hs = g.holder_size_mm / 2000.0
-    plate_t = 0.005
-    d["patch"] = _rect(T, c, [((1, 0, 0), angle_deg)], (ps, ps), patch_bsdf)
-    d["holder_plate"] = _box(T, c - n * (plate_t + 0.0005), angle_deg, (hs, hs, plate_t),
-                             holder_bsdf)
     post_top = max(h - hs - 0.01, 0.02)
     d["holder_post"] = _box(T, [0, 0, post_top / 2], 0.0, (0.015, 0.015, post_top / 2),
-                            holder_bsdf)
+                            holder_bsdf if post_bsdf is None else post_bsdf)
     # the radiometer
     origin = radiometer_position_m(g)
+    c = sample_centre_m(g)
     d["sensor"] = {"type": "perspective", "fov": float(g.radiometer_view_deg), "fov_axis": "x",
                    "near_clip": 0.01, "far_clip": 10.0,
                    "to_world": T().look_at(origin=list(map(float, origin)),
