@@ -18,7 +18,7 @@ from normbox_lab.store import Store
 
 pytest.importorskip("textual")
 
-from normbox_lab.tui.app import NormboxConsole, PromptScreen, ResumeScreen
+from normbox_lab.tui.app import DrillScreen, NormboxConsole, PromptScreen, ResumeScreen
 from normbox_lab.tui.controller import Session
 
 ANGLES = "[30, 90]"
@@ -145,7 +145,13 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             # drill-down follows the cursor
             await pilot.press("down")
             drill = str(app.query_one("#drill").render())
-            assert drill.startswith("#2 moderate red")
+            assert drill.startswith("#2 moderate red: mean ΔE00")
+            await pilot.press("enter")                # drill-down: every angle of patch 9
+            await until(pilot, lambda: isinstance(app.screen, DrillScreen), "the drill-down")
+            lines = str(app.screen.query_one("#drill-text").render()).splitlines()
+            assert lines[0].startswith("#2 moderate red") and len(lines) == 2 + 2
+            assert lines[2].split()[:2] == ["30°", f"{expected[1, 0]:.2f}"]
+            await pilot.press("escape")
         assert session.wait(5.0)
         with Store(lab_env / "tui.sqlite") as s:
             (run,) = s.runs()

@@ -27,6 +27,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--virtual-operator", action="store_true",
                    help="simulated labs: let the virtual operator answer prompts (default: "
                         "you answer them in the console)")
+    p.add_argument("--protocol", default="reference-sweep", metavar="PROTOCOL",
+                   help="protocol preselected in the Run tab (name or .py file)")
+    p.add_argument("--param", action="append", default=[], metavar="K=V",
+                   help="prefill a parameter in the Run tab (as for `normbox-lab run`)")
     p.add_argument("--no-resume-offer", action="store_true",
                    help="do not offer to resume interrupted runs at start")
     p.add_argument("--exit-after-first-paint", action="store_true",
@@ -52,8 +56,17 @@ def _tui(args: argparse.Namespace) -> int:
     config = _load_config(args.lab)
     session = Session(config, args.store or DEFAULT_STORE, world=args.world,
                       virtual_operator=args.virtual_operator, time_scale=args.time_scale)
+    prefill = {}
+    for item in args.param:
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            from normbox_lab.engine import PlanError
+
+            raise PlanError(f"--param expects K=V, got {item!r}")
+        prefill[key.strip()] = value
     app = NormboxConsole(session, exit_after_paint=args.exit_after_first_paint,
-                         offer_resume=not args.no_resume_offer)
+                         offer_resume=not args.no_resume_offer, protocol=args.protocol,
+                         prefill=prefill)
     app.run()
     if args.exit_after_first_paint:
         print(f"first-paint-wall-time {app.first_paint_wall_s:.6f}")

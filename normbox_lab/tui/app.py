@@ -152,12 +152,36 @@ class ResumeScreen(ModalScreen[int | None]):
         self.action_resume()
 
 
+class DrillScreen(ModalScreen[None]):
+    """Per-patch drill-down of the Results heat map."""
+
+    BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
+    DEFAULT_CSS = """
+    DrillScreen { align: center middle; }
+    DrillScreen > VerticalScroll { width: 78; height: auto; max-height: 22;
+                                   border: thick $accent; background: $panel; }
+    """
+
+    def __init__(self, lines: list[str]) -> None:
+        super().__init__()
+        self.lines = lines
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll():
+            yield Static("\n".join(self.lines), id="drill-text")
+            yield Label("[dim]Esc / Enter: close[/dim]")
+
+    def action_close(self) -> None:
+        self.dismiss(None)
+
+
 # --- the app ---------------------------------------------------------------------------------
 
 class NormboxConsole(App):
     """normbox-lab tui."""
 
     TITLE = "normbox-lab"
+    ENABLE_COMMAND_PALETTE = False
     CSS = """
     #status { height: 1; background: $boost; padding: 0 1; }
     TabbedContent { height: 1fr; }
@@ -178,16 +202,16 @@ class NormboxConsole(App):
     #readings-table { height: 1fr; }
     #res-head { height: 2; padding: 0 1; }
     #heatmap { height: 1fr; }
-    #drill { height: auto; max-height: 8; padding: 0 1; }
+    #drill { height: 1; padding: 0 1; }
     #spectrum-head { height: 1; padding: 0 1; }
     """
     BINDINGS: ClassVar = [
         Binding("q", "quit_console", "quit"),
         Binding("s", "start", "start"),
         Binding("d", "dry_run", "dry-run"),
-        Binding("p", "pause_resume", "pause/resume"),
+        Binding("p", "pause_resume", "pause"),
         Binding("a", "abort", "abort"),
-        Binding("r", "resume_selected", "resume run"),
+        Binding("r", "resume_selected", "resume"),
         Binding("e", "export", "export"),
         Binding("i", "poll", "poll"),
         Binding("escape", "leave_input", "", show=False),
@@ -195,7 +219,8 @@ class NormboxConsole(App):
     ]
 
     def __init__(self, session: Session, *, exit_after_paint: bool = False,
-                 offer_resume: bool = True) -> None:
+                 offer_resume: bool = True, protocol: str = "reference-sweep",
+                 prefill: dict[str, str] | None = None) -> None:
         super().__init__()
         self.session = session
         session.post = lambda ev: self.post_message(EngineMessage(ev))
@@ -203,7 +228,8 @@ class NormboxConsole(App):
         self.offer_resume = offer_resume
         self.first_paint_wall_s: float | None = None
         self.lab_ready = False
-        self.protocol = "reference-sweep"
+        self.protocol = protocol
+        self.prefill = dict(prefill or {})
         self.quitting = False
         self.prompt_screen: PromptScreen | None = None
         self.latest: Any = None          # (key, wavelength, radiance) of the latest reading
@@ -227,7 +253,10 @@ class NormboxConsole(App):
                 yield Static("", id="live")
             with TabPane("2 Run", id="run"):
                 with Horizontal(id="run-top"):
-                    yield Select([(n, n) for n in _protocol_names()], value="reference-sweep",
+                    names = _protocol_names()
+                    if self.protocol not in names:
+                        names.append(self.protocol)
+                    yield Select([(n, n) for n in names], value=self.protocol,
                                  allow_blank=False, compact=True, type_to_search=False,
                                  id="protocol")
                     yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
@@ -251,7 +280,7 @@ class NormboxConsole(App):
 
     def on_mount(self) -> None:
         self.query_one("#inst-table", DataTable).add_columns(
-            "role", "link", "driver", "port", "identity", "state")
+            "role", "connection", "identity", "state")
         self.query_one("#runs-table", DataTable).add_columns(
             "id", "uuid", "protocol", "status", "readings", "created")
         self.query_one("#readings-table", DataTable).add_columns(
@@ -293,8 +322,8 @@ class NormboxConsole(App):
         kind = "simulated" if s.config.simulated else "real"
         scale = getattr(s.lab.clock, "time_scale", None)
         clock = "real clock" if scale is None else f"virtual clock ×{scale:g}"
-        self._set_status(f"{s.config.name} · {kind} · world {s.world_kind} · {clock} · "
-                         f"store {s.store_path.name}")
+        self._set_status(f"{kind} lab · world {s.world_kind} · {clock} · "
+                         f"store {s.store_path.name} · {s.config.name}")
         self._refresh_results()
 
     # --- helpers -----------------------------------------------------------------------------
@@ -316,6 +345,7 @@ class NormboxConsole(App):
 
         for k, v in params.items():
             text = v if isinstance(v, str) else json.dumps(v)   # as `--param K=V` takes it
+            text = self.prefill.pop(k, text)
             box.mount(Horizontal(Label(k), Input(text, id=f"param-{k}", compact=True),
                                  classes="param"))
 
@@ -619,15 +649,16 @@ class NormboxConsole(App):
         table = self.query_one("#inst-table", DataTable)
         table.clear()
         for r in rows:
-            table.add_row(r["role"], "sim" if r["simulated"] else "real", r["driver"],
-                          r["port"], r["identity"] or "-", r["state"] or "-")
+            table.add_row(r["role"], connection_text(r), r["identity"] or "-",
+                          r["state"] or "-")
         self._show_live()
 
     def _show_live(self) -> None:
         live = self.session.live
         angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
-        lamp = live.lamp + ("" if live.lamp_stable is None else
-                            (" (stable)" if live.lamp_stable else " (NOT stable)"))
+        lamp = live.lamp
+        if live.lamp_stable is not None and live.lamp != "stable":
+            lamp += " (stable)" if live.lamp_stable else " (not stable)"
         temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
         last = "-"
         if live.last_key:
@@ -765,7 +796,7 @@ class NormboxConsole(App):
         for a in hm.angle_deg:
             table.add_column(f"{a:g}°", key=f"{a:g}")
         for i, name in enumerate(hm.patch_names):
-            cells: list[Any] = [Text(f"{i + 1:>2} {name[:10]}")]
+            cells: list[Any] = [Text(name[:13])]
             for j in range(hm.angle_deg.size):
                 de = float(hm.delta_e00[i, j])
                 cells.append(Text(f"{de:4.1f}", style=RATING_STYLES[rating_class(de)][0]))
@@ -774,6 +805,12 @@ class NormboxConsole(App):
                       *[Text(f"{100 * v:4.1f}", style="bold") for v in hm.nrmse_per_angle],
                       key="nrmse")
         self._drill(0)
+
+    @on(DataTable.CellSelected, "#heatmap")
+    def _cell_selected(self, event: DataTable.CellSelected) -> None:
+        hm = self._heatmap
+        if hm is not None and 0 <= event.coordinate.row < len(hm.patch_names):
+            self.push_screen(DrillScreen(hm.drill_down(event.coordinate.row)))
 
     @on(DataTable.CellHighlighted, "#heatmap")
     def _cell(self, event: DataTable.CellHighlighted) -> None:
@@ -785,7 +822,7 @@ class NormboxConsole(App):
             return
         drill = self.query_one("#drill", Static)
         if 0 <= row < len(hm.patch_names):
-            drill.update("\n".join(hm.drill_down(row)))
+            drill.update(hm.summary(row))
         else:
             drill.update("NRMSE per angle (mean over patches): " + ", ".join(
                 f"{a:g}° {100 * v:.1f}%" for a, v in zip(hm.angle_deg, hm.nrmse_per_angle,
@@ -794,6 +831,14 @@ class NormboxConsole(App):
     def on_unmount(self) -> None:
         if not self.session.busy:
             self.session.close()
+
+
+def connection_text(row: dict[str, Any]) -> str:
+    """"sim cs1000a" for an emulator URL, "real /dev/ttyUSB0" for a port."""
+    port = str(row["port"])
+    if port.startswith("sim://"):
+        return "sim " + port.removeprefix("sim://").split("?")[0]
+    return ("sim " if row["simulated"] else "real ") + port
 
 
 def _protocol_names() -> list[str]:

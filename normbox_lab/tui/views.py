@@ -17,7 +17,7 @@ import numpy as np
 #: rating class (index into normbox_lab.compare.RATING_SCALE) → cell style and legend label
 RATING_STYLES: tuple[tuple[str, str], ...] = (
     ("black on green", "≤1 below JND"),
-    ("black on yellow", "≤2 just noticeable"),
+    ("black on yellow", "≤2 noticeable"),
     ("black on dark_orange", "≤5 discernible"),
     ("white on red", ">5 easily seen"),
 )
@@ -53,6 +53,12 @@ class HeatMap:
         idx = rating_index(self.delta_e00)
         return [int(np.sum(idx == k)) for k in range(len(RATING_STYLES))]
 
+    def summary(self, patch_index: int) -> str:
+        de = self.delta_e00[patch_index]
+        return (f"#{patch_index + 1} {self.patch_names[patch_index]}: mean ΔE00 "
+                f"{np.nanmean(de):.2f}, max {np.nanmax(de):.2f} at "
+                f"{self.angle_deg[int(np.nanargmax(de))]:g}° · Enter: details")
+
     def drill_down(self, patch_index: int) -> list[str]:
         """Per-patch lines: ΔE00, rating, NRMSE and L*a*b* per angle."""
         name = self.patch_names[patch_index]
@@ -60,13 +66,13 @@ class HeatMap:
         lines = [(f"#{patch_index + 1} {name}   mean ΔE00 {np.nanmean(de):.2f}, "
                   f"max {np.nanmax(de):.2f}, "
                   f"mean NRMSE {100 * np.nanmean(self.nrmse[patch_index]):.1f} %"),
-                 (f"{'angle':>6} {'ΔE00':>6}  {'rating':<18} {'NRMSE':>7}  "
-                  f"{'L*a*b* measured':<20} {'predicted'}")]
+                 (f"{'angle':>5} {'ΔE00':>5}  {'rating':<14} {'NRMSE':>6}  "
+                  f"{'L*a*b* measured':<17} {'predicted'}")]
         for j, a in enumerate(self.angle_deg):
             lab_r = _lab(self.lab_reference, patch_index, j)
             lab_p = _lab(self.lab_prediction, patch_index, j)
-            lines.append(f"{a:5.0f}° {de[j]:6.2f}  {RATING_STYLES[rating_class(de[j])][1]:<18} "
-                         f"{100 * self.nrmse[patch_index, j]:6.1f} %  {lab_r:<20} {lab_p}")
+            lines.append(f"{a:4.0f}° {de[j]:5.2f}  {RATING_STYLES[rating_class(de[j])][1]:<14} "
+                         f"{100 * self.nrmse[patch_index, j]:5.1f}%  {lab_r:<17} {lab_p}")
         return lines
 
 
@@ -74,7 +80,7 @@ def _lab(arr: np.ndarray | None, i: int, j: int) -> str:
     if arr is None:
         return "-"
     L, a, b = arr[i, j]
-    return f"{L:5.1f} {a:+6.1f} {b:+6.1f}"
+    return f"{L:4.1f} {a:+5.1f} {b:+5.1f}"
 
 
 def heatmap(artifact: Any) -> HeatMap:
