@@ -207,3 +207,93 @@ def make_bsdf(material: Any) -> Any:
     bsdf = cls(mi.Properties("normbox"))
     bsdf.set_material(material)
     return bsdf
+
+
+# --- the opal panel's emission: one emitter, lamp spectrum × 5×5 map ---------------------------
+_TEXTURES: dict[str, Any] = {}
+
+
+def panel_texture_class() -> Any:
+    """`NormboxPanelTexture` for the current variant (registered as "normbox_panel"): radiance
+    L(λ, u, v) = lamp(λ) · map[j, i] on a rectangle's (u, v), piecewise constant over the 5×5
+    cells.  One emitter instead of 25 keeps emitter sampling independent of the order in which
+    Mitsuba happens to load the scene's objects (so renders repeat across processes)."""
+    import drjit as dr
+    import mitsuba as mi
+
+    variant = mi.variant()
+    if variant in _TEXTURES:
+        return _TEXTURES[variant]
+    jit = dr.is_jit_v(mi.Float)
+
+    class NormboxPanelTexture(mi.Texture):
+        def __init__(self, props: Any) -> None:
+            mi.Texture.__init__(self, props)
+            self.set_values(np.arange(360.0, 831.0, 5.0), np.ones(95), np.ones((5, 5)))
+
+        def set_values(self, grid_nm: np.ndarray, values: np.ndarray,
+                       cell_map: np.ndarray) -> None:
+            """`values` (W·sr⁻¹·m⁻²·nm⁻¹) on the evenly spaced `grid_nm`; `cell_map[j, i]` the
+            factor of the cell j along world y, i along world x (`scene.panel_map`): on the
+            downward-facing rectangle u runs along +x and v along −y, so i = ⌊5u⌋, j = 4 − ⌊5v⌋."""
+            self.grid_min = float(grid_nm[0])
+            self.grid_step = float(grid_nm[1] - grid_nm[0])
+            self.n = len(grid_nm)
+            self.mean_value = float(np.mean(values) * np.mean(cell_map))
+            flat = np.asarray(cell_map, dtype=np.float64).ravel()
+            if jit:
+                self.values = mi.Float(np.asarray(values, dtype=np.float32))
+                self.map = mi.Float(flat.astype(np.float32))
+            else:
+                self.values = np.asarray(values, dtype=np.float64)
+                self.map = flat
+                self.grid = np.asarray(grid_nm, dtype=np.float64)
+
+        def _factor(self, si: Any, active: Any) -> Any:
+            col = dr.clip(dr.floor(si.uv.x * 5.0), 0.0, 4.0)
+            row = 4.0 - dr.clip(dr.floor(si.uv.y * 5.0), 0.0, 4.0)
+            if not jit:
+                return float(self.map[int(row) * 5 + int(col)])
+            return dr.gather(mi.Float, self.map, mi.UInt32(row * 5.0 + col), active)
+
+        def _spectrum(self, wavelengths: Any, active: Any) -> Any:
+            out = []
+            for k in range(len(wavelengths)):
+                if not jit:
+                    out.append(float(np.interp(float(wavelengths[k]), self.grid, self.values)))
+                    continue
+                t = dr.clip((wavelengths[k] - self.grid_min) / self.grid_step, 0.0,
+                            self.n - 1.0)
+                i0 = dr.minimum(mi.UInt32(dr.floor(t)), self.n - 2)
+                w = t - mi.Float(i0)
+                v0 = dr.gather(mi.Float, self.values, i0, active)
+                v1 = dr.gather(mi.Float, self.values, i0 + 1, active)
+                out.append(dr.fma(w, v1 - v0, v0))
+            return mi.UnpolarizedSpectrum(*out)
+
+        def eval(self, si: Any, active: Any = True) -> Any:
+            return self._spectrum(si.wavelengths, active) * self._factor(si, active)
+
+        def mean(self) -> float:
+            return self.mean_value
+
+        def is_spatially_varying(self) -> bool:
+            return True
+
+        def traverse(self, callback: Any) -> None:
+            pass
+
+        def to_string(self) -> str:
+            return "NormboxPanelTexture[]"
+
+    mi.register_texture("normbox_panel", lambda props: NormboxPanelTexture(props))
+    _TEXTURES[variant] = NormboxPanelTexture
+    return NormboxPanelTexture
+
+
+def make_panel_texture(grid_nm: np.ndarray, values: np.ndarray, cell_map: np.ndarray) -> Any:
+    import mitsuba as mi
+
+    tex = panel_texture_class()(mi.Properties("normbox_panel"))
+    tex.set_values(grid_nm, values, cell_map)
+    return tex

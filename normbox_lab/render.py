@@ -45,7 +45,7 @@ from normbox_lab.scene import (
 )
 
 #: bump when the scene code changes what a render returns (invalidates every cache entry)
-RENDER_VERSION = 2
+RENDER_VERSION = 3
 BAND_CENTRES_NM = np.arange(380.0, 781.0, 5.0)
 BAND_WIDTH_NM = 5.0
 LAMP_GRID_NM = np.arange(360.0, 831.0, 5.0)
@@ -227,15 +227,16 @@ class _PersistentScene:
     """One loaded Mitsuba scene per (variant, geometry, lamp, pixels, max_depth), reused for
     every render: the materials change through the BSDF objects (`set_material`), the sample
     angle by moving the patch and holder plate in place (`mi.traverse`).  Reuse keeps the
-    render kernel, and it makes renders repeatable: Mitsuba orders a freshly loaded scene's
-    shapes and emitters differently from one load to the next, so the same seed gives another
-    noise realisation after a reload (unbiased either way)."""
+    render kernel.  The panel is a single emitter (lamp × map texture): Mitsuba orders a
+    freshly loaded scene's objects differently from one load to the next, and with several
+    emitters that would change which one a random number picks, i.e. the noise realisation of
+    the same seed.  With one emitter, renders repeat exactly, across reloads and processes."""
 
     def __init__(self, g: Any, lamp: Lamp, pixels: int, max_depth: int, angle_deg: float,
                  materials: dict[str, Material]) -> None:
         import mitsuba as mi
 
-        from normbox_lab.mitsuba_bsdf import make_bsdf
+        from normbox_lab.mitsuba_bsdf import make_bsdf, make_panel_texture
 
         self.bsdfs = {role: make_bsdf(m) for role, m in materials.items()}
         self.bsdfs["post"] = make_bsdf(materials["holder"])
@@ -244,7 +245,10 @@ class _PersistentScene:
         d = scene_dict(g, angle_deg=angle_deg, patch_bsdf=self.bsdfs["patch"],
                        wall_bsdf=self.bsdfs["wall"], holder_bsdf=self.bsdfs["holder"],
                        lamp_values=lamp.radiance(LAMP_GRID_NM), lamp_grid_nm=LAMP_GRID_NM,
-                       film=film, max_depth=max_depth, post_bsdf=self.bsdfs["post"])
+                       film=film, max_depth=max_depth, post_bsdf=self.bsdfs["post"],
+                       panel_radiance=make_panel_texture(
+                           LAMP_GRID_NM, lamp.radiance(LAMP_GRID_NM),
+                           panel_map(g.panel_homogeneity_percent)))
         self.scene = mi.load_dict(d, parallel=False)
         self.to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
                          for k in MOVING_SHAPES}

@@ -165,14 +165,16 @@ def moving_transforms(geometry: Any, angle_deg: float) -> dict[str, Any]:
 def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: Any,
                holder_bsdf: Any, lamp_values: np.ndarray, lamp_grid_nm: np.ndarray,
                film: dict[str, Any], max_depth: int = 12,
-               post_bsdf: Any = None) -> dict[str, Any]:
+               post_bsdf: Any = None, panel_radiance: Any = None) -> dict[str, Any]:
     """The Mitsuba scene (a `mi.load_dict` dictionary) for one sample angle.
 
     The BSDFs are Mitsuba objects (or plugin dicts); `lamp_values` (W·sr⁻¹·m⁻²·nm⁻¹ on
     `lamp_grid_nm`, evenly spaced) is the panel's mean spectral radiance; each of the 25
     sub-panels gets it times its map factor.  `film` is the sensor's film dict.  `post_bsdf`
     (default: the holder's) should be a separate object when the plate is moved in place:
-    Mitsuba merges meshes that share a BSDF, and a merged plate is no longer addressable."""
+    Mitsuba merges meshes that share a BSDF, and a merged plate is no longer addressable.
+    `panel_radiance`: a Mitsuba texture for a single emitting panel (the renderer's
+    `mitsuba_bsdf.make_panel_texture`: lamp × map); None: 25 emitting cells "panel_00".."24"."""
     import mitsuba as mi
 
     T = mi.ScalarTransform4f
@@ -201,16 +203,21 @@ def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: A
     d["ap_right"] = _rect(T, [hx, 0, zc], [((0, 1, 0), -90)], (tc / 2, hy), wall_bsdf)
     d["ap_front"] = _rect(T, [0, -hy, zc], [((1, 0, 0), -90)], (hx, tc / 2), wall_bsdf)
     d["ap_back"] = _rect(T, [0, hy, zc], [((1, 0, 0), 90)], (hx, tc / 2), wall_bsdf)
-    # the opal panel: 25 emitting cells facing down
+    # the opal panel facing down: one emitter with a lamp × map texture, or 25 emitting cells
     black = {"type": "diffuse", "reflectance": {"type": "uniform", "value": 0.0}}
-    wmin, wmax = float(lamp_grid_nm[0]), float(lamp_grid_nm[-1])
-    for k, (centre, ex, ey, factor) in enumerate(panel_cells_m(g)):
-        vals = ", ".join(f"{v:.9g}" for v in np.asarray(lamp_values) * factor)
-        cell = _rect(T, centre, down, (ex, ey), black)
-        cell["emitter"] = {"type": "area",
-                           "radiance": {"type": "regular", "wavelength_min": wmin,
-                                        "wavelength_max": wmax, "values": vals}}
-        d[f"panel_{k:02d}"] = cell
+    if panel_radiance is not None:
+        panel = _rect(T, [0.0, 0.0, top + tc], down, (hx, hy), black)
+        panel["emitter"] = {"type": "area", "radiance": panel_radiance}
+        d["panel"] = panel
+    else:
+        wmin, wmax = float(lamp_grid_nm[0]), float(lamp_grid_nm[-1])
+        for k, (centre, ex, ey, factor) in enumerate(panel_cells_m(g)):
+            vals = ", ".join(f"{v:.9g}" for v in np.asarray(lamp_values) * factor)
+            cell = _rect(T, centre, down, (ex, ey), black)
+            cell["emitter"] = {"type": "area",
+                               "radiance": {"type": "regular", "wavelength_min": wmin,
+                                            "wavelength_max": wmax, "values": vals}}
+            d[f"panel_{k:02d}"] = cell
     # holder and patch, rotated about x through the sample centre
     h = g.sample_height_mm / 1000.0
     moving = moving_transforms(g, angle_deg)

@@ -305,3 +305,33 @@ def test_scalar_spectral_fallback_renders_the_same_light(tmp_path):
     from normbox_lab.mitsuba_setup import choose_variant
 
     assert ensure_variant() == choose_variant() == mi.variant()
+
+
+def test_panel_emitter_texture_orientation():
+    """The single-emitter panel shows cell (j along y, i along x) of the map where
+    `panel_cells_m` puts it: look straight up at three cell centres."""
+    from normbox_lab.materials import holder_material
+    from normbox_lab.mitsuba_bsdf import make_bsdf, make_panel_texture
+    from normbox_lab.render import ensure_variant
+    from normbox_lab.scene import panel_cells_m, scene_dict
+
+    ensure_variant()
+    cell_map = 1.0 + 0.1 * np.arange(25.0).reshape(5, 5)       # unique per cell
+    grid = np.arange(360.0, 831.0, 5.0)
+    tex = make_panel_texture(grid, np.ones_like(grid), cell_map)
+    film = {"type": "specfilm", "width": 1, "height": 1, "component_format": "float32",
+            "rfilter": {"type": "box"},
+            "band": {"type": "spectrum", "value": [(500.0, 1.0), (600.0, 1.0)]}}
+    grey = make_bsdf(holder_material())
+    cells = panel_cells_m(None)
+    T = mi.ScalarTransform4f
+    for k in (0, 7, 19):                 # cell k = 5 j + i
+        centre = cells[k][0]
+        d = scene_dict(None, angle_deg=30.0, patch_bsdf=grey, wall_bsdf=grey, holder_bsdf=grey,
+                       lamp_values=np.ones_like(grid), lamp_grid_nm=grid, film=film,
+                       max_depth=1, panel_radiance=tex)
+        d["sensor"] = {"type": "perspective", "fov": 0.5, "film": film,
+                       "to_world": T().look_at(origin=[centre[0], centre[1], 0.4],
+                                               target=list(map(float, centre)), up=[0, 1, 0])}
+        img = np.asarray(mi.render(mi.load_dict(d), spp=64))
+        assert img.mean() / 100.0 == pytest.approx(cell_map.ravel()[k], rel=1e-3)
