@@ -5,7 +5,8 @@ global η per material), so a path's vertices and directions can be shared by al
 its *throughput* evaluated per band.  Stock Mitsuba spectral rendering carries 4 hero wavelengths
 per path, so a 5 nm band sees a path only ~4/81 of the time; here every path feeds all 81 bands.
 
-How it works (a wavefront path tracer written with Dr.Jit, `BandPathTracer`):
+How it works (a path tracer written with Dr.Jit, `BandPathTracer`; one symbolic-loop
+megakernel per chunk of paths, or a wavefront of one kernel per bounce with symbolic=False):
 - Mitsuba does ray intersection, emitter sampling (position, pdf, visibility) and the
   shape/BSDF bookkeeping, in a *mono* JIT variant (`llvm_ad_mono` on a CPU, `cuda_ad_mono` on a
   GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.scene.scene_dict` — the
@@ -210,13 +211,14 @@ class BandPathTracer:
     def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]], radiometer: Radiometer,
                  emitter: RectEmitter, *, variant: str, emitter_slot: str = "panel",
                  grid: BandGrid | None = None, max_depth: int = 12, rr_depth: int = 6,
-                 chunk_paths: int = 1 << 16) -> None:
+                 chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
         import drjit as dr
         import mitsuba as mi
 
         self.m = getattr(mi, variant)
         self.dr = dr
         self.variant = variant
+        self.symbolic = bool(symbolic)
         self.scene = scene
         self.grid = grid or BandGrid()
         self.max_depth = int(max_depth)
@@ -373,11 +375,10 @@ class BandPathTracer:
         lz = float(em.centre_m[2])
         area = em.area_m2
 
-        thr = [m.Float(1.0) for _ in range(n_b)]      # per-band throughput
-        acc = [m.Float(0.0) for _ in range(n_b)]      # per-band radiance / Le_b
-        active = m.Bool(True)
-        prev_pdf = m.Float(0.0)                       # 0: the camera ray (no MIS)
-        for depth in range(self.max_depth):
+        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
+                   acc: Any) -> tuple[Any, ...]:
+            """One path vertex: emission (MIS), NEE, BSDF sampling, Russian roulette."""
+            thr, acc = list(thr), list(acc)
             pi = scene.ray_intersect_preliminary(ray, active=active)
             active = active & pi.is_valid()
             reg = dr.reinterpret_array(m.UInt32, pi.shape)
@@ -395,8 +396,7 @@ class BandPathTracer:
             for b in range(n_b):
                 acc[b] = dr.fma(thr[b], e, acc[b])
             active = active & (slot > 0) & (slot != self.emitter_slot)
-            if depth + 1 >= self.max_depth:
-                break
+            active = active & (depth + 1 < self.max_depth)
             # local frame, normal towards the incoming side (two-sided surfaces)
             wi_w = -ray.d
             nf = dr.select(dr.dot(wi_w, ng) < 0, -ng, ng)
@@ -452,18 +452,31 @@ class BandPathTracer:
             for b in range(n_b):
                 thr[b] = thr[b] * fac[b]
             # Russian roulette on a λ-independent survival probability
-            if depth + 1 >= self.rr_depth:
-                probe = dr.abs(thr[0])
-                for b in range(1, n_b, 8):
-                    probe = dr.fmax(probe, dr.abs(thr[b]))
-                q = dr.minimum(probe, 0.95)
-                active = active & (rng.next_float32() < q)
-                inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
-                for b in range(n_b):
-                    thr[b] = thr[b] * inv_q
+            probe = dr.abs(thr[0])
+            for b in range(1, n_b, 8):
+                probe = dr.fmax(probe, dr.abs(thr[b]))
+            q = dr.select(depth + 1 >= self.rr_depth, dr.minimum(probe, 0.95), 1.0)
+            active = active & (rng.next_float32() < q)
+            inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
+            for b in range(n_b):
+                thr[b] = thr[b] * inv_q
             ray = m.Ray3f(o, frame.to_world(wo))
             prev_pdf = bpdf
-            dr.eval(thr, acc, ray, active, prev_pdf, rng)
+            return depth + 1, active, ray, prev_pdf, rng, thr, acc
+
+        state = (m.UInt32(0), m.Bool(True), ray, m.Float(0.0), rng,
+                 [m.Float(1.0) for _ in range(n_b)],      # per-band throughput
+                 [m.Float(0.0) for _ in range(n_b)])      # per-band radiance / Le_b
+        if self.symbolic:
+            # one megakernel; a SIMD packet runs until its own longest path ends
+            state = dr.while_loop(state, lambda depth, active, *_: active
+                                  & (depth < self.max_depth), bounce, label="bandpath")
+        else:
+            # wavefront: one kernel per bounce, every lane each time
+            for d in range(self.max_depth):
+                state = bounce(m.UInt32(d), *state[1:])
+                dr.eval(state)
+        acc = state[6]
         le_tab = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         out = [acc[b] * le_tab[b] for b in range(n_b)]
         dr.eval(out)
@@ -624,9 +637,10 @@ class FastNormbox:
 
     def __init__(self, geometry: Any = None, *, variant: str | None = None,
                  max_depth: int = 12, rr_depth: int = 6, grid: BandGrid | None = None,
-                 chunk_paths: int = 1 << 16) -> None:
+                 chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
         from normbox_lab.scene import as_geometry
 
+        self.symbolic = bool(symbolic)
         self.geometry = as_geometry(geometry)
         self.variant = mono_variant(variant)
         self.max_depth = int(max_depth)
@@ -723,7 +737,7 @@ class FastNormbox:
                 self._scene, [(self._stand_in[r], STAND_INS[r]) for r in STAND_INS],
                 self._radiometer, self._emitter, variant=self.variant, emitter_slot="panel",
                 grid=self.grid, max_depth=depth, rr_depth=self.rr_depth,
-                chunk_paths=self.chunk_paths)
+                chunk_paths=self.chunk_paths, symbolic=self.symbolic)
         return tr
 
     def render_view(self, *, patch: Any, wall: Any, angle_deg: float, holder: Any = None,
