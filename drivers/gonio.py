@@ -1,0 +1,275 @@
+"""In-plane gonioreflectometer: two rotation stages (light arm θi, detector arm θo), a QE Pro,
+arms tilted ±`tilt_deg` out of plane (DESIGN §1), calibrated against a white standard.
+
+Angles are signed, in the plane of incidence, from the sample normal; both arms use the same
+axis, so the specular direction is θo = −θi and backscatter is θo = θi.  The arms cannot pass
+each other: where the in-plane separation |θo − θi| is below `arm_clearance_deg` (default 10°)
+one arm shadows the other.  Those geometries stay in the set, flagged ``blocked`` (their
+readings are taken and stored with ``blocked=True``, never silently dropped).
+
+Calibration (`calibrate`, once per mounted material):
+  1. arms to the reference geometry (θi, θo) = (0°, 45°), white standard (Spectralon,
+     reflectance ρ_w(λ), treated as Lambertian) into the sample plane;
+  2. integration time t_w chosen so the white peak is ≈ 60 % of full scale; white counts C_w;
+  3. lamp off (QE Pro lamp-enable line = shutter): dark counts D_w at t_w; lamp on;
+  4. white standard out.
+Measurement (`measure_brdf(θi, θo)`): arms to (θi, θo); integration time t_s auto-ranged
+(starting at t_w / max(cos θi, 0.1), divided by 4 while saturated, multiplied by 4 while the
+peak is below 5 % of full scale, within 8 ms … 64·t_w); a dark D_s at t_s (cached per t_s);
+counts C_s.  Then, per pixel λ:
+
+    f_r(θi, θo; λ) = [(C_s − D_s)/t_s] / [(C_w − D_w)/t_w] · ρ_w(λ)/π · cos θi,ref / cos θi
+
+(cos of the in-plane angles; the common cos(tilt) factor cancels.)  This assumes the detector's
+field of view lies inside the illuminated spot at every geometry, so the projected-area factors
+cancel, and a Lambertian white standard.  Counts are dark-pixel and nonlinearity corrected
+(seabreeze); the BRDF is resampled from the QE Pro's pixel grid to 380–780 nm at 1 nm (linear
+interpolation); the raw counts (C_s, uncorrected, native grid) are kept in the reading.
+
+Timing model for ETAs: both arms move at once (the longer of the two trapezoids), plus the
+integration times (sample + dark when t_s is new).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.clock import Clock
+from normbox_lab.errors import DeviceError, NotReady
+from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, BrdfReading
+
+THETA_I_DEG = tuple(range(-80, 1, 10))
+THETA_O_DEG = tuple(range(-80, 81, 10))
+REFERENCE_GEOMETRY_DEG = (0.0, 45.0)
+WHITE_TARGET_FRACTION = 0.6
+
+
+class OperatorWhiteStandard:
+    """A white standard placed by hand: `prompt(message)` must return once it is done."""
+
+    def __init__(self, prompt: Callable[[str], Any], reflectance: float | np.ndarray = 0.99,
+                 wavelength_nm: np.ndarray | None = None) -> None:
+        self.prompt = prompt
+        self._rho = reflectance
+        self._wl = wavelength_nm
+
+    def reflectance(self, wavelength_nm: np.ndarray) -> np.ndarray:
+        if self._wl is None:
+            return np.full(np.shape(wavelength_nm), float(self._rho))
+        return np.interp(wavelength_nm, self._wl, self._rho)
+
+    def insert(self) -> None:
+        self.prompt("place the white standard (Spectralon) in the sample plane")
+
+    def remove(self) -> None:
+        self.prompt("remove the white standard; put the sample back")
+
+
+class Gonioreflectometer:
+    model = "in-plane gonioreflectometer (QE Pro)"
+
+    def __init__(self, light_arm: Any, detector_arm: Any, spectrometer: Any, clock: Clock, *,
+                 instrument_id: str = "gonio", tilt_deg: float = 4.0,
+                 arm_clearance_deg: float = 10.0, white_standard: Any = None,
+                 shutter: Callable[[bool], None] | None = None,
+                 output_wavelength_nm: np.ndarray = RADIOMETER_WAVELENGTHS_NM) -> None:
+        self.light_arm = light_arm
+        self.detector_arm = detector_arm
+        self.spectrometer = spectrometer
+        self.clock = clock
+        self.instrument_id = instrument_id
+        self.tilt_deg = float(tilt_deg)
+        self.arm_clearance_deg = float(arm_clearance_deg)
+        if white_standard is None and hasattr(spectrometer, "white_standard"):
+            white_standard = spectrometer.white_standard()
+        self.white_standard = white_standard
+        self.shutter = shutter or getattr(spectrometer, "set_lamp_enabled", None)
+        self.output_wavelength_nm = np.asarray(output_wavelength_nm, dtype=float)
+        self._cal: dict[str, Any] | None = None
+        self._darks: dict[float, np.ndarray] = {}
+        self._geometry = (0.0, 0.0)
+
+    @classmethod
+    def from_parts(cls, *, spectrometer: Any, light_arm: Any, detector_arm: Any, clock: Clock,
+                   **options: Any) -> Gonioreflectometer:
+        return cls(light_arm, detector_arm, spectrometer, clock, **options)
+
+    # --- identity -----------------------------------------------------------------------------
+    def identify(self) -> InstrumentIdentity:
+        spec = self.spectrometer.identify()
+        return InstrumentIdentity("gonioreflectometer", self.model, spec.serial_number, "",
+                                  simulated=spec.simulated,
+                                  extra={"tilt_deg": f"{self.tilt_deg:g}",
+                                         "spectrometer": spec.model})
+
+    def close(self) -> None:
+        for part in (self.spectrometer, self.light_arm, self.detector_arm):
+            part.close()
+
+    # --- geometry -----------------------------------------------------------------------------
+    def blocked(self, theta_i_deg: float, theta_o_deg: float) -> bool:
+        return abs(float(theta_o_deg) - float(theta_i_deg)) < self.arm_clearance_deg
+
+    def geometries(self) -> list[tuple[float, float, bool]]:
+        """The 153 in-plane geometries (θi, θo, blocked), θi-major."""
+        return [(float(ti), float(to), self.blocked(ti, to))
+                for ti in THETA_I_DEG for to in THETA_O_DEG]
+
+    def _move_arms(self, theta_i_deg: float, theta_o_deg: float) -> None:
+        for arm in (self.light_arm, self.detector_arm):
+            if not arm.is_homed():
+                arm.home(wait=True)
+        self.light_arm.move_to(theta_i_deg, wait=False)
+        self.detector_arm.move_to(theta_o_deg, wait=False)
+        ti0, to0 = self._geometry
+        self.light_arm.wait_idle(1.5 * self.light_arm.estimate_move_time_s(ti0, theta_i_deg) + 5)
+        self.detector_arm.wait_idle(1.5 * self.detector_arm.estimate_move_time_s(
+            to0, theta_o_deg) + 5)
+        self._geometry = (theta_i_deg, theta_o_deg)
+
+    # --- acquisition --------------------------------------------------------------------------
+    def _lamp(self, on: bool) -> None:
+        if self.shutter is None:
+            raise NotReady("no lamp shutter / lamp-enable line configured",
+                           instrument=self.instrument_id)
+        self.shutter(on)
+
+    def _acquire(self, integration_time_s: float) -> Any:
+        self.spectrometer.set_integration_time_s(integration_time_s)
+        return self.spectrometer.acquire(correct_dark=True, correct_nonlinearity=True)
+
+    def _dark(self, integration_time_s: float) -> np.ndarray:
+        key = round(integration_time_s, 6)
+        if key not in self._darks:
+            self._lamp(False)
+            try:
+                self._darks[key] = self._acquire(integration_time_s).counts
+            finally:
+                self._lamp(True)
+        return self._darks[key]
+
+    @staticmethod
+    def _clamp_t(t: float) -> float:
+        return min(1600.0, max(8e-3, t))
+
+    def calibrate(self) -> dict[str, np.ndarray]:
+        """Dark and white references at the reference geometry (see the module docstring)."""
+        if self.white_standard is None:
+            raise NotReady("no white standard handler: pass white_standard=... "
+                           "(e.g. OperatorWhiteStandard(prompt))", instrument=self.instrument_id)
+        self._darks.clear()
+        ti, to = REFERENCE_GEOMETRY_DEG
+        self._move_arms(ti, to)
+        self._lamp(True)
+        self.white_standard.insert()
+        try:
+            full = self.spectrometer.max_counts
+            t = 0.1
+            for _ in range(8):
+                acq = self._acquire(t)
+                peak = float(np.max(acq.counts))
+                if not acq.saturated and peak > 0.05 * full:
+                    t = self._clamp_t(t * WHITE_TARGET_FRACTION * full / peak)
+                    break
+                t = self._clamp_t(t / 4 if acq.saturated else t * 8)
+            white = self._acquire(t)
+            if white.saturated or float(np.max(white.counts)) < 0.05 * full:
+                raise DeviceError("WHITE", "white reference saturated or too dark "
+                                  f"(peak {np.max(white.raw_counts):.0f} counts at {t:g} s)",
+                                  instrument=self.instrument_id)
+        finally:
+            self.white_standard.remove()
+        dark = self._dark(t)
+        wl = self.spectrometer.wavelengths_nm()
+        rho = np.asarray(self.white_standard.reflectance(wl), dtype=float)
+        self._cal = {"wavelength_nm": wl, "white_counts": white.counts,
+                     "white_raw_counts": white.raw_counts, "dark_counts": dark,
+                     "white_reflectance": rho, "integration_time_s": t,
+                     "theta_i_ref_deg": ti, "tec_temperature_c": white.tec_temperature_c,
+                     "timestamp_s": self.clock.wall_time_s()}
+        return self.references()
+
+    def references(self) -> dict[str, np.ndarray]:
+        if self._cal is None:
+            return {}
+        return {k: (v if isinstance(v, np.ndarray) else np.array([v]))
+                for k, v in self._cal.items()}
+
+    def measure_brdf(self, theta_i_deg: float, theta_o_deg: float) -> BrdfReading:
+        if self._cal is None:
+            raise NotReady("not calibrated: run calibrate() after mounting the sample",
+                           instrument=self.instrument_id)
+        ti, to = float(theta_i_deg), float(theta_o_deg)
+        blocked = self.blocked(ti, to)
+        self._move_arms(ti, to)
+        cal = self._cal
+        t_w = cal["integration_time_s"]
+        cos_i = math.cos(math.radians(ti))
+        t = self._clamp_t(t_w / max(cos_i, 0.1))
+        full = self.spectrometer.max_counts
+        for _ in range(12):
+            acq = self._acquire(t)
+            peak = float(np.max(acq.counts))
+            if acq.saturated and t > 8e-3:
+                t = self._clamp_t(t / 4)
+                continue
+            if not acq.saturated and peak < 0.05 * full and t < 64 * t_w and not blocked:
+                t = self._clamp_t(min(t * 4, 64 * t_w))
+                continue
+            break
+        if acq.saturated:
+            raise DeviceError("SATURATED", f"saturated even at {t:g} s",
+                              instrument=self.instrument_id)
+        dark = self._dark(t)
+        white_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w
+        sample_rate = (acq.counts - dark) / t
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(white_rate > 0, sample_rate / white_rate, 0.0)
+        cos_ref = math.cos(math.radians(cal["theta_i_ref_deg"]))
+        brdf_native = ratio * cal["white_reflectance"] / math.pi * cos_ref / max(cos_i, 1e-6)
+        wl = cal["wavelength_nm"]
+        brdf = np.interp(self.output_wavelength_nm, wl, brdf_native)
+        return BrdfReading(
+            theta_i_deg=ti, theta_o_deg=to, tilt_deg=self.tilt_deg,
+            wavelength_nm=self.output_wavelength_nm, brdf_per_sr=brdf,
+            raw_counts=acq.raw_counts, integration_time_s=t,
+            timestamp_s=self.clock.wall_time_s(), instrument_id=self.instrument_id,
+            blocked=blocked,
+            metadata={"white_integration_time_s": t_w,
+                      "tec_temperature_c": acq.tec_temperature_c})
+
+    # --- timing -------------------------------------------------------------------------------
+    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float) -> float:
+        ti0, to0 = self._geometry
+        move = max(self.light_arm.estimate_move_time_s(ti0, theta_i_deg),
+                   self.detector_arm.estimate_move_time_s(to0, theta_o_deg))
+        t_w = self._cal["integration_time_s"] if self._cal else 0.1
+        t = self._clamp_t(t_w / max(math.cos(math.radians(theta_i_deg)), 0.1))
+        return move + t + (t if round(t, 6) not in self._darks else 0.0)
+
+    def estimate_calibrate_time_s(self) -> float:
+        ti, to = REFERENCE_GEOMETRY_DEG
+        ti0, to0 = self._geometry
+        move = max(self.light_arm.estimate_move_time_s(ti0, ti),
+                   self.detector_arm.estimate_move_time_s(to0, to))
+        return move + 3 * 0.1
+
+    def status(self) -> dict[str, Any]:
+        return {"calibrated": self._cal is not None, "geometry_deg": self._geometry,
+                "tilt_deg": self.tilt_deg, "cached_darks": len(self._darks)}
+
+
+InPlaneGonio = Gonioreflectometer
+
+__all__ = [
+    "THETA_I_DEG",
+    "THETA_O_DEG",
+    "Gonioreflectometer",
+    "InPlaneGonio",
+    "OperatorWhiteStandard",
+]

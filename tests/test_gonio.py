@@ -1,0 +1,166 @@
+"""Gonioreflectometer: geometry set, calibration closure (known BRDF in → same BRDF out), faults."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from normbox_lab.drivers.gonio import Gonioreflectometer, OperatorWhiteStandard
+from normbox_lab.drivers.qepro import QEPro
+from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
+from normbox_lab.sim import core
+from normbox_lab.sim import qepro as sim_qepro
+
+from normbox_lab.clock import VirtualClock
+from normbox_lab.errors import DeviceError, InstrumentError, NotReady
+
+LOBE_WIDTH_DEG = 12.0
+
+
+class LobeWorld:
+    """Lambertian 0.5/π with a spectral tint plus a specular lobe around θo = −θi."""
+
+    def __init__(self, lobe: float = 0.8) -> None:
+        self.lobe = lobe
+
+    def brdf_truth(self, theta_i_deg, theta_o_deg, tilt_deg, wavelength_nm):
+        wl = np.asarray(wavelength_nm, dtype=float)
+        diffuse = 0.5 / math.pi * (0.6 + 0.4 * (wl - 350.0) / 550.0)
+        lobe = self.lobe * math.exp(-((theta_o_deg + theta_i_deg) / LOBE_WIDTH_DEG) ** 2)
+        return diffuse + lobe
+
+
+def lamp(wl):
+    """A known lamp: a smooth 'LED + phosphor' spectral irradiance, W·m⁻²·nm⁻¹."""
+    wl = np.asarray(wl, dtype=float)
+    return 0.3 * np.exp(-((wl - 450) / 20) ** 2) + 0.8 * np.exp(-((wl - 600) / 90) ** 2) + 0.05
+
+
+def build(world=None, faults: str = "") -> tuple[Gonioreflectometer, sim_qepro.SimulatedQEProDevice]:
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    light = ZaberRotationStage.open("sim://rotator-zaber?key=gonio-light", clock,
+                                    min_angle_deg=-90, max_angle_deg=90, instrument_id="light")
+    det = ZaberRotationStage.open("sim://rotator-zaber?key=gonio-detector", clock,
+                                  min_angle_deg=-90, max_angle_deg=90, instrument_id="detector")
+    dev = sim_qepro.device("qepro", clock=clock, world=world or LobeWorld(), lamp=lamp,
+                           faults=faults)
+    spec = QEPro.open("sim://qepro", clock)
+    spec.wait_tec_stable()
+    return Gonioreflectometer.from_parts(spectrometer=spec, light_arm=light, detector_arm=det,
+                                         clock=clock), dev
+
+
+def test_geometry_set_153_with_blocked_flagged():
+    gonio, _ = build()
+    geos = gonio.geometries()
+    assert len(geos) == 153
+    assert [g[:2] for g in geos[:2]] == [(-80.0, -80.0), (-80.0, -70.0)]
+    blocked = [(ti, to) for ti, to, b in geos if b]
+    assert blocked == [(t, t) for t in range(-80, 1, 10)]                # backscatter: arms meet
+
+
+def test_measure_before_calibration_is_not_ready():
+    gonio, _ = build()
+    with pytest.raises(NotReady):
+        gonio.measure_brdf(-30, 30)
+
+
+def test_calibration_closure_known_brdf_in_same_brdf_out():
+    world = LobeWorld()
+    gonio, _dev = build(world)
+    refs = gonio.calibrate()
+    assert {"white_counts", "dark_counts", "white_reflectance", "wavelength_nm"} <= set(refs)
+    peak = refs["white_counts"].max() / 262143
+    assert 0.5 < peak < 0.7                                             # ≈ 60 % of full scale
+    band = (gonio.output_wavelength_nm >= 420) & (gonio.output_wavelength_nm <= 720)
+    for ti, to in [(-30, 30), (-60, 60), (-80, 40), (0, 20), (-40, -10), (-80, 80), (-10, 0),
+                   (-50, 70)]:
+        r = gonio.measure_brdf(ti, to)
+        truth = world.brdf_truth(ti, to, 4.0, r.wavelength_nm)
+        rel = r.brdf_per_sr[band] / truth[band] - 1
+        assert abs(np.median(rel)) < 0.003, (ti, to, np.median(rel))    # no bias
+        assert np.std(rel) < 0.02, (ti, to, np.std(rel))                # noise ≈ 1000:1 per pixel
+        assert r.wavelength_nm[0] == 380 and r.wavelength_nm[-1] == 780 and r.wavelength_nm.size == 401
+        assert r.raw_counts is not None and r.raw_counts.size == 1044
+        assert not r.blocked and r.tilt_deg == 4.0
+    # the arms really went there
+    assert core.CONTEXT.instances["gonio-light"].angle_deg() == pytest.approx(-50, abs=1e-3)
+    assert core.CONTEXT.instances["gonio-detector"].angle_deg() == pytest.approx(70, abs=1e-3)
+
+
+def test_specular_peak_auto_ranges_instead_of_saturating():
+    gonio, _dev = build(LobeWorld(lobe=5.0))
+    gonio.calibrate()
+    r = gonio.measure_brdf(-30, 30)
+    assert r.integration_time_s < gonio.references()["integration_time_s"][0] / 4
+    truth = LobeWorld(5.0).brdf_truth(-30, 30, 4.0, r.wavelength_nm)
+    assert np.median(r.brdf_per_sr / truth) == pytest.approx(1.0, abs=0.005)
+
+
+def test_too_bright_even_at_8_ms_is_a_saturation_error():
+    gonio, _dev = build(LobeWorld(lobe=30.0))
+    gonio.calibrate()
+    with pytest.raises(DeviceError) as err:
+        gonio.measure_brdf(-30, 30)
+    assert err.value.code == "SATURATED"
+
+
+def test_blocked_geometry_is_measured_and_flagged():
+    gonio, _dev = build()
+    gonio.calibrate()
+    r = gonio.measure_brdf(-40, -40)
+    assert r.blocked
+    assert np.max(np.abs(r.brdf_per_sr)) < 0.01                          # arm shadow: no signal
+
+
+def test_operator_white_standard_prompts_and_missing_handler():
+    clock = VirtualClock()
+    asked = []
+    std = OperatorWhiteStandard(asked.append, reflectance=np.array([0.98, 0.99]),
+                                wavelength_nm=np.array([300.0, 1000.0]))
+    std.insert()
+    std.remove()
+    assert len(asked) == 2 and "white standard" in asked[0]
+    assert std.reflectance(np.array([650.0]))[0] == pytest.approx(0.985)
+
+    class RealLikeSpec:
+        def white_standard(self):
+            return None
+    g = Gonioreflectometer(None, None, RealLikeSpec(), clock)
+    with pytest.raises(NotReady):
+        g.calibrate()
+
+
+def test_spectrometer_drop_during_a_sweep_recovers():
+    gonio, dev = build()
+    gonio.calibrate()
+    dev.faults.add("disconnect", at_count=dev.faults._counters.get("disconnect", 0) + 3,
+                   parameter=2.0)
+    r = gonio.measure_brdf(-20, 40)
+    assert np.isfinite(r.brdf_per_sr).all()
+    dev.faults.add("disconnect", at_count=dev.faults._counters["disconnect"] + 1,
+                   parameter=600.0)
+    with pytest.raises(InstrumentError):
+        gonio.measure_brdf(-20, 50)
+
+
+def test_arm_stall_is_a_typed_error():
+    gonio, _dev = build()
+    gonio.calibrate()
+    arm = core.CONTEXT.instances["gonio-detector"]
+    arm.faults.add("stall", at_count=arm.faults._counters.get("stall", 0) + 1, parameter=0.5)
+    with pytest.raises(DeviceError):
+        gonio.measure_brdf(-20, -70)
+
+
+def test_eta_matches_the_clock():
+    gonio, _dev = build()
+    gonio.calibrate()
+    gonio.measure_brdf(-80, -60)
+    est = gonio.estimate_measure_time_s(-10, 60)
+    t0 = gonio.clock.now_s()
+    gonio.measure_brdf(-10, 60)
+    took = gonio.clock.now_s() - t0
+    assert est <= took <= est + 0.5                                     # + status polls
