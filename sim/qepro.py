@@ -235,7 +235,8 @@ class SimulatedQEProDevice:
         return halogen_irradiance(wavelength_nm)
 
     def blocked(self, theta_i_deg: float, theta_o_deg: float) -> bool:
-        return abs(theta_o_deg - theta_i_deg) < self.arm_clearance_deg
+        # physical arm angles carry microstep rounding: allow 0.001° before calling it blocked
+        return abs(theta_o_deg - theta_i_deg) < self.arm_clearance_deg - 1e-3
 
     def radiance_at_detector(self) -> np.ndarray:
         """W·sr⁻¹·m⁻²·nm⁻¹ at each pixel's wavelength."""

@@ -164,3 +164,18 @@ def test_eta_matches_the_clock():
     gonio.measure_brdf(-10, 60)
     took = gonio.clock.now_s() - t0
     assert est <= took <= est + 0.5                                     # + status polls
+
+
+def test_full_153_sweep_closes_everywhere():
+    world = LobeWorld()
+    gonio, _ = build(world)
+    gonio.calibrate()
+    band = slice(40, 341)                                                # 420–720 nm
+    worst = 0.0
+    for ti, to, blocked in gonio.geometries():
+        r = gonio.measure_brdf(ti, to)
+        assert r.blocked == blocked
+        if not blocked:
+            truth = world.brdf_truth(ti, to, 4.0, r.wavelength_nm)
+            worst = max(worst, abs(float(np.median(r.brdf_per_sr[band] / truth[band] - 1))))
+    assert worst < 0.003
