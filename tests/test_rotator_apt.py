@@ -292,3 +292,30 @@ def test_transport_disconnect_then_reconnect():
     with pytest.raises(InstrumentError):
         stage.position_deg()
     assert stage.position_deg() == pytest.approx(0.0)        # reopened and re-initialised
+
+
+def test_served_on_a_pty_the_driver_drives_it_from_another_process():
+    import os
+    import select
+    import subprocess
+    import sys
+
+    from normbox_lab.clock import RealClock
+
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", "rotator-apt",
+                             "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=dict(os.environ))
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        assert ready, "no endpoint printed"
+        kind, _, path = proc.stdout.readline().decode().strip().partition(": ")
+        assert kind == "pty"
+        stage = AptRotationStage.open(path, RealClock(), command_timeout_s=5.0)
+        assert stage.identify().model == "K10CR1"
+        stage.home()                                    # at 0 already: homed at once
+        stage.move_to(0.5)                              # 2·√(0.5/10) ≈ 0.45 s of real motion
+        assert stage.position_deg() == pytest.approx(0.5, abs=1e-4)
+        stage.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

@@ -231,3 +231,34 @@ def test_stop_interrupts_a_move():
     assert not stage.is_moving()
     assert stage.position_deg() == pytest.approx(emu.angle_deg(), abs=1e-3)
     assert 0.0 < emu.angle_deg() < 90.0
+
+
+def test_served_on_tcp_a_plain_socket_client_and_the_driver_drive_it():
+    import os
+    import select
+    import socket
+    import subprocess
+    import sys
+
+    from normbox_lab.clock import RealClock
+
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", "rotator-zaber",
+                             "--tcp", "127.0.0.1:0"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, env=dict(os.environ))
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        assert ready, "no endpoint printed"
+        kind, _, where = proc.stdout.readline().decode().strip().partition(": ")
+        assert kind == "tcp"
+        host, _, port = where.partition(":")
+        with socket.create_connection((host, int(port)), timeout=5) as s:
+            s.sendall(b"/1 1 get pos\n")
+            assert s.makefile("rb").readline() == b"@01 1 OK IDLE WR 0\r\n"
+        stage = ZaberRotationStage.open(f"socket://{where}", RealClock(), command_timeout_s=5.0)
+        stage.home()
+        stage.move_to(0.5)
+        assert stage.position_deg() == pytest.approx(0.5, abs=1e-3)
+        stage.close()
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)

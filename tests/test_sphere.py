@@ -192,3 +192,31 @@ def test_disconnect_and_no_reply():
         lamp.state()
     lamp.clock.sleep(5.0)
     assert lamp.state() == "off"
+
+
+def test_served_on_a_pty_for_outside_programs():
+    import os
+    import select
+    import subprocess
+    import sys
+
+    import serial
+
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", "sphere",
+                             "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            env=dict(os.environ))
+    try:
+        ready, _, _ = select.select([proc.stdout], [], [], 30.0)
+        assert ready, "no endpoint printed"
+        kind, _, path = proc.stdout.readline().decode().strip().partition(": ")
+        assert kind == "pty"
+        with serial.Serial(path, 115200, timeout=5) as port:
+            port.write(b"*IDN?\n")
+            assert port.readline().startswith(b"Image Engineering (placeholder protocol),LE7-4x")
+            port.write(b"OUTP ON\n")
+            assert port.readline() == b"OK\n"
+            port.write(b"STAT?\n")
+            assert port.readline() == b"SETTLING\n"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
