@@ -67,7 +67,7 @@ class Quality:
 
 QUALITIES = {
     "quick": Quality("quick", spp=16, batches=4),
-    "default": Quality("default", spp=256, batches=8, max_batches=20, target_rel_se=0.006),
+    "default": Quality("default", spp=256, batches=8, max_batches=20, target_rel_se=0.0075),
     "high": Quality("high", spp=1024, batches=16),
 }
 
