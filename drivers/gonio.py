@@ -259,6 +259,14 @@ class Gonioreflectometer:
                    self.detector_arm.estimate_move_time_s(to0, to))
         return move + 3 * 0.1
 
+    def stop(self) -> None:
+        """Stop both arms (abort)."""
+        for arm in (self.light_arm, self.detector_arm):
+            arm.stop()
+
+    def is_moving(self) -> bool:
+        return bool(self.light_arm.is_moving() or self.detector_arm.is_moving())
+
     def status(self) -> dict[str, Any]:
         return {"calibrated": self._cal is not None, "geometry_deg": self._geometry,
                 "tilt_deg": self.tilt_deg, "cached_darks": len(self._darks)}

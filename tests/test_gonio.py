@@ -179,3 +179,16 @@ def test_full_153_sweep_closes_everywhere():
             truth = world.brdf_truth(ti, to, 4.0, r.wavelength_nm)
             worst = max(worst, abs(float(np.median(r.brdf_per_sr[band] / truth[band] - 1))))
     assert worst < 0.003
+
+
+def test_stop_halts_both_arms():
+    gonio, _ = build()
+    for arm in (gonio.light_arm, gonio.detector_arm):
+        arm.home()
+    gonio.light_arm.move_to(-80.0, wait=False)
+    gonio.detector_arm.move_to(80.0, wait=False)
+    gonio.clock.sleep(1.0)
+    assert gonio.is_moving()
+    gonio.stop()
+    assert not gonio.is_moving()
+    assert -80 < core.CONTEXT.instances["gonio-light"].angle_deg() < 0
