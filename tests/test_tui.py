@@ -100,7 +100,7 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             assert bar.total == 6 and bar.progress == 2
             # pause while the third prompt waits: the third reading is taken, then it pauses
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 3")
-            app.action_pause_resume()
+            await pilot.press("p")                 # in the modal: pause after this reading
             await answer_prompt(pilot, app, "patch 19")
             await until(pilot, lambda: app.run_status == "paused", "the pause")
             assert app.progress_done == 3
@@ -153,6 +153,7 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             assert lines[2].split()[:2] == ["30°", f"{expected[1, 0]:.2f}"]
             await pilot.press("escape")
         assert session.wait(5.0)
+        session.close()
         with Store(lab_env / "tui.sqlite") as s:
             (run,) = s.runs()
             assert run.status == "done" and s.keys(run.id) == KEYS
@@ -236,7 +237,7 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
             await pilot.press("s")
             await answer_prompt(pilot, app)
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
-            app.action_pause_resume()              # pause requested during a prompt
+            await pilot.press("p")                 # pause requested during a prompt
             await answer_prompt(pilot, app)
             await until(pilot, lambda: app.run_status == "paused", "the pause")
             await pilot.press("q")

@@ -70,6 +70,7 @@ def _tui(args: argparse.Namespace) -> int:
     app.run()
     if args.exit_after_first_paint:
         print(f"first-paint-wall-time {app.first_paint_wall_s:.6f}")
+        session.close()
         return 0
     if session.busy:
         # the window closed while the run was still finishing its reading: let it commit
@@ -85,5 +86,4 @@ def _tui(args: argparse.Namespace) -> int:
             print(f"resume with: normbox-lab run --resume {rec.uuid}{store_arg} "
                   "(or from the console: r)")
     session.close()
-    del result
-    return 0
+    return 0 if result is None or result.status in ("done", "paused") else 1

@@ -15,6 +15,7 @@ from typing import Any, ClassVar
 from textual import on, work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
+from textual.css.query import NoMatches
 from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.message import Message
 from textual.screen import ModalScreen
@@ -57,9 +58,11 @@ class PromptScreen(ModalScreen[str]):
     """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
 
     BINDINGS: ClassVar = [Binding("enter", "choose(0)", "answer", show=True),
-                Binding("r", "pick('retry')", "retry", show=False),
-                Binding("s", "pick('skip')", "skip", show=False),
-                Binding("a", "pick('abort')", "abort", show=False)]
+                          Binding("r", "pick('retry')", "retry", show=False),
+                          Binding("s", "pick('skip')", "skip", show=False),
+                          Binding("a", "pick('abort')", "abort", show=False),
+                          Binding("p", "app.pause_resume", "pause", show=False),
+                          Binding("q", "app.quit_console", "quit", show=False)]
     DEFAULT_CSS = """
     PromptScreen { align: center middle; }
     PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
@@ -77,7 +80,7 @@ class PromptScreen(ModalScreen[str]):
         req = self.request
         title = "Fault" if req.kind == "fault" else "Operator"
         hint = ("r retry · s skip · a abort · Enter retry" if req.kind == "fault"
-                else "do it, then press Enter")
+                else "Enter done · p pause after this reading · a abort · q quit")
         with Vertical():
             yield Label(f"[b]{title}[/b]  {req.key}")
             yield Static(prompt_text(req), id="prompt-message")
@@ -94,6 +97,8 @@ class PromptScreen(ModalScreen[str]):
     def action_pick(self, choice: str) -> None:
         if choice in self.request.choices:
             self.dismiss(choice)
+        elif choice == "abort":              # an operator prompt: abort the run
+            self.app.action_abort()
 
     @on(Button.Pressed)
     def _pressed(self, event: Button.Pressed) -> None:
@@ -527,7 +532,12 @@ class NormboxConsole(App):
 
     # --- engine events -----------------------------------------------------------------------
     def on_engine_message(self, message: EngineMessage) -> None:
-        ev = message.event
+        try:
+            self._engine_message(message.event)
+        except NoMatches:          # the console is closing: the widgets are gone
+            pass
+
+    def _engine_message(self, ev: Any) -> None:
         if isinstance(ev, tuple):
             what, payload = ev
             if what == "error":
@@ -827,10 +837,6 @@ class NormboxConsole(App):
             drill.update("NRMSE per angle (mean over patches): " + ", ".join(
                 f"{a:g}° {100 * v:.1f}%" for a, v in zip(hm.angle_deg, hm.nrmse_per_angle,
                                                          strict=True)))
-
-    def on_unmount(self) -> None:
-        if not self.session.busy:
-            self.session.close()
 
 
 def connection_text(row: dict[str, Any]) -> str:
