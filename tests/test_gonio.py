@@ -192,3 +192,13 @@ def test_stop_halts_both_arms():
     gonio.stop()
     assert not gonio.is_moving()
     assert -80 < core.CONTEXT.instances["gonio-light"].angle_deg() < 0
+
+
+def test_roles():
+    from normbox_lab.interfaces import Gonioreflectometer as GonioRole
+    from normbox_lab.interfaces import RotationStage, Spectrometer
+
+    gonio, _ = build()
+    assert isinstance(gonio, GonioRole)
+    assert isinstance(gonio.spectrometer, Spectrometer)
+    assert isinstance(gonio.light_arm, RotationStage)

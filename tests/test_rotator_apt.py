@@ -319,3 +319,10 @@ def test_served_on_a_pty_the_driver_drives_it_from_another_process():
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_implements_the_rotation_stage_role():
+    from normbox_lab.interfaces import RotationStage
+
+    stage, _ = scripted([])
+    assert isinstance(stage, RotationStage)

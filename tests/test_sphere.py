@@ -220,3 +220,29 @@ def test_served_on_a_pty_for_outside_programs():
     finally:
         proc.terminate()
         proc.wait(timeout=10)
+
+
+def test_status_reset_abort_lines_and_role():
+    from normbox_lab.interfaces import LightSource
+
+    lamp, port = scripted([
+        Exchange(b"*RST\n", b"OK\n"),
+        Exchange(b"STAT?\n", b"STABLE\n"),
+        Exchange(b"OUTP?\n", b"1\n"),
+        Exchange(b"INT?\n", b"80.00\n"),
+        Exchange(b"SPEC:PRES?\n", b"A\n"),
+        Exchange(b"STAB:TIME?\n", b"12.5\n"),
+        Exchange(b"STAB:REM?\n", b"0.0\n"),
+        Exchange(b"TEMP?\n", b"33.1\n"),
+        Exchange(b"HOUR?\n", b"412.0\n"),
+        Exchange(b"MEAS:LUM?\n", b"1998.50\n"),
+        Exchange(b"ABOR\n", b"OK\n"),
+    ])
+    assert isinstance(lamp, LightSource)
+    lamp.reset()
+    assert lamp.status() == {"state": "stable", "output": True, "level_percent": 80.0,
+                             "preset": "A", "stable_for_s": 12.5, "settle_remaining_s": 0.0,
+                             "temperature_c": 33.1, "lamp_hours": 412.0}
+    assert lamp.luminance_cd_m2() == 1998.5
+    lamp.abort()
+    port.assert_done()
