@@ -1,0 +1,54 @@
+"""Executors: in-process and a local 2-worker dask cluster give identical predictions."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from normbox_lab.executors import InProcessExecutor, dask_available, make_executor
+
+
+def _square(x: int) -> int:
+    return x * x
+
+
+def test_inprocess_maps_in_order():
+    ex = make_executor(None)
+    assert isinstance(ex, InProcessExecutor)
+    assert ex.map(_square, [3, 1, 2]) == [9, 1, 4]
+    ex.close()
+
+
+def test_unknown_executor_is_refused():
+    with pytest.raises(ValueError, match="unknown executor"):
+        make_executor("mpi")
+
+
+@pytest.mark.skipif(dask_available(), reason="dask is installed")
+def test_dask_missing_says_how_to_install():
+    with pytest.raises(ImportError, match="normbox-lab\\[scale\\]"):
+        make_executor("dask")
+
+
+@pytest.mark.skipif(not dask_available(), reason="dask.distributed not installed")
+def test_local_dask_cluster_gives_the_in_process_spectra():
+    pytest.importorskip("mitsuba")
+    from normbox_lab import materials as mats
+    from normbox_lab.fastrender import predict_spectra
+
+    patches = [mats.truth_patch(n, "model") for n in (2, 24)]
+    wall = mats.truth_wall("model")
+    kw = dict(wall=wall, n_paths=2048, seed=7, patches_per_job=1)
+    # in process first: it also fills Dr.Jit's on-disk kernel cache the workers then reuse
+    here = predict_spectra(patches, [35.0, 85.0], **kw)
+    assert here.radiance.shape == (2, 2, 81) and here.executor == "inprocess"
+    assert np.all(here.radiance > 0) and np.all(here.std_error > 0)
+    rad, se = here.spectrum("patch-24", 85.0)
+    np.testing.assert_array_equal(rad, here.radiance[1, 1])
+    with make_executor("dask", workers=2) as ex:
+        assert len(ex.client.scheduler_info()["workers"]) == 2
+        there = predict_spectra(patches, [35.0, 85.0], executor=ex, **kw)
+    assert there.executor == "dask"
+    np.testing.assert_array_equal(there.radiance, here.radiance)
+    np.testing.assert_array_equal(there.std_error, here.std_error)
+    np.testing.assert_array_equal(there.n_paths, here.n_paths)
