@@ -38,13 +38,14 @@ def test_local_dask_cluster_gives_the_in_process_spectra():
 
     patches = [mats.truth_patch(n, "model") for n in (2, 24)]
     wall = mats.truth_wall("model")
-    kw = dict(wall=wall, n_paths=2048, seed=7, patches_per_job=1)
+    kw = {"wall": wall, "n_paths": 2048, "seed": 7, "patches_per_job": 1}
     # in process first: it also fills Dr.Jit's on-disk kernel cache the workers then reuse
     here = predict_spectra(patches, [35.0, 85.0], **kw)
     assert here.radiance.shape == (2, 2, 81) and here.executor == "inprocess"
     assert np.all(here.radiance > 0) and np.all(here.std_error > 0)
     rad, se = here.spectrum("patch-24", 85.0)
     np.testing.assert_array_equal(rad, here.radiance[1, 1])
+    np.testing.assert_array_equal(se, here.std_error[1, 1])
     with make_executor("dask", workers=2) as ex:
         assert len(ex.client.scheduler_info()["workers"]) == 2
         there = predict_spectra(patches, [35.0, 85.0], executor=ex, **kw)
