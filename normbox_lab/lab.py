@@ -29,12 +29,9 @@ from normbox_lab.errors import ConfigError, NormboxError
 DRIVERS: dict[str, tuple[str, tuple[str, ...]]] = {
     "cs1000a": ("normbox_lab.drivers.cs1000", ("CS1000A", "CS1000", "Cs1000A")),
     "cs2000a": ("normbox_lab.drivers.cs2000", ("CS2000A", "CS2000", "Cs2000A")),
-    "apt-k10cr1": ("normbox_lab.drivers.rotator_apt", ("K10CR1", "AptRotator", "AptStage",
-                                                       "AptRotationStage")),
-    "zaber": ("normbox_lab.drivers.rotator_zaber", ("ZaberRotator", "ZaberStage",
-                                                    "ZaberRotationStage", "Zaber")),
-    "sphere-scpi": ("normbox_lab.drivers.sphere", ("Sphere", "SphereScpi", "SphereSCPI",
-                                                   "IntegratingSphere", "LE7Sphere")),
+    "apt-k10cr1": ("normbox_lab.drivers.rotator_apt", ("AptRotationStage",)),
+    "zaber": ("normbox_lab.drivers.rotator_zaber", ("ZaberRotationStage",)),
+    "sphere-scpi": ("normbox_lab.drivers.sphere", ("SphereLightSource",)),
     "qepro": ("normbox_lab.drivers.qepro", ("QEPro", "QePro", "QEProSpectrometer")),
 }
 GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
