@@ -232,7 +232,7 @@ class _PersistentScene:
     emitters that would change which one a random number picks, i.e. the noise realisation of
     the same seed.  With one emitter, renders repeat exactly, across reloads and processes."""
 
-    def __init__(self, g: Any, lamp: Lamp, pixels: int, max_depth: int, angle_deg: float,
+    def __init__(self, g: Any, lamp: Lamp, pixels: int, max_depth: int,
                  materials: dict[str, Material]) -> None:
         import mitsuba as mi
 
@@ -242,7 +242,9 @@ class _PersistentScene:
         self.bsdfs["post"] = make_bsdf(materials["holder"])
         self.geometry = g
         film = band_film(BAND_CENTRES_NM, BAND_WIDTH_NM, pixels)
-        d = scene_dict(g, angle_deg=angle_deg, patch_bsdf=self.bsdfs["patch"],
+        # loaded at s = 0° and always moved from there, so that the geometry at an angle does
+        # not depend on the order of earlier renders (repeatable to the last bit)
+        d = scene_dict(g, angle_deg=0.0, patch_bsdf=self.bsdfs["patch"],
                        wall_bsdf=self.bsdfs["wall"], holder_bsdf=self.bsdfs["holder"],
                        lamp_values=lamp.radiance(LAMP_GRID_NM), lamp_grid_nm=LAMP_GRID_NM,
                        film=film, max_depth=max_depth, post_bsdf=self.bsdfs["post"],
@@ -250,9 +252,15 @@ class _PersistentScene:
                            LAMP_GRID_NM, lamp.radiance(LAMP_GRID_NM),
                            panel_map(g.panel_homogeneity_percent)))
         self.scene = mi.load_dict(d, parallel=False)
-        self.to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
-                         for k in MOVING_SHAPES}
-        self.angle_deg = float(angle_deg)
+        # the moving shapes as loaded: every move starts from these (no accumulated rounding)
+        self.to_world0 = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
+                          for k in MOVING_SHAPES}
+        params = mi.traverse(self.scene)
+        self.vertices0 = {k: (np.array(params[f"{k}.vertex_positions"], dtype=np.float64),
+                              np.array(params[f"{k}.vertex_normals"], dtype=np.float64)
+                              if f"{k}.vertex_normals" in params else np.zeros(0))
+                          for k in MOVING_SHAPES if f"{k}.vertex_positions" in params}
+        self.angle_deg: float | None = None
 
     def set_materials(self, materials: dict[str, Material]) -> None:
         for role, m in materials.items():
@@ -266,22 +274,18 @@ class _PersistentScene:
             return
         params = mi.traverse(self.scene)
         for key, tr in moving_transforms(self.geometry, angle_deg).items():
-            new = np.array(tr.matrix, dtype=np.float64)
-            if f"{key}.to_world" in params:
+            if key not in self.vertices0:             # an analytic shape: set its transform
                 params[f"{key}.to_world"] = tr
-            else:                                     # a mesh: move its vertices
-                rel = new @ np.linalg.inv(self.to_world[key])
-                rot = rel[:3, :3]
-                v = np.array(params[f"{key}.vertex_positions"], dtype=np.float64)
-                v = v.reshape(-1, 3) @ rot.T + rel[:3, 3]
-                params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
-                nk = f"{key}.vertex_normals"
-                if nk in params:
-                    nn = np.array(params[nk], dtype=np.float64)
-                    if nn.size:
-                        nn = nn.reshape(-1, 3) @ rot.T
-                        params[nk] = mi.Float(nn.ravel().astype(np.float32))
-            self.to_world[key] = new
+                continue
+            # a mesh: move the loaded vertices by new · loaded⁻¹
+            rel = np.array(tr.matrix, dtype=np.float64) @ np.linalg.inv(self.to_world0[key])
+            rot = rel[:3, :3]
+            v0, n0 = self.vertices0[key]
+            v = v0.reshape(-1, 3) @ rot.T + rel[:3, 3]
+            params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+            if n0.size:
+                nn = n0.reshape(-1, 3) @ rot.T
+                params[f"{key}.vertex_normals"] = mi.Float(nn.ravel().astype(np.float32))
         params.update()
         self.angle_deg = float(angle_deg)
 
@@ -329,7 +333,7 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
     ps = _SCENES.get(scene_key)
     if ps is None:
         ps = _SCENES[scene_key] = _PersistentScene(g, base_lamp, q.pixels, max_depth,
-                                                   angle_deg, materials)
+                                                   materials)
     ps.set_materials(materials)
     ps.set_angle(angle_deg)
     scene = ps.scene
