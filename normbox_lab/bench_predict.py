@@ -117,6 +117,7 @@ def run_bench_predict(out: TextIO = sys.stdout,
         # predict_spectra renders full patch × angle grids; the bench asks for exact pairs
         full = all(sorted(v) == angles for v in by_patch.values())
         t0 = time.perf_counter()
+        c0 = time.process_time()
         if full:
             res = predict_spectra([patch_mat[p] for p in sorted(by_patch)], angles, wall=wall,
                                   lamp=lamp, target_rel_se=target, seed=seed, executor=ex)
@@ -126,6 +127,7 @@ def run_bench_predict(out: TextIO = sys.stdout,
                                     target_rel_se=target, seed=seed, executor=ex)
                     for p, v in sorted(by_patch.items())]
         fast_wall = time.perf_counter() - t0
+        fast_cpu = time.process_time() - c0
     finally:
         ex.close()
     fast = {}
@@ -138,7 +140,9 @@ def run_bench_predict(out: TextIO = sys.stdout,
     rms = np.array([band_rms_rel_se(v[0], v[1]) for v in fast.values()])
     paths = np.array([v[2] for v in fast.values()])
     emit(f"fast: {len(fast)} configurations in {fast_wall:.1f} s wall "
-         f"({fast_wall / len(fast):.3f} s per configuration; warm-up {warm_fast:.1f} s)")
+         f"({fast_wall / len(fast):.3f} s per configuration; warm-up {warm_fast:.1f} s)"
+         + (f"; {fast_cpu:.1f} CPU·s in this process" if kind == "inprocess" else ""))
+    emit(f"load average (1 min) now {os.getloadavg()[0]:.2f} — other processes share the CPUs")
     emit(f"fast: paths per configuration median {int(np.median(paths))}, "
          f"min {paths.min()}, max {paths.max()}")
     emit(f"fast: achieved relative SE per band — worst band: median {100 * np.median(worst):.3f}"
@@ -160,12 +164,15 @@ def run_bench_predict(out: TextIO = sys.stdout,
          f"{q.batches} batches × {q.spp} spp × 100 px = {q.batches * q.spp * 100} paths per "
          f"configuration (warm-up {warm_stock:.1f} s)")
     sum_stock = sum_fast = 0.0
+    cpu_stock = cpu_fast = 0.0
     for p, ang in baseline:
         name = patch_mat[p].name
         t0 = time.perf_counter()
+        c0 = time.process_time()
         r = render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp, quality=q,
                         cache=False, seed=seed + 1)
         t_stock = time.perf_counter() - t0
+        c_stock = time.process_time() - c0
         e_stock = band_rms_rel_se(r.radiance, r.std_error)
         stock_at = t_stock * (e_stock / target) ** 2
         fr = fast.get((name, float(ang)))
@@ -175,7 +182,16 @@ def run_bench_predict(out: TextIO = sys.stdout,
             rv = box.render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp,
                                  target_rel_se=target, seed=seed)
             fr = (rv.radiance, rv.std_error, rv.info["n_paths"], time.perf_counter() - t1)
+        # the same configuration again with the fast renderer, for its CPU time
+        box_c = FastNormbox()
+        box_c.render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp, n_paths=1024)
+        c1 = time.process_time()
+        rc = box_c.render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp,
+                               target_rel_se=target, seed=seed)
+        c_fast = time.process_time() - c1
         e_fast = band_rms_rel_se(fr[0], fr[1])
+        cpu_stock += c_stock * (e_stock / target) ** 2
+        cpu_fast += c_fast * (band_rms_rel_se(rc.radiance, rc.std_error) / target) ** 2
         fast_at = fr[3] * (e_fast / target) ** 2
         sum_stock += stock_at
         sum_fast += fast_at
@@ -187,6 +203,8 @@ def run_bench_predict(out: TextIO = sys.stdout,
     ratio = sum_stock / sum_fast
     emit(f"stock for all {len(fast)} configurations at equal noise (extrapolated with the ratio):"
          f" ≈ {ratio * fast_wall:.0f} s; fast measured: {fast_wall:.1f} s")
+    emit(f"CPU-time ratio on the same configurations (less sensitive to other load): "
+         f"{cpu_stock / cpu_fast:.1f}")
     emit(f"ratio: {ratio:.1f}")
     return 0
 
