@@ -282,10 +282,11 @@ class _PersistentScene:
             rot = rel[:3, :3]
             v0, n0 = self.vertices0[key]
             v = v0.reshape(-1, 3) @ rot.T + rel[:3, 3]
-            params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+            buffer = type(params[f"{key}.vertex_positions"])   # mi.Float, or ArrayXf (scalar)
+            params[f"{key}.vertex_positions"] = buffer(v.ravel().astype(np.float32))
             if n0.size:
                 nn = n0.reshape(-1, 3) @ rot.T
-                params[f"{key}.vertex_normals"] = mi.Float(nn.ravel().astype(np.float32))
+                params[f"{key}.vertex_normals"] = buffer(nn.ravel().astype(np.float32))
         params.update()
         self.angle_deg = float(angle_deg)
 
