@@ -96,7 +96,14 @@ class Step:
             return f"wait until {p.get('role', 'sphere')} is stable"
         if self.kind == "calibrate":
             return f"calibrate {p.get('role', 'gonio')}"
-        return f"measure ({p.get('role', 'radiometer')})"
+        role = p.get("role", "radiometer")
+        if "theta_i_deg" in p:
+            return f"{role}: θi {p['theta_i_deg']:g}°, θo {p['theta_o_deg']:g}°"
+        if "patch" in p and "angle_deg" in p:
+            return f"{role}: patch {p['patch']} at {p['angle_deg']:g}°"
+        if "x_mm" in p:
+            return f"{role}: panel x {p['x_mm']:+.0f} mm, y {p.get('y_mm', 0):+.0f} mm"
+        return f"measure ({role})"
 
 
 def move(key: str, role: str, angle_deg: float, label: str = "") -> Step:
