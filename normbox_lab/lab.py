@@ -150,8 +150,21 @@ class Lab:
         if cls is None:
             raise NormboxError("normbox_lab.drivers.gonio defines no Gonioreflectometer class")
         build = getattr(cls, "from_parts", None) or cls
+        extra: dict[str, Any] = {}
+        white = getattr(gonio_mod, "OperatorWhiteStandard", None)
+        if not hasattr(parts["spectrometer"], "white_standard") and white is not None \
+                and self.operator is not None:
+            # a real gonio: the operator places the Spectralon during `calibrate`
+            extra["white_standard"] = white(lambda message: self.ask_operator(
+                "gonio/white-standard", message, action="white_standard"))
         return build(spectrometer=parts["spectrometer"], light_arm=parts["gonio_light_arm"],
-                     detector_arm=parts["gonio_detector_arm"], clock=self.clock)
+                     detector_arm=parts["gonio_detector_arm"], clock=self.clock, **extra)
+
+    def ask_operator(self, key: str, message: str, **data: Any) -> str:
+        """A prompt from inside an instrument (e.g. the gonio's white standard)."""
+        from normbox_lab.engine import PromptRequest
+
+        return self.operator(PromptRequest(0, key, "operator", message, ("ok",), data))
 
     # --- what the engine asks of a lab ----------------------------------------------------------
     def luminance_hint_cd_m2(self, step: Any) -> float:
