@@ -121,6 +121,13 @@ class VirtualNormbox:
     def patch_material(self, n: int | None) -> Material:
         return self.holder if n is None else truth_patch(int(n), self.truth)
 
+    def materials(self) -> dict[str, Material]:
+        """The world's truth materials by name: "patch-1".."patch-24", "wall", "holder"."""
+        out = {f"patch-{n}": truth_patch(n, self.truth) for n in range(1, 25)}
+        out["wall"] = self.wall
+        out["holder"] = self.holder
+        return out
+
     # --- what the instruments see --------------------------------------------------------------
     def render(self, patch: int | None, angle_deg: float, *, direct_only: bool = False,
                quality: str | None = None) -> RenderResult:

@@ -116,6 +116,8 @@ def test_brdf_truth_of_the_mounted_material(world, cache_dir):
     assert np.allclose(wall, truth_brdf_inplane(truth_wall(), -30.0, 10.0, wl, 4.0))
     with pytest.raises(ValueError):
         world.mount_gonio_material("patch-0")
+    mats = world.materials()
+    assert len(mats) == 26 and mats["patch-18"].alpha < 0.2 and mats["wall"] is world.wall
     # the closure world: the truth is the fit model
     model_world = VirtualNormbox(truth="model", quality="quick", cache_dir=cache_dir)
     model_world.mount_gonio_material("patch-7")
