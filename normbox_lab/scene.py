@@ -6,8 +6,8 @@ Coordinates (metres; the config is in mm):
   ceiling (inner surface) z = L, with L = `box_inner_mm` (600 mm).
 - Ceiling aperture `aperture_x_mm` × `aperture_y_mm` (220 × 200) centred in the ceiling; its
   four side faces are `ceiling_thickness_mm` (19 mm) high; the sphere's opal panel closes it at
-  z = L + ceiling thickness and emits downwards (25 sub-panels, one per point of the 5×5
-  homogeneity map).  The walls are modelled by their inner faces (painted grey); the 15 mm wall
+  z = L + ceiling thickness and emits downwards, modulated by the 5×5 homogeneity map (one
+  emitter with a lamp × map texture, or 25 emitting cells).  The walls are modelled by their inner faces (painted grey); the 15 mm wall
   thickness only fixes the outer rim of the open side, which no light inside the box reaches the
   radiometer through, so it is not modelled.  Outside the box the lab is dark.
 - The sample holder (black) stands in the middle: a post from the floor and a plate of
