@@ -514,7 +514,9 @@ class BandPathTracer:
             fb = dr.fma(vx.kd[b], a_, -c_)
             if dispersive:
                 lam = (float(self.grid.centres_nm[b]) - 550.0) + vx.delta
-                fb = dr.fma(vx.ks[b] * fresnel(dr.fma(vx.deta, lam, vx.eta), cb), s_, fb)
+                # select, not multiply: F is NaN where cb = 0 (g = 0), outside `valid`
+                f_b = dr.select(valid, fresnel(dr.fma(vx.deta, lam, vx.eta), cb), 0.0)
+                fb = dr.fma(vx.ks[b] * f_b, s_, fb)
             else:
                 fb = dr.fma(vx.ks[b], s_, fb)
             if has_kb:
