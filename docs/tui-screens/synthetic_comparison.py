@@ -11,9 +11,9 @@ from __future__ import annotations
 import sys
 
 import numpy as np
+from normbox_lab.protocols._common import patch_name
 
 from normbox_lab.compare import compare
-from normbox_lab.protocols._common import patch_name
 from normbox_lab.store import Store
 
 

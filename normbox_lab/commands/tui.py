@@ -7,6 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+DEFAULT_STORE = "normbox.sqlite"     # = normbox_lab.store.DEFAULT_STORE, without importing numpy
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -49,12 +51,11 @@ def _load_config(lab: str | None):
 
 
 def _tui(args: argparse.Namespace) -> int:
-    from normbox_lab.store import DEFAULT_STORE
     from normbox_lab.tui.app import NormboxConsole
     from normbox_lab.tui.controller import Session
 
     config = _load_config(args.lab)
-    session = Session(config, args.store or DEFAULT_STORE, world=args.world,
+    session = Session(config, args.store or DEFAULT_STORE,  # numpy (store) loads after paint world=args.world,
                       virtual_operator=args.virtual_operator, time_scale=args.time_scale)
     prefill = {}
     for item in args.param:
@@ -69,7 +70,9 @@ def _tui(args: argparse.Namespace) -> int:
                          prefill=prefill)
     app.run()
     if args.exit_after_first_paint:
-        print(f"first-paint-wall-time {app.first_paint_wall_s:.6f}")
+        print(f"first-paint-wall-time {app.first_paint_wall_s:.6f} "
+              f"mitsuba-imported {'mitsuba' in sys.modules} "
+              f"cpu-s {app.first_paint_cpu_s:.3f}")
         session.close()
         return 0
     if session.busy:

@@ -15,8 +15,8 @@ from typing import Any, ClassVar
 from textual import on, work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.css.query import NoMatches
 from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.css.query import NoMatches
 from textual.message import Message
 from textual.screen import ModalScreen
 from textual.widgets import (
@@ -233,6 +233,7 @@ class NormboxConsole(App):
         self.offer_resume = offer_resume
         self.first_paint_wall_s: float | None = None
         self.lab_ready = False
+        self.panes_built = False
         self.protocol = protocol
         self.prefill = dict(prefill or {})
         self.quitting = False
@@ -253,15 +254,11 @@ class NormboxConsole(App):
     def compose(self) -> ComposeResult:
         yield Static("normbox-lab · starting…", id="status")
         with TabbedContent(initial="run", id="tabs"):
-            with TabPane("1 Instruments", id="instruments"):
-                yield DataTable(id="inst-table", cursor_type="row", zebra_stripes=True)
-                yield Static("", id="live")
+            yield TabPane("1 Instruments", id="instruments")   # filled after first paint
             with TabPane("2 Run", id="run"):
                 with Horizontal(id="run-top"):
-                    names = _protocol_names()
-                    if self.protocol not in names:
-                        names.append(self.protocol)
-                    yield Select([(n, n) for n in names], value=self.protocol,
+                    # the protocol list (engine import) and parameters load after first paint
+                    yield Select([(self.protocol, self.protocol)], value=self.protocol,
                                  allow_blank=False, compact=True, type_to_search=False,
                                  id="protocol")
                     yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
@@ -270,36 +267,54 @@ class NormboxConsole(App):
                 with Horizontal(id="progress"):
                     yield ProgressBar(total=1, show_eta=False, id="bar")
                 yield RichLog(id="events", max_lines=500, wrap=False, markup=True)
-            with TabPane("3 Spectrum", id="spectrum"):
-                yield Static("no reading yet", id="spectrum-head")
-                yield Vertical(id="plot-box")
-            with TabPane("4 Runs", id="runs"):
-                yield DataTable(id="runs-table", cursor_type="row", zebra_stripes=True)
-                yield DataTable(id="readings-table", cursor_type="row", zebra_stripes=True)
-            with TabPane("5 Results", id="results"):
-                yield Static("no comparison in the store yet (normbox-lab compare …)",
-                             id="res-head")
-                yield DataTable(id="heatmap", cursor_type="cell")
-                yield Static("", id="drill")
+            yield TabPane("3 Spectrum", id="spectrum")
+            yield TabPane("4 Runs", id="runs")
+            yield TabPane("5 Results", id="results")
         yield Footer()
 
     def on_mount(self) -> None:
-        self.query_one("#inst-table", DataTable).add_columns(
-            "role", "connection", "identity", "state")
-        self.query_one("#runs-table", DataTable).add_columns(
-            "id", "uuid", "protocol", "status", "readings", "created")
-        self.query_one("#readings-table", DataTable).add_columns(
-            "key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s")
-        self._show_params(self.protocol)
         self.call_after_refresh(self._first_paint)
         self.set_interval(0.5, self._tick)
 
+    def _build_panes(self) -> None:
+        """The tabs not shown at start: built right after the first paint (less to style and
+        lay out before it)."""
+        def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
+            t: DataTable = DataTable(id=wid, **kw)
+            t.add_columns(*columns)
+            return t
+        self.query_one("#instruments", TabPane).mount_all([
+            table("inst-table", ("role", "connection", "identity", "state"),
+                  cursor_type="row", zebra_stripes=True),
+            Static("", id="live")])
+        self.query_one("#spectrum", TabPane).mount_all([
+            Static("no reading yet", id="spectrum-head"), Vertical(id="plot-box")])
+        self.query_one("#runs", TabPane).mount_all([
+            table("runs-table", ("id", "uuid", "protocol", "status", "readings", "created"),
+                  cursor_type="row", zebra_stripes=True),
+            table("readings-table", ("key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s"),
+                  cursor_type="row", zebra_stripes=True)])
+        self.query_one("#results", TabPane).mount_all([
+            Static("no comparison in the store yet (normbox-lab compare …)", id="res-head"),
+            DataTable(id="heatmap", cursor_type="cell"),
+            Static("", id="drill")])
+        self.panes_built = True
+
     def _first_paint(self) -> None:
         self.first_paint_wall_s = time.time()
+        self.first_paint_cpu_s = time.process_time()
         if self.exit_after_paint:
             self.exit()
             return
-        self._load()
+        select = self.query_one("#protocol", Select)
+        names = _protocol_names()
+        if self.protocol not in names:
+            names.append(self.protocol)
+        select.set_options([(n, n) for n in names])
+        select.value = self.protocol
+        self._show_params(self.protocol)
+        self._build_panes()
+        self.call_after_refresh(self._load)
 
     @work(thread=True, exclusive=True, group="load")
     def _load(self) -> None:
@@ -641,6 +656,8 @@ class NormboxConsole(App):
 
     # --- periodic refresh (throttled: at time scale 0 readings arrive in bursts) -------------
     def _tick(self) -> None:
+        if not self.panes_built:
+            return
         if self._spectrum_dirty:
             self._spectrum_dirty = False
             self._draw_spectrum()
