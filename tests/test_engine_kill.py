@@ -190,11 +190,11 @@ def test_ctrl_c_pauses_after_the_current_reading_and_resume_completes(tmp_path):
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, err
     assert "pausing after the current reading" in err
-    status = [ln for ln in out.splitlines() if ln.startswith("run ") and "readings" in ln][0]
+    status = next(ln for ln in out.splitlines() if ln.startswith("run ") and "readings" in ln)
     assert ": paused, " in status
     done = int(status.split(", ")[1].split("/")[0])
     assert 5 <= done < 312
-    resume = [ln for ln in out.splitlines() if ln.startswith("resume with:")][0]
+    resume = next(ln for ln in out.splitlines() if ln.startswith("resume with:"))
     run_id = resume.split("--resume ")[1].split()[0]
     proc2 = subprocess.run([sys.executable, str(Path(__file__)), "cli", "run", "--resume",
                             run_id, "--world", "analytic", "--plain", "--store", store],

@@ -144,7 +144,7 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
         eng.Engine.run = original
     out = capsys.readouterr().out
     assert "paused, 2/4 readings" in out
-    resume_line = [ln for ln in out.splitlines() if ln.startswith("resume with:")][0]
+    resume_line = next(ln for ln in out.splitlines() if ln.startswith("resume with:"))
     run_id = resume_line.split("--resume ")[1].split()[0]
     assert main(["run", "--resume", run_id, "--store", store, "--world", "analytic",
                  "--plain"]) == 0
@@ -251,4 +251,29 @@ def test_brdf_inplane_on_the_simulated_gonio_closes_on_the_truth(tmp_path):
             assert abs(np.median(r.arrays["brdf_per_sr"] / truth) - 1) < 0.02, r.key
         assert [a.name for a in store.artifacts("calibration", run_ref=res.run_id)] == \
             ["p07/calibrate", "wall/calibrate"]
+    lab.close()
+
+
+def test_simulated_lamp_instability_and_wire_faults_are_ridden_out(tmp_path):
+    from normbox_lab import engine as eng
+    from normbox_lab.store import Store
+
+    _sim_lab_or_skip()
+    # the sphere's STAT? count is deterministic on the virtual clock: ~620 polls of the warm-up,
+    # then two per reading, so the 640th command lands in the middle of the first angle
+    text = SIM_CONFIG_TEMPLATE.replace('port = "sim://sphere"',
+                                       'port = "sim://sphere?faults=unstable@640:45"')
+    text = text.replace('port = "sim://cs1000a"',
+                        'port = "sim://cs1000a?faults=no-reply=0.05&seed=3"')
+    lab = labmod.build_lab(parse_config(text), world="analytic")
+    with Store(tmp_path / "f.sqlite") as store:
+        plan = eng.build_plan("reference-sweep", {"angles_deg": [40, 80],
+                                                  "patches": [5, 6, 7, 8, 9, 10]}, lab)
+        res = eng.Engine(lab, store, plan).run()
+        assert res.status == "done" and res.done == 12
+        kinds = [k for _, k, _ in store.events(res.run_id)]
+        assert kinds.count("suspended") == 1 and kinds.count("unsuspended") == 1
+        for r in store.readings(res.run_id):
+            truth = lab.world.radiance_at(r.metadata["patch"], r.metadata["angle_deg"])
+            assert abs(np.median(r.arrays["radiance_W_sr_m2_nm"] / truth) - 1) < 0.03, r.key
     lab.close()
