@@ -302,19 +302,19 @@ def _world() -> _WorldView:
 
 class RadiometerDriver(FakeRadiometer):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> "RadiometerDriver":
+    def open(cls, url: str, clock: Any, **options: Any) -> RadiometerDriver:
         return cls(clock, _world())
 
 
 class StageDriver(FakeStage):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> "StageDriver":
+    def open(cls, url: str, clock: Any, **options: Any) -> StageDriver:
         return cls(clock, _world())
 
 
 class LampDriver(FakeLamp):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> "LampDriver":
+    def open(cls, url: str, clock: Any, **options: Any) -> LampDriver:
         return cls(clock)
 
 
