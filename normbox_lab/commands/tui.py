@@ -55,7 +55,8 @@ def _tui(args: argparse.Namespace) -> int:
     from normbox_lab.tui.controller import Session
 
     config = _load_config(args.lab)
-    session = Session(config, args.store or DEFAULT_STORE,  # numpy (store) loads after paint world=args.world,
+    # the store (numpy) and the lab (its world) are opened after the first paint
+    session = Session(config, args.store or DEFAULT_STORE, world=args.world,
                       virtual_operator=args.virtual_operator, time_scale=args.time_scale)
     prefill = {}
     for item in args.param:
