@@ -270,3 +270,30 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
         assert run.status == "done" and s.keys(run.id) == KEYS
         segments = [d for _, k, d in s.events(run.id) if k == "segment"]
         assert len(segments) == 2 and segments[1]["committed"] == 2
+
+
+def test_command_line_builds_the_console_without_importing_textual_early(lab_env, monkeypatch):
+    import subprocess
+    import sys
+
+    # `normbox-lab --help` (all parsers registered) must not import textual
+    code = ("import sys; from normbox_lab.cli import build_parser; build_parser(); "
+            "print('textual' in sys.modules, 'numpy' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True).stdout.split()
+    assert out[0] == "False"
+
+    from normbox_lab.cli import main
+
+    seen = {}
+
+    def fake_run(self) -> None:          # no terminal here: record what the app was given
+        seen.update(world=self.session.world_kind, protocol=self.protocol,
+                    prefill=dict(self.prefill), scale=self.session.time_scale,
+                    store=self.session.store_path.name)
+        self.first_paint_wall_s = self.first_paint_cpu_s = 0.0
+    monkeypatch.setattr(NormboxConsole, "run", fake_run)
+    assert main(["tui", "--world", "analytic", "--time-scale", "0", "--store", "c.sqlite",
+                 "--protocol", "light-map", "--param", "x=1", "--exit-after-first-paint"]) == 0
+    assert seen == {"world": "analytic", "protocol": "light-map", "prefill": {"x": "1"},
+                    "scale": 0.0, "store": "c.sqlite"}

@@ -676,8 +676,9 @@ class NormboxConsole(App):
         table = self.query_one("#inst-table", DataTable)
         table.clear()
         for r in rows:
-            table.add_row(r["role"], connection_text(r), r["identity"] or "-",
-                          r["state"] or "-")
+            ident = r["identity"] or "-"
+            table.add_row(r["role"], connection_text(r),
+                          ident if len(ident) <= 24 else ident[:23] + "…", r["state"] or "-")
         self._show_live()
 
     def _show_live(self) -> None:
@@ -808,9 +809,9 @@ class NormboxConsole(App):
 
         self._heatmap = hm
         counts = hm.counts()
-        legend = Text("ΔE00: ")
+        legend = Text()
         for (style, label), n in zip(RATING_STYLES, counts, strict=True):
-            legend.append(f" {label} ({n}) ", style=style)
+            legend.append(f"{label} ({n})", style=style)
             legend.append(" ")
         head = Text(f"comparison {hm.name!r} (artifact {hm.artifact_id}"
                     f"{'' if hm.run_id is None else f', run {hm.run_id}'}) · "
