@@ -379,7 +379,7 @@ class Engine:
     def __init__(self, lab: Any, store: Any, plan: Plan, *, operator: Operator | None = None,
                  retry: RetryPolicy | None = None, wait_when_paused: bool = False,
                  poll_s: float = 1.0, suspend_timeout_s: float = 3600.0,
-                 check_lamp_role: str | None = "sphere") -> None:
+                 max_suspensions: int = 5) -> None:
         self.lab = lab
         self.store = store
         self.plan = plan
@@ -389,7 +389,7 @@ class Engine:
         self.wait_when_paused = wait_when_paused
         self.poll_s = float(poll_s)
         self.suspend_timeout_s = float(suspend_timeout_s)
-        self.check_lamp_role = check_lamp_role
+        self.max_suspensions = int(max_suspensions)
         self.run_id: int | None = None
         self.run_uuid = ""
         self.state = "idle"        # idle running paused suspended finished
@@ -686,9 +686,6 @@ class Engine:
                     taken += 1
                 except _Skip:
                     self._skipped.append(step.key)
-            else:
-                if self._checkpoint(""):
-                    status = "paused"
         except OperatorAbort as exc:
             status = "aborted"
             self._halt_all()
@@ -771,10 +768,24 @@ class Engine:
     def _take(self, i: int) -> None:
         step = self.plan.steps[i]
         t_start = self.clock.now_s()
+        suspensions = 0
         while True:
             for j in self.plan.pending_state_steps(i, self._known):
                 self._run_state_step(j, for_key=step.key)
+            if suspensions >= self.max_suspensions:
+                # the lamp keeps dropping out: a persistent fault, the operator decides
+                role = next((r for r, v in step.requires.items() if v == "stable"), "sphere")
+                exc = NotReady(f"unstable during {suspensions} attempts at {step.key}",
+                               instrument=role)
+                self._store_event("fault", key=step.key, role=role, attempt=suspensions,
+                                  error="NotReady", message=str(exc))
+                choice = self._fault_decision(step.key, role, exc, suspensions)
+                if choice == "skip":
+                    self._store_event("skip", key=step.key, role=role, error=str(exc))
+                    raise _Skip(step.key)
+                suspensions = 0
             if self._lamp_unstable(step):
+                suspensions += 1
                 continue                      # suspended and back: re-establish, then measure
             self._emit("step-started", step.key, kind=step.kind, label=step.describe())
             reading = self._with_retry(step.key, step.params.get("role", "radiometer"),
@@ -782,6 +793,7 @@ class Engine:
             if self._abort.is_set():
                 raise OperatorAbort("abort requested")
             if self._lamp_unstable(step, after=True):
+                suspensions += 1
                 continue                      # the interrupted reading is taken again
             break
         meta = {k: v for k, v in step.params.items() if k != "role"}

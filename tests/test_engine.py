@@ -298,3 +298,17 @@ def test_abort_while_waiting_for_an_answer(store):
     worker.join(10)
     assert result["r"].status == "aborted" and result["r"].done == 0
     assert store.get_run(e.run_id).status == "aborted"
+
+
+def test_a_lamp_that_keeps_dropping_out_becomes_an_operator_decision(store):
+    lab = FakeLab(fault_answers=["skip"])
+    e = make(lab, store, {"angles_deg": [30], "patches": [1, 2]}, max_suspensions=3)
+    for n in range(1, 10):                       # every measurement of patch 1 is spoiled
+        lab.radiometer.during[n] = (lambda: lab.sphere.glitch(10.0)) if n <= 3 else None
+    lab.radiometer.during = {k: v for k, v in lab.radiometer.during.items() if v}
+    res = e.run()
+    assert res.skipped == ("a30/p01",) and res.done == 1 and res.status == "interrupted"
+    kinds = [k for _, k, _ in store.events(res.run_id)]
+    assert kinds.count("suspended") == 3 and "skip" in kinds
+    asked = [r for r in lab.operator.asked if r.kind == "fault"]
+    assert len(asked) == 1 and "unstable" in asked[0].message
