@@ -297,3 +297,29 @@ def test_command_line_builds_the_console_without_importing_textual_early(lab_env
                  "--protocol", "light-map", "--param", "x=1", "--exit-after-first-paint"]) == 0
     assert seen == {"world": "analytic", "protocol": "light-map", "prefill": {"x": "1"},
                     "scale": 0.0, "store": "c.sqlite"}
+
+
+def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
+    """Virtual operator (prompts answered by the simulation): q during the run ends the
+    segment after the reading in progress is committed; the run is resumable."""
+    session = Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), lab_env / "tui.sqlite",
+                      world="analytic", time_scale=0.0, virtual_operator=True)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            app.set_parameter("angles_deg", "[30, 90]")      # 48 readings
+            await pilot.press("s")
+            await until(pilot, lambda: app.progress_done >= 2, "two readings")
+            await pilot.press("q")
+            await until(pilot, lambda: not app.is_running, "the console to close")
+    asyncio.run(scenario())
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused" and 2 <= run.done < 48
+        keys = s.keys(run.id)
+        order = [f"a{a}/p{p:02d}" for a in (30, 90) for p in range(1, 25)]
+        assert keys == set(order[:run.done])          # a prefix of the plan, nothing twice

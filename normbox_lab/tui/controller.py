@@ -345,7 +345,7 @@ class Session:
             if role == "rotator":
                 live.angle_deg = pos
             return f"{pos:.2f}°" + ("" if not hasattr(inst, "is_homed") or inst.is_homed()
-                                    else " (not homed)")
+                                    else " unhomed")
         if hasattr(inst, "is_stable") and hasattr(inst, "state"):
             live.lamp, live.lamp_stable = str(inst.state()), bool(inst.is_stable())
             return live.lamp
