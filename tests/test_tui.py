@@ -300,10 +300,22 @@ def test_command_line_builds_the_console_without_importing_textual_early(lab_env
 
 
 def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
-    """Virtual operator (prompts answered by the simulation): q during the run ends the
-    segment after the reading in progress is committed; the run is resumable."""
+    """Virtual operator (prompts answered by the simulation): q while a reading is being
+    stored ends the segment right after it; the run is resumable."""
+    import threading
+
     session = Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), lab_env / "tui.sqlite",
                       world="analytic", time_scale=0.0, virtual_operator=True)
+    gate = threading.Event()
+    make_engine = session.make_engine
+
+    def gated(*args, **kwargs):
+        engine = make_engine(*args, **kwargs)
+        # hold the engine thread inside the second reading's events until q was handled
+        engine.subscribe(lambda ev: gate.wait(10.0) if ev.kind == "reading-stored"
+                         and ev.key == "a30/p02" else None)
+        return engine
+    session.make_engine = gated
     app = NormboxConsole(session)
 
     async def scenario() -> None:
@@ -311,15 +323,16 @@ def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
             await until(pilot, lambda: app.lab_ready, "the lab")
             app.set_parameter("angles_deg", "[30, 90]")      # 48 readings
             await pilot.press("s")
-            await until(pilot, lambda: app.progress_done >= 2, "two readings")
+            await until(pilot, lambda: session.live.last_key == "a30/p02", "two readings")
             await pilot.press("q")
+            await until(pilot, lambda: app.quitting, "the quit")
+            gate.set()
             await until(pilot, lambda: not app.is_running, "the console to close")
     asyncio.run(scenario())
     assert session.wait(5.0)
     session.close()
     with Store(lab_env / "tui.sqlite") as s:
         (run,) = s.runs()
-        assert run.status == "paused" and 2 <= run.done < 48
-        keys = s.keys(run.id)
-        order = [f"a{a}/p{p:02d}" for a in (30, 90) for p in range(1, 25)]
-        assert keys == set(order[:run.done])          # a prefix of the plan, nothing twice
+        assert run.status == "paused" and s.keys(run.id) == {"a30/p01", "a30/p02"}
+        paused = [d for _, k, d in s.events(run.id) if k == "status:paused"]
+        assert paused[0]["next"] == "a30/p03"
