@@ -1,4 +1,4 @@
-"""`normbox-lab bench engine | fit`: figures, and the ratio to an in-run baseline on the last line.
+"""`normbox-lab bench engine | fit | predict`: figures, and the ratio to an in-run baseline on the last line.
 
 `bench engine` runs the 312-reading reference sweep against the wire-level emulators (sim://,
 virtual clock at time scale 0, so instrument delays cost nothing) with the analytic world and
@@ -12,7 +12,6 @@ process; the last line is the ratio engine sweep / driver-only.
 from __future__ import annotations
 
 import argparse
-import inspect
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,8 +24,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     e.add_argument("--repeat", type=int, default=2, help="sweeps per variant (best is kept)")
     e.set_defaults(handler=_engine)
     f = bsub.add_parser("fit", help="BRDF fit benchmark (normbox_lab.bench_fit)")
-    f.add_argument("rest", nargs=argparse.REMAINDER, help="options passed to the fit bench")
+    f.add_argument("--grid-step-nm", type=float, default=None, help="wavelength grid step")
+    f.add_argument("--materials", type=int, default=None, help="number of materials")
+    f.add_argument("--w", type=float, default=None, help="cos^w θi weight exponent")
     f.set_defaults(handler=_fit)
+    pr = bsub.add_parser("predict", help="fast spectral prediction vs stock Mitsuba "
+                         "(normbox_lab.bench_predict)")
+    pr.add_argument("--target", type=float, default=None,
+                    help="relative standard error per band to reach (default 0.002)")
+    pr.add_argument("--executor", default=None, choices=("inprocess", "dask", "ray"))
+    pr.add_argument("--workers", type=int, default=None, help="cluster workers (dask/ray)")
+    pr.add_argument("--address", default=None, help="an existing dask/ray cluster")
+    pr.add_argument("--quick", action="store_true", help="a smoke run (4 patches × 3 angles)")
+    pr.add_argument("--baseline-spp", type=int, default=None,
+                    help="stock samples per pixel per batch")
+    pr.add_argument("--seed", type=int, default=None)
+    pr.set_defaults(handler=_predict)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
@@ -164,6 +177,17 @@ def _engine(args: argparse.Namespace) -> int:
     return 0
 
 
+def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
+    """The options given on our command line, as the bench module's own argv."""
+    argv: list[str] = []
+    for name in names:
+        value = getattr(args, name.replace("-", "_"))
+        if value is None or value is False:
+            continue
+        argv += [f"--{name}"] if value is True else [f"--{name}", str(value)]
+    return argv
+
+
 def _fit(args: argparse.Namespace) -> int:
     try:
         from normbox_lab.bench_fit import run_bench_fit
@@ -172,8 +196,19 @@ def _fit(args: argparse.Namespace) -> int:
             raise
         print("normbox-lab: bench fit is not available in this installation")
         return 2
+    return int(run_bench_fit(_forward(args, ("grid-step-nm", "materials", "w"))) or 0)
 
-    params = inspect.signature(run_bench_fit).parameters
-    if params:
-        return int(run_bench_fit(list(args.rest)) or 0)
-    return int(run_bench_fit() or 0)
+
+def _predict(args: argparse.Namespace) -> int:
+    import sys
+
+    try:
+        from normbox_lab.bench_predict import run_bench_predict
+    except ModuleNotFoundError as exc:
+        if exc.name != "normbox_lab.bench_predict":
+            raise
+        print("normbox-lab: bench predict is not available in this installation")
+        return 2
+    argv = _forward(args, ("target", "executor", "workers", "address", "quick", "baseline-spp",
+                           "seed"))
+    return int(run_bench_predict(sys.stdout, argv=argv) or 0)
