@@ -336,3 +336,50 @@ def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
         assert run.status == "paused" and s.keys(run.id) == {"a30/p01", "a30/p02"}
         paused = [d for _, k, d in s.events(run.id) if k == "status:paused"]
         assert paused[0]["next"] == "a30/p03"
+
+
+def test_fault_prompt_retry_skip_and_the_run_stays_resumable(lab_env):
+    """A radiometer that never answers (emulator fault `no-reply=1.0`): after the engine's
+    retries the console asks retry / skip / abort; skipping leaves an `interrupted` run."""
+    text = SIM_CONFIG_TEMPLATE.replace('port = "sim://cs1000a"',
+                                       'port = "sim://cs1000a?faults=no-reply=1.0"')
+    assert "no-reply=1.0" in text
+    session = Session(parse_config(text, "<faulty>"), lab_env / "tui.sqlite",
+                      world="analytic", time_scale=0.0)
+    app = NormboxConsole(session)
+
+    async def fault(pilot, key: str) -> PromptScreen:
+        await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                    and app.screen.request.kind == "fault" and app.screen.request.key == key,
+                    f"the fault prompt at {key}")
+        screen = app.screen
+        assert screen.request.choices == ("retry", "skip", "abort")
+        assert "retry, skip" in str(screen.query_one("#prompt-message").render())
+        return screen
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            app.set_parameter("angles_deg", "[30]")
+            app.set_parameter("patches", "[1]")
+            await pilot.press("s")
+            screen = await fault(pilot, "prepare/radiometer")
+            await pilot.press("r")                          # retry: it fails again
+            await until(pilot, lambda: app.screen is not screen, "the retry")
+            screen = await fault(pilot, "prepare/radiometer")
+            await pilot.press("s")                          # skip preparing it
+            await until(pilot, lambda: app.screen is not screen, "the skip")
+            await answer_prompt(pilot, app, "Place patch 1")
+            screen = await fault(pilot, "a30/p01")
+            await pilot.press("s")                          # skip the reading
+            await until(pilot, lambda: app.run_status == "interrupted", "the end of the run")
+    asyncio.run(scenario())
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "interrupted" and run.done == 0
+        ops = [d["answer"] for _, k, d in s.events(run.id) if k == "operator"]
+        assert ops == ["retry", "skip", "skip"]
+        assert [d["key"] for _, k, d in s.events(run.id) if k == "skip"] == \
+            ["prepare/radiometer", "a30/p01"]
