@@ -125,10 +125,21 @@ def campaign(tmp_path: Path, kills_wanted: int, seed: int, max_readings: int = 3
         assert run.status == "done" and run.done == 312
         assert store.keys(run.id) == set(eng.build_plan("reference-sweep").commit_keys)
         segments = sum(1 for _, k, _ in store.events(run.id) if k == "segment")
+        if lab_kind == "sim":
+            import numpy as np
+            from normbox_lab.sim.analytic_world import AnalyticWorld
+
+            truth = AnalyticWorld()
         for r in store.readings(run.id):
             if lab_kind == "fake":
                 assert r.metadata["patch_seen"] == r.metadata["patch"]
                 assert r.metadata["angle_seen"] == r.metadata["angle_deg"]
+            else:
+                # after every crash the angle and the patch were re-established: each reading
+                # sees its own patch at its own angle (±2 % radiometric error of the emulator)
+                want = truth.radiance_at(r.metadata["patch"], r.metadata["angle_deg"])
+                ratio = float(np.median(r.arrays["radiance_W_sr_m2_nm"] / want))
+                assert abs(ratio - 1) < 0.03, (r.key, ratio)
     return {"kills": kills, "resumes": resumes, "segments": segments, "readings": previous,
             "lab": lab_kind}
 
