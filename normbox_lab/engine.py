@@ -379,7 +379,8 @@ class Engine:
     def __init__(self, lab: Any, store: Any, plan: Plan, *, operator: Operator | None = None,
                  retry: RetryPolicy | None = None, wait_when_paused: bool = False,
                  poll_s: float = 1.0, suspend_timeout_s: float = 3600.0,
-                 max_suspensions: int = 5) -> None:
+                 max_suspensions: int = 5,
+                 segment_info: Mapping[str, Any] | None = None) -> None:
         self.lab = lab
         self.store = store
         self.plan = plan
@@ -390,6 +391,8 @@ class Engine:
         self.poll_s = float(poll_s)
         self.suspend_timeout_s = float(suspend_timeout_s)
         self.max_suspensions = int(max_suspensions)
+        #: recorded with each segment event (e.g. the simulated world used)
+        self.segment_info = dict(segment_info or {})
         self.run_id: int | None = None
         self.run_uuid = ""
         self.state = "idle"        # idle running paused suspended finished
@@ -627,7 +630,7 @@ class Engine:
             self._segment = 1
             self._store_event("plan", fingerprint=self.plan.fingerprint(),
                               steps=len(self.plan), planned=self.plan.planned)
-            self._store_event("segment", segment=1, pid=os.getpid())
+            self._store_event("segment", segment=1, pid=os.getpid(), **self.segment_info)
         else:
             rec = self.store.get_run(resume)
             if rec.status == "done":
@@ -649,7 +652,8 @@ class Engine:
                                       detail={"resumed_from": rec.status,
                                               "committed": len(self._committed)})
             self._store_event("segment", segment=self._segment, pid=os.getpid(),
-                              resumed_from=rec.status, committed=len(self._committed))
+                              resumed_from=rec.status, committed=len(self._committed),
+                              **self.segment_info)
         self._skipped = []
         self._known = {}     # physical state after a (re)start: unknown
         self.state = "running"

@@ -146,8 +146,7 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
     assert "paused, 2/4 readings" in out
     resume_line = next(ln for ln in out.splitlines() if ln.startswith("resume with:"))
     run_id = resume_line.split("--resume ")[1].split()[0]
-    assert main(["run", "--resume", run_id, "--store", store, "--world", "analytic",
-                 "--plain"]) == 0
+    assert main(["run", "--resume", run_id, "--store", store, "--plain"]) == 0   # same world
     out = capsys.readouterr().out
     assert "done, 4/4 readings (2 taken now)" in out
     with Store(store) as s:
@@ -155,6 +154,8 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
         assert run.status == "done" and s.keys(run.id) == {"a30/p01", "a30/p19", "a90/p01",
                                                              "a90/p19"}
         assert run.parameters["angles_deg"] == [30, 90]
+        segs = [d for _, k, d in s.events(run.id) if k == "segment"]
+        assert [d["world"] for d in segs] == ["analytic", "analytic"]
     assert main(["run", "--resume", run_id, "--store", store, "--param", "patches=[2]"]) == 1
 
 

@@ -30,9 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="list the steps and the ETA from the instruments' timing models")
     p.add_argument("--param", action="append", default=[], metavar="K=V",
                    help="override a protocol parameter (JSON values: angles_deg=[30,60])")
-    p.add_argument("--world", choices=("normbox", "analytic", "none"), default="normbox",
-                   help="simulated labs: the virtual Normbox (Mitsuba), the closed-form "
-                        "analytic world, or none")
+    p.add_argument("--world", choices=("normbox", "analytic", "none"), default=None,
+                   help="simulated labs: the virtual Normbox (Mitsuba, the default), the "
+                        "closed-form analytic world, or none; a resumed run keeps its world")
     op = p.add_mutually_exclusive_group()
     op.add_argument("--virtual-operator", dest="virtual_operator", action="store_true",
                     default=None, help="answer prompts by simulation (default in simulated labs)")
@@ -104,6 +104,10 @@ def _run(args: argparse.Namespace) -> int:
         module = eng.load_protocol(protocol)
         params = eng.resolve_parameters(module, None, rec.parameters)
         run_ref = rec.id
+        if args.world is None:
+            worlds = [d["world"] for _, k, d in store.events(rec.id)
+                      if k == "segment" and "world" in d]
+            args.world = worlds[-1] if worlds else None
     else:
         if not args.protocol:
             raise eng.PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
@@ -119,8 +123,9 @@ def _run(args: argparse.Namespace) -> int:
                                                                          else protocol),
                                         _parse_overrides(module, args.param))
 
-    lab = build_lab(config, world=args.world if config.simulated else "none",
-                    virtual_operator=args.virtual_operator, fault_policy=args.fault_policy)
+    world = (args.world or "normbox") if config.simulated else "none"
+    lab = build_lab(config, world=world, virtual_operator=args.virtual_operator,
+                    fault_policy=args.fault_policy)
     progress_ref: dict = {}
     if lab.operator is None:
         from normbox_lab.operator import TerminalOperator
@@ -131,7 +136,7 @@ def _run(args: argparse.Namespace) -> int:
                 prog.stop()
         lab.operator = TerminalOperator(before=before)
     plan = eng.build_plan(protocol, params, lab, module=module)
-    engine = eng.Engine(lab, store, plan)
+    engine = eng.Engine(lab, store, plan, segment_info={"world": world, "lab": config.path})
     try:
         if args.dry_run:
             committed = store.keys(run_ref) if run_ref is not None else set()
