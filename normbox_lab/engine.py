@@ -533,7 +533,7 @@ class Engine:
             return 0.0
         return math.ceil(settle / self.poll_s - 1e-9) * self.poll_s
 
-    def estimate_step_s(self, step: Step, positions: dict[str, float],
+    def estimate_step_s(self, step: Step, positions: dict[str, Any],
                         lamp_stable: dict[str, bool]) -> float:
         role = step.params.get("role", "")
         if step.kind == "move":
@@ -554,15 +554,35 @@ class Engine:
             return float(est()) if est is not None else 0.0
         inst = self._instrument(role or "radiometer")
         if "theta_i_deg" in step.params:
-            est = getattr(inst, "estimate_measure_time_s", None)
-            if est is None:
-                return 0.0
-            try:
-                return float(est(float(step.params["theta_i_deg"]),
-                                 float(step.params["theta_o_deg"])))
-            except TypeError:
-                return float(est())
+            return self._estimate_gonio_s(role, inst, float(step.params["theta_i_deg"]),
+                                          float(step.params["theta_o_deg"]), positions)
         return float(inst.estimate_measure_time_s(self._luminance_hint(step)))
+
+    @staticmethod
+    def _estimate_gonio_s(role: str, inst: Any, ti: float, to: float,
+                          positions: dict[str, Any]) -> float:
+        """The gonio's model counts the arm moves from where the arms are *now*; in a dry run
+        they are where the previous geometry left them, so swap that part of the estimate."""
+        est = getattr(inst, "estimate_measure_time_s", None)
+        if est is None:
+            return 0.0
+        total = float(est(ti, to))
+        arms = (getattr(inst, "light_arm", None), getattr(inst, "detector_arm", None))
+        if all(hasattr(a, "estimate_move_time_s") for a in arms):
+            key = f"{role}#geometry"
+            if key not in positions:
+                status = inst.status() if hasattr(inst, "status") else {}
+                positions[key] = tuple(status.get("geometry_deg", (0.0, 0.0)))
+            now = tuple(inst.status().get("geometry_deg", (0.0, 0.0))) \
+                if hasattr(inst, "status") else (0.0, 0.0)
+            light, detector = arms
+            prev = positions[key]
+            total += max(light.estimate_move_time_s(prev[0], ti),
+                         detector.estimate_move_time_s(prev[1], to)) \
+                - max(light.estimate_move_time_s(now[0], ti),
+                      detector.estimate_move_time_s(now[1], to))
+            positions[key] = (ti, to)
+        return total
 
     def _initial_positions(self) -> tuple[dict[str, float], dict[str, bool], float]:
         """Current stage positions and lamp states; the homing time the prepare phase needs."""
