@@ -5,7 +5,8 @@
   "aim at panel point" → `world.aim_panel`), taking `response_s` of lab-clock time, and answers
   fault prompts with a fixed policy (retry / skip / abort; retry at most `max_fault_retries`
   times per key, then skip).
-- `TerminalOperator` (real labs, `normbox-lab run`): prints the prompt and reads the answer.
+- `TerminalOperator` (real labs, `normbox-lab run`): prints the prompt and reads the answer
+  (in a simulated lab with `--terminal-operator`, "ok" also does the action in the world).
 """
 
 from __future__ import annotations
@@ -38,20 +39,25 @@ class VirtualOperator:
             self.log.append((req.key, choice))
             return choice
         self.clock.sleep(self.expected_response_s)
-        action = req.data.get("action")
-        world = self.world
-        if world is not None:
-            if action == "place_patch" and hasattr(world, "place_patch"):
-                world.place_patch(int(req.data["patch"]))
-            elif action == "mount_gonio_material" and hasattr(world, "mount_gonio_material"):
-                material = req.data["material"]
-                if isinstance(material, int) or str(material).isdigit():
-                    material = f"patch-{int(material)}"     # the worlds' material names
-                world.mount_gonio_material(material)
-            elif action == "aim_panel" and hasattr(world, "aim_panel"):
-                world.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
+        act_on_world(self.world, req)
         self.log.append((req.key, "ok"))
         return "ok"
+
+
+def act_on_world(world: Any, req: Any) -> None:
+    """Do in the simulated world what an operator prompt asks (nothing without a world)."""
+    if world is None:
+        return
+    action = req.data.get("action")
+    if action == "place_patch" and hasattr(world, "place_patch"):
+        world.place_patch(int(req.data["patch"]))
+    elif action == "mount_gonio_material" and hasattr(world, "mount_gonio_material"):
+        material = req.data["material"]
+        if isinstance(material, int) or str(material).isdigit():
+            material = f"patch-{int(material)}"     # the worlds' material names
+        world.mount_gonio_material(material)
+    elif action == "aim_panel" and hasattr(world, "aim_panel"):
+        world.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
 
 
 class TerminalOperator:
@@ -60,10 +66,11 @@ class TerminalOperator:
     expected_response_s = 20.0
 
     def __init__(self, stream_in: TextIO | None = None, stream_out: TextIO | None = None,
-                 before: Any = None) -> None:
+                 before: Any = None, world: Any = None) -> None:
         self.stream_in = stream_in or sys.stdin
         self.stream_out = stream_out or sys.stdout
         self.before = before          # called before asking (e.g. to pause a progress bar)
+        self.world = world            # a simulated lab: "ok" does the action in the world
 
     def __call__(self, req: Any) -> str:
         if self.before is not None:
@@ -79,5 +86,7 @@ class TerminalOperator:
             answer = line.strip().lower() or req.choices[0]
             matches = [c for c in req.choices if c.startswith(answer)]
             if len(matches) == 1:
+                if matches[0] == "ok":
+                    act_on_world(self.world, req)
                 return matches[0]
             self.stream_out.write(f"    please answer one of {choices}\n")

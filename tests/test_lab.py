@@ -104,6 +104,12 @@ def test_terminal_operator_reads_answers():
     assert op(req) == "skip" and "please answer" in out.getvalue()
     assert TerminalOperator(io.StringIO("\n"), io.StringIO())(req) == "retry"
     assert TerminalOperator(io.StringIO(""), io.StringIO())(req) == "abort"
+    # in a simulated lab, the person at the terminal places the virtual patch by answering ok
+    world = AnalyticWorld()
+    place = PromptRequest(2, "a30/p04/place", "operator", "place patch 4", ("ok",),
+                          {"action": "place_patch", "patch": 4})
+    assert TerminalOperator(io.StringIO("\n"), io.StringIO(), world=world)(place) == "ok"
+    assert world.patch == 4
 
 
 # --- the run command, end to end, with fake drivers behind the lab assembly ---------------------

@@ -134,7 +134,7 @@ def _run(args: argparse.Namespace) -> int:
             prog = progress_ref.get("progress")
             if prog is not None:
                 prog.stop()
-        lab.operator = TerminalOperator(before=before)
+        lab.operator = TerminalOperator(before=before, world=lab.world)
     plan = eng.build_plan(protocol, params, lab, module=module)
     engine = eng.Engine(lab, store, plan, segment_info={"world": world, "lab": config.path})
     try:
