@@ -383,3 +383,30 @@ def test_fault_prompt_retry_skip_and_the_run_stays_resumable(lab_env):
         assert ops == ["retry", "skip", "skip"]
         assert [d["key"] for _, k, d in s.events(run.id) if k == "skip"] == \
             ["prepare/radiometer", "a30/p01"]
+
+
+def test_brdf_protocol_prefilled_mount_prompt_and_brdf_plot(monkeypatch, tmp_path):
+    """`--protocol brdf-inplane --param ...` prefill; the gonio (the real QE Pro and Zaber
+    drivers against their emulators) asks to mount the material; BRDF readings are plotted
+    and carry the TEC temperature."""
+    monkeypatch.chdir(tmp_path)
+    session = new_session(tmp_path)
+    app = NormboxConsole(session, protocol="brdf-inplane", offer_resume=False,
+                         prefill={"materials": "[7]", "theta_i_deg": "[-30]",
+                                  "theta_o_deg": "[10, 30]"})
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            assert app.query_one("#protocol").value == "brdf-inplane"
+            assert app.parameters()["theta_o_deg"] == [10, 30]
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "Mount patch 7 (orange) on the gonioreflectometer")
+            await until(pilot, lambda: app.run_status == "done", "the end of the run",
+                        timeout_s=60.0)
+            await until(pilot, lambda: app.spectrum_series() == ["p07/i-30/o+10",
+                                                                 "p07/i-30/o+30"], "the plot")
+            assert app.latest[4] == "BRDF sr⁻¹" and session.live.temperature_c is not None
+    asyncio.run(scenario())
+    assert session.wait(5.0)
+    session.close()

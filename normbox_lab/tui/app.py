@@ -36,6 +36,8 @@ from textual.widgets import (
 from normbox_lab.tui.controller import Session
 
 TABS = ("instruments", "run", "spectrum", "runs", "results")
+RADIANCE_TITLE = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
+BRDF_TITLE = "BRDF sr⁻¹"
 
 
 class EngineMessage(Message):
@@ -235,7 +237,8 @@ class NormboxConsole(App):
         self.lab_ready = False
         self.panes_built = False
         self.protocol = protocol
-        self.prefill = dict(prefill or {})
+        self.prefill = dict(prefill or {})     # --param K=V for the initial protocol
+        self.prefill_protocol = protocol
         self.quitting = False
         self.prompt_screen: PromptScreen | None = None
         self.latest: Any = None          # (key, wavelength, radiance) of the latest reading
@@ -310,8 +313,9 @@ class NormboxConsole(App):
         names = _protocol_names()
         if self.protocol not in names:
             names.append(self.protocol)
-        select.set_options([(n, n) for n in names])
-        select.value = self.protocol
+        with select.prevent(Select.Changed):
+            select.set_options([(n, n) for n in names])
+            select.value = self.protocol
         self._show_params(self.protocol)
         self._build_panes()
         self.call_after_refresh(self._load)
@@ -365,7 +369,8 @@ class NormboxConsole(App):
 
         for k, v in params.items():
             text = v if isinstance(v, str) else json.dumps(v)   # as `--param K=V` takes it
-            text = self.prefill.pop(k, text)
+            if protocol == self.prefill_protocol:
+                text = self.prefill.get(k, text)
             box.mount(Horizontal(Label(k), Input(text, id=f"param-{k}", compact=True),
                                  classes="param"))
 
@@ -583,10 +588,16 @@ class NormboxConsole(App):
             self._update_run_info()
         elif k == "reading-stored":
             r = d.get("reading")
-            if hasattr(r, "radiance_W_sr_m2_nm"):
-                self.previous = self.latest
-                self.latest = (ev.key, r.wavelength_nm, r.radiance_W_sr_m2_nm,
-                               getattr(r, "colorimetry", None))
+            values, title = getattr(r, "radiance_W_sr_m2_nm", None), RADIANCE_TITLE
+            if values is None:
+                values, title = getattr(r, "brdf_per_sr", None), BRDF_TITLE
+            if values is not None:
+                if self.latest is None or self.latest[4] == title:
+                    self.previous = self.latest
+                else:                         # a different quantity: nothing to compare
+                    self.previous = None
+                self.latest = (ev.key, r.wavelength_nm, values,
+                               getattr(r, "colorimetry", None), title)
                 self._spectrum_dirty = True
             self._runs_dirty = True
             self._live_dirty = True
@@ -701,7 +712,7 @@ class NormboxConsole(App):
     def _draw_spectrum(self) -> None:
         if self.latest is None:
             return
-        key, wl, rad, colo = self.latest
+        key, wl, rad, colo, title = self.latest
         head = f"latest {key}"
         if colo is not None:
             head += f" · Lv {colo.Lv_cd_m2:.3g} cd/m² · x {colo.x:.4f} y {colo.y:.4f}"
@@ -715,11 +726,11 @@ class NormboxConsole(App):
             self.query_one("#plot-box", Vertical).mount(self._plot)
         plt = self._plot.plt
         plt.clear_data()
-        plt.title("spectral radiance W·sr⁻¹·m⁻²·nm⁻¹")
+        plt.title(title)
         plt.xlabel("wavelength nm")
         step = max(1, len(wl) // 100)
         if self.previous is not None:
-            pk, pwl, prad, _ = self.previous
+            pk, pwl, prad, _, _ = self.previous
             plt.plot(list(pwl[::step]), list(prad[::step]), label=pk, marker="dot",
                      color="gray")
         plt.plot(list(wl[::step]), list(rad[::step]), label=key, marker="braille",

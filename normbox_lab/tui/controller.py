@@ -296,7 +296,8 @@ class Session:
             if colo is not None:
                 live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
                 live.last_xy = (float(colo.x), float(colo.y))
-            temp = (getattr(r, "metadata", None) or {}).get("temperature_c")
+            meta = getattr(r, "metadata", None) or {}
+            temp = meta.get("tec_temperature_c", meta.get("temperature_c"))   # QE Pro TEC
             if temp is not None:
                 live.temperature_c = float(temp)
         self.post(ev)
