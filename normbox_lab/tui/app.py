@@ -338,8 +338,9 @@ class NormboxConsole(App):
 
     def on_lab_ready(self, message: LabReady) -> None:
         if message.error:
+            self.lab_error = message.error
             self._set_status(f"lab not ready: {message.error}")
-            self._log(f"[red]lab not ready[/] {message.error}")
+            self._log("[red]lab not ready[/] ", message.error)
             return
         self.lab_ready = True
         s = self.session
@@ -354,8 +355,15 @@ class NormboxConsole(App):
     def _set_status(self, text: str) -> None:
         self.query_one("#status", Static).update(text)
 
-    def _log(self, text: str) -> None:
-        self.query_one("#events", RichLog).write(text)
+    def _log(self, markup: str, detail: str = "") -> None:
+        """One line in the Run tab's log: `markup` (ours) + `detail` (plain: messages and
+        errors from instruments may contain brackets)."""
+        from rich.text import Text
+
+        line = Text.from_markup(markup)
+        if detail:
+            line.append(detail)
+        self.query_one("#events", RichLog).write(line)
 
     def _show_params(self, protocol: str) -> None:
         box = self.query_one("#params", VerticalScroll)
@@ -408,7 +416,7 @@ class NormboxConsole(App):
         try:
             params = self.parameters()
         except Exception as exc:  # noqa: BLE001
-            self._log(f"[red]parameters:[/] {exc}")
+            self._log("[red]parameters:[/] ", str(exc))
             return
         self._dry_run(self.protocol, params)
 
@@ -419,7 +427,7 @@ class NormboxConsole(App):
         try:
             dry = self.session.dry_run(protocol, params)
         except Exception as exc:  # noqa: BLE001
-            self.call_from_thread(self._log, f"[red]dry-run failed:[/] {exc}")
+            self.call_from_thread(self._log, "[red]dry-run failed:[/] ", str(exc))
             return
         text = (f"dry-run {protocol}: {len(dry.plan)} steps, {dry.plan.planned} readings, "
                 f"{len(dry.executed)} executed · ETA {format_duration(dry.total_s)} "
@@ -429,11 +437,13 @@ class NormboxConsole(App):
 
     def _after_dry(self, text: str) -> None:
         self.query_one("#run-info", Static).update(text)
-        self._log(text)
+        self._log("", text)
 
     def _ready_for_run(self) -> bool:
         if not self.lab_ready:
-            self.notify("the lab is still loading", severity="warning")
+            error = getattr(self, "lab_error", "")
+            self.notify(f"the lab could not be assembled: {error}" if error
+                        else "the lab is still loading", severity="warning", markup=False)
             return False
         if self.session.busy:
             self.notify("a run is active", severity="warning")
@@ -447,11 +457,11 @@ class NormboxConsole(App):
             params = self.parameters()
             self.session.start(self.protocol, params)
         except Exception as exc:  # noqa: BLE001 - shown, the console stays up
-            self._log(f"[red]cannot start:[/] {exc}")
-            self.notify(str(exc), severity="error")
+            self._log("[red]cannot start:[/] ", str(exc))
+            self.notify(str(exc), severity="error", markup=False)
             return
         self.action_tab("run")
-        self._log(f"starting {self.protocol} {params}")
+        self._log("", f"starting {self.protocol} {params}")
 
     def action_resume_selected(self) -> None:
         """Resume the run selected in the Runs tab (or the latest unfinished one)."""
@@ -470,8 +480,8 @@ class NormboxConsole(App):
         try:
             self.session.resume_run(run_id)
         except Exception as exc:  # noqa: BLE001
-            self._log(f"[red]cannot resume run {run_id}:[/] {exc}")
-            self.notify(str(exc), severity="error")
+            self._log(f"[red]cannot resume run {run_id}:[/] ", str(exc))
+            self.notify(str(exc), severity="error", markup=False)
             return
         self.action_tab("run")
         self._log(f"resuming run {run_id}")
@@ -527,7 +537,7 @@ class NormboxConsole(App):
         try:
             rows = self.session.poll_instruments()
         except Exception as exc:  # noqa: BLE001
-            self.call_from_thread(self._log, f"[red]poll failed:[/] {exc}")
+            self.call_from_thread(self._log, "[red]poll failed:[/] ", str(exc))
             return
         self.call_from_thread(self._show_instruments, rows)
 
@@ -545,10 +555,11 @@ class NormboxConsole(App):
         try:
             path = export_run(self.session.open_store(), run_id, "csv")
         except Exception as exc:  # noqa: BLE001
-            self.call_from_thread(self.notify, f"export failed: {exc}", severity="error")
+            self.call_from_thread(self.notify, f"export failed: {exc}", severity="error",
+                                  markup=False)
             return
-        self.call_from_thread(self.notify, f"exported run {run_id} → {path}")
-        self.call_from_thread(self._log, f"exported run {run_id} → {path}")
+        self.call_from_thread(self.notify, f"exported run {run_id} → {path}", markup=False)
+        self.call_from_thread(self._log, "", f"exported run {run_id} → {path}")
 
     # --- engine events -----------------------------------------------------------------------
     def on_engine_message(self, message: EngineMessage) -> None:
@@ -561,7 +572,7 @@ class NormboxConsole(App):
         if isinstance(ev, tuple):
             what, payload = ev
             if what == "error":
-                self._log(f"[red]run failed:[/] {payload!r}")
+                self._log("[red]run failed:[/] ", repr(payload))
             elif what == "finished":
                 self._finished(payload)
             return
@@ -604,10 +615,10 @@ class NormboxConsole(App):
         elif k == "prompt":
             self._show_prompt(d["prompt"])
         elif k == "answer":
-            self._log(f"{ev.key}: answered {d.get('answer')}")
+            self._log("", f"{ev.key}: answered {d.get('answer')}")
         elif k in ("warning", "fault", "suspended", "unsuspended"):
             msg = d.get("message") or d.get("error") or d.get("role") or ""
-            self._log(f"[yellow]{k}[/] {ev.key} {msg}")
+            self._log(f"[yellow]{k}[/] ", f"{ev.key} {msg}")
         elif k == "paused":
             self._set_run_status("paused")
             self._log(f"paused before {ev.key or 'the end'} (p: resume)")
@@ -647,11 +658,11 @@ class NormboxConsole(App):
 
     def _show_prompt(self, req: Any) -> None:
         if self.session.operator is None:      # the virtual operator answered already
-            self._log(f"{req.key}: {req.message} (virtual operator)")
+            self._log("", f"{req.key}: {req.message} (virtual operator)")
             return
         if self.quitting:
             return
-        self._log(f"[b]prompt[/b] {req.key}: {req.message}")
+        self._log("[b]prompt[/b] ", f"{req.key}: {req.message}")
         screen = PromptScreen(req)
         self.prompt_screen = screen
 
@@ -662,7 +673,7 @@ class NormboxConsole(App):
                 try:
                     self.session.answer(choice)
                 except Exception as exc:  # noqa: BLE001 - the prompt was withdrawn
-                    self._log(f"answer not taken: {exc}")
+                    self._log("answer not taken: ", str(exc))
         self.push_screen(screen, answered)
 
     # --- periodic refresh (throttled: at time scale 0 readings arrive in bursts) -------------
