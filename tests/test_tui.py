@@ -407,6 +407,8 @@ def test_brdf_protocol_prefilled_mount_prompt_and_brdf_plot(monkeypatch, tmp_pat
             await until(pilot, lambda: app.spectrum_series() == ["p07/i-30/o+10",
                                                                  "p07/i-30/o+30"], "the plot")
             assert app.latest[4] == "BRDF sr⁻¹" and session.live.temperature_c is not None
+            # confirming the prompt mounted the sample in the simulated world
+            assert session.lab.world.gonio_material == "patch-7"
     asyncio.run(scenario())
     assert session.wait(5.0)
     session.close()

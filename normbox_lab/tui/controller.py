@@ -62,20 +62,11 @@ class ConsoleOperator:
         finally:
             self.pending = None
         if req.kind == "operator" and choice == "ok":
-            self._act(req)
-        return choice
+            # a simulated lab: do on the world what the operator confirmed doing
+            from normbox_lab.operator import act_on_world
 
-    def _act(self, req: Any) -> None:
-        """In a simulated lab, do on the world what the operator confirmed doing."""
-        w, action = self.world, req.data.get("action")
-        if w is None:
-            return
-        if action == "place_patch" and hasattr(w, "place_patch"):
-            w.place_patch(int(req.data["patch"]))
-        elif action == "mount_gonio_material" and hasattr(w, "mount_gonio_material"):
-            w.mount_gonio_material(req.data["material"])
-        elif action == "aim_panel" and hasattr(w, "aim_panel"):
-            w.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
+            act_on_world(self.world, req)
+        return choice
 
     def answer(self, choice: str) -> None:
         req = self.pending
