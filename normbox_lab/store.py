@@ -292,16 +292,19 @@ class Store:
                          json.loads(row[6]), row[7], row[8], row[9], row[10], row[11], row[12])
 
     def get_run(self, run_ref: int | str) -> RunRecord:
-        """A run by integer id, or by uuid (a unique prefix of at least 4 characters is enough)."""
+        """A run by integer id, or by uuid (a unique prefix of at least 4 characters is enough).
+
+        A string of digits may be either; if it names an id *and* prefixes a uuid of another
+        run, it is refused as ambiguous (give more of the uuid)."""
+        rows: list[tuple] = []
         with self._lock:
             if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isdigit()):
-                rows = self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
-                                        (int(run_ref),)).fetchall()
-            elif isinstance(run_ref, str) and len(run_ref) >= 4:
-                rows = self._db.execute(self._RUN_SELECT + " WHERE r.uuid LIKE ?",
-                                        (run_ref.lower() + "%",)).fetchall()
-            else:
-                rows = []
+                rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
+                                         (int(run_ref),)).fetchall()
+            if isinstance(run_ref, str) and len(run_ref) >= 4:
+                rows += [r for r in self._db.execute(self._RUN_SELECT + " WHERE r.uuid LIKE ?",
+                                                     (run_ref.lower() + "%",)).fetchall()
+                         if r not in rows]
         if len(rows) != 1:
             what = "no run" if not rows else "more than one run"
             raise StoreError(f"{what} matches {run_ref!r} in {self.path}")

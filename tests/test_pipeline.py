@@ -84,3 +84,27 @@ def test_reference_data_refuses_holes(tmp_path):
 
         with pytest.raises(DataError, match="1 readings missing"):
             reference_data(store, run.id)
+
+
+@pytest.mark.slow
+def test_default_truth_nrmse_flat_to_60_then_rising(tmp_path):
+    """Truth richer than the fit model (backscatter, dispersive η), no instrument noise: the
+    error is the model's.  As in the paper, NRMSE is flat over 30–60° and grows from 65° on,
+    where the indirect light (the wall's fit error) takes over."""
+    global PATCHES, ANGLES
+    saved = PATCHES, ANGLES
+    PATCHES, ANGLES = (19, 13, 7, 24, 2, 14), (30.0, 45.0, 60.0, 75.0, 90.0)
+    try:
+        world, render = _world("default")
+        with Store(tmp_path / "s.sqlite") as store:
+            brdf = _gonio_run(store, "default")
+            ref = _reference_run(store, world)
+            fit_run(store, brdf)
+            predict_run(store, ref, quality="quick", render=render)
+            c = compare_run(store, ref, brdf)
+    finally:
+        PATCHES, ANGLES = saved
+    by_angle = np.nanmean(c.nrmse, axis=0)
+    low = by_angle[:3]                       # 30, 45, 60
+    assert low.max() - low.min() < 0.5 * low.mean(), by_angle        # flat
+    assert by_angle[3] > low.mean() and by_angle[4] > by_angle[3], by_angle  # rising

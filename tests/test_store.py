@@ -70,6 +70,17 @@ def test_run_lookup_by_id_and_uuid_prefix(store):
         store.get_run("ab")  # too short to be a uuid prefix
 
 
+def test_all_digit_uuid_prefix_is_found_or_refused_as_ambiguous(store):
+    runs = [store.create_run("x") for _ in range(3)]
+    store._db.execute("UPDATE runs SET uuid='12345678-aaaa' WHERE id=?", (runs[0].id,))
+    store._db.execute("UPDATE runs SET uuid='00000002-bbbb' WHERE id=?", (runs[1].id,))
+    assert store.get_run("12345678").id == runs[0].id      # no run 12345678: the uuid
+    assert store.get_run("00000002").id == runs[1].id      # id 2 and its own uuid: one run
+    store._db.execute("UPDATE runs SET uuid='00000002-cccc' WHERE id=?", (runs[2].id,))
+    with pytest.raises(StoreError, match="more than one"):
+        store.get_run("00000002")                           # id 2 and run 3's uuid
+
+
 def test_status_events_instruments_artifacts(store):
     run = store.create_run("x", planned=5)
     store.set_run_status(run.id, "running")
