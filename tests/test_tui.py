@@ -412,3 +412,32 @@ def test_brdf_protocol_prefilled_mount_prompt_and_brdf_plot(monkeypatch, tmp_pat
     asyncio.run(scenario())
     assert session.wait(5.0)
     session.close()
+
+
+def test_abort_at_a_prompt_then_resume_with_r(lab_env):
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await pilot.press("a")                 # abort while the operator is asked
+            await until(pilot, lambda: app.run_status == "aborted", "the abort")
+            await until(pilot, lambda: not session.busy, "the worker to end")
+            with Store(lab_env / "tui.sqlite") as s:
+                (run,) = s.runs()
+                assert run.status == "aborted" and s.keys(run.id) == {"a30/p01"}
+            await pilot.press("r")                 # resume the latest unfinished run
+            for p in (9, 19, 1, 9, 19):
+                await answer_prompt(pilot, app, f"patch {p} ")
+            await until(pilot, lambda: app.run_status == "done", "the end of the run")
+    asyncio.run(scenario())
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "done" and s.keys(run.id) == KEYS
+        assert "abort" in [k for _, k, _ in s.events(run.id)]
