@@ -46,9 +46,11 @@ def _pump(emulator: core.Emulator, fd_read: int, fd_write_fn, wait_fds) -> bool:
     return True
 
 
-def serve_pty(device: str, faults: str = "", seed: int = 0, out: TextIO = sys.stdout) -> None:
+def serve_pty(device: str, faults: str = "", seed: int = 0, out: TextIO = sys.stdout,
+              options: dict[str, str] | None = None) -> None:
     """Serve `device` on a new pseudo-terminal until interrupted."""
-    emulator = core.create(device, clock=RealClock(), faults=faults, seed=seed)
+    emulator = core.create(device, clock=RealClock(), faults=faults, seed=seed,
+                           **(options or {}))
     master, slave = os.openpty()
     tty.setraw(slave)
     print(f"pty: {os.ttyname(slave)}", file=out, flush=True)
@@ -69,11 +71,12 @@ def serve_pty(device: str, faults: str = "", seed: int = 0, out: TextIO = sys.st
 
 
 def serve_tcp(device: str, host: str, port: int, faults: str = "", seed: int = 0,
-              out: TextIO = sys.stdout) -> None:
+              out: TextIO = sys.stdout, options: dict[str, str] | None = None) -> None:
     """Serve `device` on a loopback TCP port (one client at a time) until interrupted."""
     if host not in ("127.0.0.1", "localhost", "::1"):
         raise ValueError(f"sim serve listens on loopback only, not {host!r}")
-    emulator = core.create(device, clock=RealClock(), faults=faults, seed=seed)
+    emulator = core.create(device, clock=RealClock(), faults=faults, seed=seed,
+                           **(options or {}))
     srv = socket.create_server((host, port))
     print(f"tcp: {host}:{srv.getsockname()[1]}", file=out, flush=True)
     try:

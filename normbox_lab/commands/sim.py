@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     s.add_argument("--faults", default="", metavar="SPEC",
                    help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7'")
     s.add_argument("--seed", type=int, default=0, help="seed of the emulator's randomness")
+    s.add_argument("--option", action="append", default=[], metavar="K=V",
+                   help="an emulator option, as in the sim:// URL (e.g. noise=off, "
+                        "time_factor=0.05 for the radiometers); repeatable")
     s.set_defaults(handler=_serve)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
@@ -38,13 +41,25 @@ def _serve(args: argparse.Namespace) -> int:
     def _stop(signum, frame):  # noqa: ANN001
         raise SystemExit(0)
 
+    options = {}
+    for item in args.option:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            print(f"normbox-lab: --option wants K=V, got {item!r}", file=sys.stderr)
+            return 2
+        options[key] = value
     signal.signal(signal.SIGTERM, _stop)
     try:
         if args.pty:
-            transport.serve_pty(args.device, faults=args.faults, seed=args.seed)
+            transport.serve_pty(args.device, faults=args.faults, seed=args.seed,
+                                options=options)
         else:
             host, _, port = args.tcp.rpartition(":")
-            transport.serve_tcp(args.device, host, int(port), faults=args.faults, seed=args.seed)
+            transport.serve_tcp(args.device, host, int(port), faults=args.faults,
+                                seed=args.seed, options=options)
     except KeyboardInterrupt:
         pass
+    except (TypeError, ValueError) as exc:   # a bad --option, refused by the emulator
+        print(f"normbox-lab: cannot serve {args.device}: {exc}", file=sys.stderr)
+        return 2
     return 0
