@@ -12,15 +12,12 @@
 The gonioreflectometer truth is Lambertian: f = ρ/π.  The light map sees the panel with a smooth
 ±`panel_homogeneity_percent` variation.  Milliseconds per call; no rendering.
 
-colour-science takes seconds to import, so the 24 reflectances are cached in
+The 24 reflectances come from the virtual Normbox's cached table (`materials.py`), kept in
 ``$NORMBOX_LAB_CACHE`` (default ``~/.cache/normbox-lab``) after the first use.
 """
 
 from __future__ import annotations
 
-import os
-import tempfile
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -34,33 +31,14 @@ KM_LM_W = 683.002
 HOLDER_REFLECTANCE = 0.03
 
 
-def _cache_dir() -> Path:
-    return Path(os.environ.get("NORMBOX_LAB_CACHE", Path.home() / ".cache" / "normbox-lab"))
-
-
 def colorchecker_reflectances() -> np.ndarray:
-    """(24, 401) reflectances at RADIOMETER_WAVELENGTHS_NM, patch N at row N - 1."""
-    path = _cache_dir() / "colorchecker_n_ohta_380_780_1nm.npy"
-    try:
-        data = np.load(path)
-        if data.shape == (24, RADIOMETER_WAVELENGTHS_NM.size):
-            return data
-    except (OSError, ValueError):
-        pass
-    import colour
+    """(24, 401) reflectances at RADIOMETER_WAVELENGTHS_NM, patch N at row N - 1 (the virtual
+    Normbox's cached 5 nm table — the Ohta data's own grid — interpolated to 1 nm)."""
+    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM
+    from normbox_lab.materials import colorchecker_reflectances as table_5nm
 
-    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
-    data = np.array([np.interp(RADIOMETER_WAVELENGTHS_NM, sd.wavelengths, sd.values)
-                     for sd in sds.values()])
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy")
-        with os.fdopen(fd, "wb") as f:
-            np.save(f, data)
-        os.replace(tmp, path)
-    except OSError:
-        pass  # a read-only home: recompute next time
-    return data
+    return np.array([np.interp(RADIOMETER_WAVELENGTHS_NM, MATERIAL_WAVELENGTHS_NM, row)
+                     for row in table_5nm()])
 
 
 def planck_W_sr_m2_nm(wavelength_nm: np.ndarray, temperature_K: float) -> np.ndarray:
