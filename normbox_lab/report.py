@@ -275,8 +275,9 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
     for ax in (ax1, ax2, ax3, ax4):
         ax.axhline(0.0, color="0.6", lw=0.5)
         ax.tick_params(labelsize=6)
-    ax1.legend(fontsize=6)
-    ax3.legend(fontsize=6)
+    for ax in (ax1, ax3):
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6)
     fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
     return fig, rows
 
