@@ -214,7 +214,7 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
 def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
                brdf_run: int | str | None = None, notes: Iterable[str] = ()) -> Path:
     from normbox_lab.compare import ComparisonResult, ErrorModelResult
-    from normbox_lab.report import ReportData, write_report
+    from normbox_lab.report import ImageFigure, ReportData, write_report
 
     run_id = store.get_run(ref_run).id
     comparison = ComparisonResult.from_artifact(
@@ -230,10 +230,12 @@ def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
 
         data = data_from_store_run(store, brdf_run)
     patch_fit_names = [fit_key(n.split()[0]) for n in comparison.patch_names]
+    latest_images = {a.name: a for a in store.artifacts("image-figure", run_ref=run_id)}
+    images = [ImageFigure.from_artifact(a) for a in latest_images.values()]
     rd = ReportData(comparison=comparison, fits=fits, brdf_data=data, error_model=em,
                     title=f"Normbox validation report — reference run {run_id}",
                     polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
-                    patch_fit_names=patch_fit_names, notes=list(notes),
+                    patch_fit_names=patch_fit_names, notes=list(notes), images=images,
                     metadata={"store": str(store.path), "reference_run": run_id,
                               "brdf_run": brdf_run})
     out = Path(path) if path else Path(f"report-run-{run_id}.html")

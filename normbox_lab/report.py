@@ -57,6 +57,46 @@ class ReportData:
     patch_fit_names: Sequence[str] | None = None       # fit name per patch index (fig-nse-fit)
     notes: list[str] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)
+    images: list[ImageFigure] = field(default_factory=list)   # virtual-camera figures
+
+
+@dataclass
+class ImagePanel:
+    """One panel of an image figure: an encoded sRGB image (H, W, 3) in [0, 1] or uint8, or a
+    scalar map (H, W) shown with a colour bar (`vmax`; default: its 99th percentile)."""
+
+    label: str
+    data: np.ndarray
+    vmax: float | None = None
+    unit: str = ""
+
+
+@dataclass
+class ImageFigure:
+    """A row of image panels (e.g. the paper's Fig. 1: truth | prediction | ΔE00 map).
+
+    Stored in the store as an ``image-figure`` artifact named `fid` (arrays ``p0``, ``p1``…;
+    labels, colour-bar limits and units in the metadata) by `to_artifact`."""
+
+    fid: str
+    title: str
+    caption: str
+    panels: list[ImagePanel]
+
+    def store(self, store: Any, run_ref: int | str | None = None) -> int:
+        arrays = {f"p{k}": np.asarray(p.data) for k, p in enumerate(self.panels)}
+        meta = {"title": self.title, "caption": self.caption,
+                "panels": [{"label": p.label, "vmax": p.vmax, "unit": p.unit}
+                           for p in self.panels]}
+        return store.add_artifact("image-figure", self.fid, arrays, metadata=meta,
+                                  run_ref=run_ref)
+
+    @classmethod
+    def from_artifact(cls, a: Any) -> ImageFigure:
+        m = a.metadata
+        panels = [ImagePanel(p["label"], np.asarray(a.arrays[f"p{k}"]), p.get("vmax"),
+                             p.get("unit", "")) for k, p in enumerate(m["panels"])]
+        return cls(a.name, m["title"], m["caption"], panels)
 
 
 # -- helpers ---------------------------------------------------------------------------------
@@ -282,6 +322,31 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
     return fig, rows
 
 
+def fig_images(f: ImageFigure) -> Any:
+    """The panels side by side at their pixel aspect; maps with a colour bar."""
+    n = len(f.panels)
+    h, w = np.asarray(f.panels[0].data).shape[:2]
+    fig = _new_fig(min(4.2 * n, 16.0), min(4.2 * n, 16.0) / n * h / w + 0.6)
+    for k, p in enumerate(f.panels):
+        ax = fig.add_subplot(1, n, k + 1)
+        data = np.asarray(p.data)
+        if data.ndim == 3:
+            ax.imshow(data if data.dtype == np.uint8 else np.clip(data, 0.0, 1.0))
+        else:
+            finite = data[np.isfinite(data)]
+            vmax = p.vmax if p.vmax is not None else (
+                float(np.percentile(finite, 99)) if finite.size else 1.0)
+            im = ax.imshow(data, cmap="magma", vmin=0.0, vmax=max(vmax, 1e-12))
+            cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
+            cb.ax.tick_params(labelsize=6)
+            if p.unit:
+                cb.set_label(p.unit, fontsize=7)
+        ax.set_title(p.label, fontsize=8)
+        ax.set_axis_off()
+    fig.subplots_adjust(left=0.01, right=0.97, bottom=0.02, top=0.9, wspace=0.08)
+    return fig
+
+
 # -- the report ------------------------------------------------------------------------------
 
 _CSS = """
@@ -357,6 +422,10 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
                 if d.nse_patch < len(c.patch_names) else "NSE per sample angle",
                 fig_nse(c, min(d.nse_patch, len(c.patch_names) - 1)),
                 "Normalised spectral error (prediction − reference)/reference.")
+    if d.images:
+        parts.append("<h2>Images (virtual camera)</h2>")
+        for f in d.images:
+            add_fig(f.fid, f.title, fig_images(f), f.caption)
     if d.fits:
         parts.append("<h2>BRDF fits</h2>")
         add_tab("tab-fits", "Fitted parameters", ["material", "α", "η", "c [sr⁻¹]", "w",

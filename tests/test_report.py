@@ -46,3 +46,27 @@ def test_report_with_comparison_only():
     assert not any(f.startswith("fig-polar") for f in figs)
     assert "fig-errormodel" not in figs
     assert np.isfinite(data.comparison.delta_e00).all()
+
+
+def test_image_figures_survive_the_store_and_appear_in_the_report(tmp_path):
+    from normbox_lab.report import ImageFigure, ImagePanel
+    from normbox_lab.store import Store
+
+    rng = np.random.default_rng(2)
+    rgb = rng.integers(0, 256, size=(6, 8, 3), dtype=np.uint8)
+    de = rng.uniform(0, 3, size=(6, 8))
+    fig = ImageFigure("fig-camera", "Truth, prediction, ΔE00", "caption text",
+                      [ImagePanel("truth", rgb), ImagePanel("ΔE00", de, vmax=5.0, unit="ΔE00")])
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("reference-sweep")
+        fig.store(store, run_ref=run.id)
+        back = ImageFigure.from_artifact(store.artifacts("image-figure", run_ref=run.id)[-1])
+    assert back.fid == "fig-camera" and back.caption == "caption text"
+    np.testing.assert_array_equal(back.panels[0].data, rgb)
+    np.testing.assert_array_equal(back.panels[1].data, de)
+    assert back.panels[1].vmax == 5.0 and back.panels[1].unit == "ΔE00"
+    text, figs, _ = build_html(ReportData(images=[back]))
+    assert figs == ["fig-camera"]
+    m = re.search(r'<figure id="fig-camera">.*?base64,([^"]+)"', text, re.DOTALL)
+    assert m and base64.b64decode(m.group(1))[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "caption text" in text
