@@ -84,7 +84,9 @@ class ImageFigure:
     panels: list[ImagePanel]
 
     def store(self, store: Any, run_ref: int | str | None = None) -> int:
-        arrays = {f"p{k}": np.asarray(p.data) for k, p in enumerate(self.panels)}
+        # the store keeps float64: sRGB panels go in as encoded values in [0, 1]
+        arrays = {f"p{k}": (np.asarray(p.data) / 255.0 if np.asarray(p.data).dtype == np.uint8
+                            else np.asarray(p.data)) for k, p in enumerate(self.panels)}
         meta = {"title": self.title, "caption": self.caption,
                 "panels": [{"label": p.label, "vmax": p.vmax, "unit": p.unit}
                            for p in self.panels]}

@@ -62,7 +62,7 @@ def test_image_figures_survive_the_store_and_appear_in_the_report(tmp_path):
         fig.store(store, run_ref=run.id)
         back = ImageFigure.from_artifact(store.artifacts("image-figure", run_ref=run.id)[-1])
     assert back.fid == "fig-camera" and back.caption == "caption text"
-    np.testing.assert_array_equal(back.panels[0].data, rgb)
+    np.testing.assert_allclose(back.panels[0].data * 255.0, rgb, rtol=0, atol=1e-9)
     np.testing.assert_array_equal(back.panels[1].data, de)
     assert back.panels[1].vmax == 5.0 and back.panels[1].unit == "ΔE00"
     text, figs, _ = build_html(ReportData(images=[back]))

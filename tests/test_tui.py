@@ -441,3 +441,32 @@ def test_abort_at_a_prompt_then_resume_with_r(lab_env):
         (run,) = s.runs()
         assert run.status == "done" and s.keys(run.id) == KEYS
         assert "abort" in [k for _, k, _ in s.events(run.id)]
+
+
+def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
+    from normbox_lab.report import ImageFigure, ImagePanel
+
+    rgb = np.zeros((24, 32, 3), dtype=np.uint8)
+    rgb[:, :16] = (200, 30, 40)
+    with Store(lab_env / "tui.sqlite") as store:
+        ImageFigure("fig-camera", "virtual camera", "c",
+                    [ImagePanel("truth", rgb), ImagePanel("ΔE00", np.ones((24, 32)), vmax=5.0,
+                                                          unit="ΔE00")]).store(store)
+    session = new_session(lab_env)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: session.store is not None and app.panes_built, "the store")
+            await pilot.press("6")
+            await until(pilot, lambda: getattr(app, "_image_shown", None) is not None,
+                        "the image preview")
+            shown = app.query_one("#images-text").content
+            lines = [r for r in shown.renderables]
+            assert lines[0].plain.startswith("virtual camera")
+            assert lines[1].plain == "truth" and lines[3].plain == "ΔE00 [0…5 ΔE00]"
+            block = lines[2]
+            assert set(block.plain) <= {"▀", "\n"}
+            assert any("rgb(200,30,40)" in str(s.style) for s in block.spans), block.spans[:3]
+    asyncio.run(scenario())
+    session.close()

@@ -35,7 +35,7 @@ from textual.widgets import (
 
 from normbox_lab.tui.controller import Session
 
-TABS = ("instruments", "run", "spectrum", "runs", "results")
+TABS = ("instruments", "run", "spectrum", "runs", "results", "images")
 RADIANCE_TITLE = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
 BRDF_TITLE = "BRDF sr⁻¹"
 
@@ -211,6 +211,7 @@ class NormboxConsole(App):
     #heatmap { height: 1fr; }
     #drill { height: 1; padding: 0 1; }
     #spectrum-head { height: 1; padding: 0 1; }
+    #images-view { height: 1fr; padding: 0 1; }
     """
     BINDINGS: ClassVar = [
         Binding("q", "quit_console", "quit"),
@@ -273,6 +274,7 @@ class NormboxConsole(App):
             yield TabPane("3 Spectrum", id="spectrum")
             yield TabPane("4 Runs", id="runs")
             yield TabPane("5 Results", id="results")
+            yield TabPane("6 Images", id="images")
         yield Footer()
 
     def on_mount(self) -> None:
@@ -301,6 +303,9 @@ class NormboxConsole(App):
             Static("no comparison in the store yet (normbox-lab compare …)", id="res-head"),
             DataTable(id="heatmap", cursor_type="cell"),
             Static("", id="drill")])
+        self.query_one("#images", TabPane).mount_all([
+            VerticalScroll(Static("no image in the store yet (normbox-lab image figure1 …)",
+                                  id="images-text"), id="images-view")])
         self.panes_built = True
 
     def _first_paint(self) -> None:
@@ -808,6 +813,8 @@ class NormboxConsole(App):
             self.query_one(target).focus()
         if pane == "results":
             self._refresh_results()
+        elif pane == "images":
+            self._refresh_images()
         elif pane == "runs":
             self._runs_dirty = True
         elif pane == "spectrum":
@@ -823,6 +830,31 @@ class NormboxConsole(App):
         if hm is None or (self._heatmap is not None and self._heatmap.artifact_id == hm.artifact_id):
             return
         self.show_heatmap(hm)
+
+    def _refresh_images(self) -> None:
+        """The latest image figure of the store (virtual camera: truth | prediction | ΔE00) as
+        half-block previews, panels one under the other, as wide as the pane allows."""
+        from rich.console import Group
+        from rich.text import Text
+
+        from normbox_lab.images.terminal import half_block_text
+
+        store = self.session.store
+        if store is None:
+            return
+        found = store.artifacts(kind="image-figure")
+        if not found or getattr(self, "_image_shown", None) == found[-1].id:
+            return
+        a = found[-1]
+        self._image_shown = a.id
+        width = max(16, min(100, self.query_one("#images-view").size.width - 2 or 60))
+        parts: list[Any] = [Text(f"{a.metadata.get('title', a.name)} (artifact {a.id})",
+                                 style="bold")]
+        for k, p in enumerate(a.metadata.get("panels", [])):
+            unit = f" [0…{p['vmax']:g} {p.get('unit', '')}]" if p.get("vmax") else ""
+            parts += [Text(f"{p['label']}{unit}"),
+                      half_block_text(a.arrays[f"p{k}"], width, p.get("vmax"))]
+        self.query_one("#images-text", Static).update(Group(*parts))
 
     def show_heatmap(self, hm: Any) -> None:
         from rich.text import Text

@@ -1,0 +1,60 @@
+"""Image previews in a terminal: two pixels per character cell with the upper-half block ▀
+(foreground = upper pixel, background = lower pixel) as rich Text.  Truecolor terminals show the
+colours as they are; rich/Textual reduce them to 256 or 16 colours where the terminal reports
+less, and the preview stays readable as a rough picture."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+
+def as_uint8(image: Any, vmax: float | None = None) -> np.ndarray:
+    """An (H, W, 3) uint8 image from encoded sRGB (float in [0, 1] or uint8), or from a scalar
+    map (H, W) through matplotlib's 'magma' colour map scaled to [0, vmax]."""
+    a = np.asarray(image)
+    if a.ndim == 3:
+        if a.dtype == np.uint8:
+            return a[..., :3]
+        return np.round(np.clip(np.nan_to_num(a[..., :3]), 0.0, 1.0) * 255).astype(np.uint8)
+    from matplotlib import colormaps
+
+    finite = a[np.isfinite(a)]
+    top = float(vmax) if vmax is not None else (float(np.percentile(finite, 99))
+                                                if finite.size else 1.0)
+    rgba = colormaps["magma"](np.clip(np.nan_to_num(a / max(top, 1e-12)), 0.0, 1.0))
+    return np.round(rgba[..., :3] * 255).astype(np.uint8)
+
+
+def downsample(image: np.ndarray, width_px: int) -> np.ndarray:
+    """Box-average an (H, W, 3) uint8 image to `width_px` columns (aspect kept, even height)."""
+    h, w = image.shape[:2]
+    width_px = max(1, min(int(width_px), w))
+    height_px = max(2, round(h * width_px / w / 2.0) * 2)
+    ys = np.linspace(0, h, height_px + 1).astype(int)
+    xs = np.linspace(0, w, width_px + 1).astype(int)
+    img = image.astype(np.float64)
+    out = np.empty((height_px, width_px, 3))
+    for j in range(height_px):
+        rows = img[ys[j]:max(ys[j + 1], ys[j] + 1)]
+        for i in range(width_px):
+            out[j, i] = rows[:, xs[i]:max(xs[i + 1], xs[i] + 1)].mean(axis=(0, 1))
+    return np.round(out).astype(np.uint8)
+
+
+def half_block_text(image: Any, width_cells: int = 40, vmax: float | None = None) -> Any:
+    """rich Text of an image `width_cells` characters wide (H/W aspect, 2 pixels per cell)."""
+    from rich.style import Style
+    from rich.text import Text
+
+    px = downsample(as_uint8(image, vmax), width_cells)
+    text = Text()
+    for j in range(0, px.shape[0], 2):
+        for i in range(px.shape[1]):
+            top, bottom = px[j, i], px[j + 1, i]
+            text.append("▀", Style(color=f"rgb({top[0]},{top[1]},{top[2]})",
+                                   bgcolor=f"rgb({bottom[0]},{bottom[1]},{bottom[2]})"))
+        if j + 2 < px.shape[0]:
+            text.append("\n")
+    return text
