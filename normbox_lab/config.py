@@ -24,6 +24,7 @@ numbers for values, so `_Locator` finds the line of a key inside its table in th
 
 from __future__ import annotations
 
+import math
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -161,7 +162,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise err(tab, key, f"must be a number, got {type(v).__name__} {v!r}")
-        if v != v or v in (float("inf"), float("-inf")):
+        if not math.isfinite(v):
             raise err(tab, key, "must be finite")
         if minimum is not None and v < minimum:
             raise err(tab, key, f"must be ≥ {minimum}, got {v}")

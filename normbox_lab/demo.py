@@ -74,7 +74,7 @@ class _FastRenderWorld:
     fast: Any = None
     target_rel_se: float = 0.004
 
-    def render(self, patch, angle_deg, *, direct_only=False, quality=None):  # noqa: ANN001, ANN201
+    def render(self, patch, angle_deg, *, direct_only=False, quality=None):
         from normbox_lab.fastrender import config_seed
         from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG
 
@@ -100,7 +100,7 @@ def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Calla
     world.fast = fast
     world.target_rel_se = FAST_TARGET_REL_SE[quality]
 
-    def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,  # noqa: ANN001, ANN202
+    def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
                direct_only=False):
         name = f"{_truth_name(patch.name)}@{float(angle_deg):g}"
         return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
@@ -145,8 +145,13 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
 
     from normbox_lab.config import parse_config
     from normbox_lab.lab import build_lab
-    from normbox_lab.pipeline import (compare_run, fit_run, lamp_from_light_map, predict_run,
-                                      report_run)
+    from normbox_lab.pipeline import (
+        compare_run,
+        fit_run,
+        lamp_from_light_map,
+        predict_run,
+        report_run,
+    )
     from normbox_lab.store import Store
 
     progress = on_progress or (lambda stage, done, total: None)
@@ -188,8 +193,9 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                                              quality=quality, lamp=lamp, render=render,
                                              progress=progress))
         comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id))
-        notes = [f"Virtual campaign: truth={opts.truth}, instrument noise "
-                 f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, quality {quality}.",
+        notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
+                  f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
+                  f"quality {quality}."),
                  "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())]
         report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
                                                     brdf.run_id, notes))

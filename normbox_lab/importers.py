@@ -119,7 +119,7 @@ def load_brdf_json(path: str | Path, material: str | None = None) -> ImportedBrd
     return parse_brdf_json(data, str(path), material or path.stem)
 
 
-def store_brdf(store, imported: ImportedBrdf, tilt_deg: float = 0.0) -> int:  # noqa: ANN001
+def store_brdf(store, imported: ImportedBrdf, tilt_deg: float = 0.0) -> int:
     """Store as a run of protocol `import-brdf-json`, one `brdf` reading per geometry."""
     run = store.create_run("import-brdf-json",
                            parameters={"material": imported.material, "tilt_deg": tilt_deg},

@@ -97,6 +97,13 @@ class Gonioreflectometer(Instrument, Protocol):
 
 
 __all__ = [
-    "InstrumentIdentity", "Instrument", "Spectroradiometer", "RotationStage", "LightSource",
-    "Spectrometer", "Gonioreflectometer", "SpectralReading", "BrdfReading",
+    "BrdfReading",
+    "Gonioreflectometer",
+    "Instrument",
+    "InstrumentIdentity",
+    "LightSource",
+    "RotationStage",
+    "SpectralReading",
+    "Spectrometer",
+    "Spectroradiometer",
 ]

@@ -34,7 +34,7 @@ print(float(np.mean(np.array(img))))
 def probe(variant: str, timeout_s: float = 120.0) -> bool:
     try:
         res = subprocess.run([sys.executable, "-c", _PROBE, variant], capture_output=True,
-                             timeout=timeout_s, text=True)
+                             timeout=timeout_s, text=True, check=False)
     except subprocess.TimeoutExpired:
         return False
     return res.returncode == 0

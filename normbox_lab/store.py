@@ -24,7 +24,7 @@ import uuid as uuidlib
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Self
 
 import numpy as np
 
@@ -165,7 +165,7 @@ def _json_default(obj: Any) -> Any:
 class Store:
     """The SQLite store.  Safe to share between threads (one connection behind a lock)."""
 
-    def __init__(self, path: str | Path = DEFAULT_STORE, *, clock_wall_s=None) -> None:  # noqa: ANN001
+    def __init__(self, path: str | Path = DEFAULT_STORE, *, clock_wall_s=None) -> None:
         import time
 
         self.path = Path(path)
@@ -206,7 +206,7 @@ class Store:
         with self._lock:
             self._db.close()
 
-    def __enter__(self) -> "Store":
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, *exc: object) -> None:
@@ -220,16 +220,16 @@ class Store:
         with self._lock:
             return str(self._db.execute("PRAGMA integrity_check").fetchone()[0])
 
-    def _tx(self):  # noqa: ANN202 - context manager
+    def _tx(self):
         store = self
 
         class _Tx:
-            def __enter__(self_inner):  # noqa: N805, ANN204
+            def __enter__(self_inner):
                 store._lock.acquire()
                 store._db.execute("BEGIN IMMEDIATE")
                 return store._db
 
-            def __exit__(self_inner, exc_type, exc, tb):  # noqa: N805, ANN001, ANN204
+            def __exit__(self_inner, exc_type, exc, tb):
                 try:
                     store._db.execute("ROLLBACK" if exc_type else "COMMIT")
                 finally:

@@ -41,7 +41,7 @@ class Colorimetry:
         return {f.name: float(getattr(self, f.name)) for f in fields(self)}
 
     @classmethod
-    def from_dict(cls, d: dict[str, float]) -> "Colorimetry":
+    def from_dict(cls, d: dict[str, float]) -> Colorimetry:
         return cls(**{f.name: float(d[f.name]) for f in fields(cls)})
 
 

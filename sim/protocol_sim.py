@@ -12,10 +12,10 @@ from __future__ import annotations
 import urllib.parse
 
 import serial
+from normbox_lab.sim import core
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from normbox_lab.clock import VirtualClock
-from normbox_lab.sim import core
 
 
 class Serial(SerialBase):
@@ -81,7 +81,7 @@ class Serial(SerialBase):
 
         return self._read(done, None, cut)
 
-    def _read(self, done, size, cut=None) -> bytes:  # noqa: ANN001 - internal helper
+    def _read(self, done, size, cut=None) -> bytes:
         self._check_open()
         clock = self.emulator.clock
         deadline = None if self._timeout is None else clock.now_s() + self._timeout
@@ -108,7 +108,7 @@ class Serial(SerialBase):
         return data
 
     @staticmethod
-    def _wait(clock, duration_s: float) -> None:  # noqa: ANN001
+    def _wait(clock, duration_s: float) -> None:
         if duration_s > 0:
             clock.sleep(duration_s)
         elif not isinstance(clock, VirtualClock):

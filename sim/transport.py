@@ -10,9 +10,9 @@ import tty
 from typing import TextIO
 
 import serial
+from normbox_lab.sim import core
 
 from normbox_lab.clock import RealClock
-from normbox_lab.sim import core
 
 
 def register_url_scheme() -> None:
@@ -21,13 +21,13 @@ def register_url_scheme() -> None:
         serial.protocol_handler_packages.append("normbox_lab.sim")
 
 
-def open_port(url: str, **kwargs) -> serial.SerialBase:  # noqa: ANN003 - pyserial's kwargs
+def open_port(url: str, **kwargs) -> serial.SerialBase:
     """Open a real port (/dev/ttyUSB0, COM3), socket://host:port, or sim://DEVICE."""
     register_url_scheme()
     return serial.serial_for_url(url, **kwargs)
 
 
-def _pump(emulator: core.Emulator, fd_read: int, fd_write_fn, wait_fds) -> bool:  # noqa: ANN001
+def _pump(emulator: core.Emulator, fd_read: int, fd_write_fn, wait_fds) -> bool:
     """Move bytes both ways once; False when the other end went away."""
     nxt = emulator.next_event_s()
     timeout = 0.05 if nxt is None else max(0.0, min(0.05, nxt - emulator.clock.now_s()))

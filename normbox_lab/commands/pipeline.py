@@ -43,7 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.set_defaults(handler=_report)
 
 
-def _open(args: argparse.Namespace):  # noqa: ANN202
+def _open(args: argparse.Namespace):
     from pathlib import Path
 
     from normbox_lab.errors import StoreError

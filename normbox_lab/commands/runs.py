@@ -16,7 +16,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_runs)
 
 
-def format_run_line(run) -> str:  # noqa: ANN001 - RunRecord
+def format_run_line(run) -> str:
     when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(run.updated_s))
     return (f"{run.id:>4}  {run.uuid[:8]}  {run.protocol:<18} {run.status:<11} "
             f"{run.done:>5}/{run.planned:<5} {when}")

@@ -38,7 +38,7 @@ def _serve(args: argparse.Namespace) -> int:
               f"{', '.join(core.known_devices()) or '(none yet)'}", file=sys.stderr)
         return 2
 
-    def _stop(signum, frame):  # noqa: ANN001
+    def _stop(signum, frame):
         raise SystemExit(0)
 
     options = {}
