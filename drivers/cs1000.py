@@ -39,14 +39,14 @@ import struct
 from typing import Any
 
 import numpy as np
+from serial import SerialException
+
+from normbox_lab.clock import Clock
 from normbox_lab.drivers.radiometer_common import (
     SerialRadiometer,
     check_spectrum,
     colorimetry_from,
 )
-from serial import SerialException
-
-from normbox_lab.clock import Clock
 from normbox_lab.errors import (
     ConfigError,
     DeviceError,

@@ -30,14 +30,14 @@ import math
 import struct
 from typing import Any
 
+from serial import SerialException
+
+from normbox_lab.clock import Clock
 from normbox_lab.drivers.radiometer_common import (
     SerialRadiometer,
     check_spectrum,
     colorimetry_from,
 )
-from serial import SerialException
-
-from normbox_lab.clock import Clock
 from normbox_lab.errors import (
     ConfigError,
     DeviceError,

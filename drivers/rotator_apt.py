@@ -38,10 +38,10 @@ from __future__ import annotations
 from typing import Any
 
 import thorlabs_apt_protocol as apt
-from normbox_lab.drivers.rotation import RotationStageBase
 from serial import SerialException
 
 from normbox_lab.clock import Clock
+from normbox_lab.drivers.rotation import RotationStageBase
 from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
 from normbox_lab.interfaces import InstrumentIdentity
 

@@ -49,6 +49,7 @@ import struct
 from typing import Any
 
 import numpy as np
+
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
     RadiometerOptics,

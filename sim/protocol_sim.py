@@ -12,10 +12,10 @@ from __future__ import annotations
 import urllib.parse
 
 import serial
-from normbox_lab.sim import core
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.sim import core
 
 
 class Serial(SerialBase):

@@ -48,9 +48,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from normbox_lab.sim import core
 
 from normbox_lab.clock import Clock, VirtualClock
+from normbox_lab.sim import core
 
 PIXELS = 1044
 DARK_PIXELS = [0, 1, 2, 3, 1040, 1041, 1042, 1043]

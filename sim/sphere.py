@@ -47,9 +47,9 @@ import random
 from typing import Any
 
 import numpy as np
-from normbox_lab.sim import core
 
 from normbox_lab.scene import panel_map as truth_panel_map
+from normbox_lab.sim import core
 
 WARMUP_TAU_S = 60.0
 WARMUP_DEFICIT = 0.2

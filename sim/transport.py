@@ -10,9 +10,9 @@ import tty
 from typing import TextIO
 
 import serial
-from normbox_lab.sim import core
 
 from normbox_lab.clock import RealClock
+from normbox_lab.sim import core
 
 
 def register_url_scheme() -> None:
