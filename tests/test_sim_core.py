@@ -1,9 +1,9 @@
 import pytest
 import serial
-from normbox_lab.sim import core
-from normbox_lab.sim.transport import open_port
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.sim import core
+from normbox_lab.sim.transport import open_port
 
 
 class Echo(core.LineEmulator):
