@@ -368,6 +368,10 @@ class _Skip(Exception):
     """The operator chose to skip the current measurement."""
 
 
+class _StopAtPrompt(Exception):
+    """`Engine.stop()` while the engine waited for an answer (no operator callable)."""
+
+
 class Engine:
     """Runs one plan against a lab, committing every reading to the store.
 
@@ -447,7 +451,8 @@ class Engine:
 
     def stop(self) -> None:
         """Deferred: finish the current reading, end this segment (status `paused`, resumable),
-        also when paused in-process."""
+        also when paused in-process or waiting for an answer (the prompt is asked again on
+        resume)."""
         self._stop.set()
         self._pause.set()
         self._resume.set()
@@ -710,6 +715,10 @@ class Engine:
                     taken += 1
                 except _Skip:
                     self._skipped.append(step.key)
+        except _StopAtPrompt as exc:
+            # stopped while a question was open: the unanswered step is asked again on resume
+            status = "paused"
+            self._store_event("stop", reason=f"stopped at the prompt of {exc}")
         except OperatorAbort as exc:
             status = "aborted"
             self._halt_all()
@@ -1022,10 +1031,12 @@ class Engine:
             if self.operator is not None:
                 choice = self.operator(req)
             else:
-                while not self._answered.wait(0.1):
+                while not self._answered.wait(0.1) and not self._stop.is_set():
                     pass
                 if self._abort.is_set():
                     raise OperatorAbort("abort requested during a prompt")
+                if not self._answered.is_set():
+                    raise _StopAtPrompt(req.key)
                 choice = self._answer or req.choices[0]
         finally:
             self._pending_prompt = None

@@ -312,3 +312,34 @@ def test_a_lamp_that_keeps_dropping_out_becomes_an_operator_decision(store):
     assert kinds.count("suspended") == 3 and "skip" in kinds
     asked = [r for r in lab.operator.asked if r.kind == "fault"]
     assert len(asked) == 1 and "unstable" in asked[0].message
+
+
+def test_stop_while_waiting_for_an_answer_pauses_and_resume_asks_again(store):
+    lab = FakeLab()
+    lab.operator = None
+    e = make(lab, store, SMALL)
+    asked = threading.Event()
+    e.subscribe(lambda ev: asked.set() if ev.kind == "prompt" else None)
+    result = {}
+    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
+    worker.start()
+    assert asked.wait(10)
+    first = e.pending_prompt
+    e.stop()
+    worker.join(10)
+    assert not worker.is_alive()
+    assert result["r"].status == "paused" and result["r"].done == 0
+    assert store.get_run(e.run_id).status == "paused"
+    assert e.pending_prompt is None
+    # the resumed segment asks the same question first, then completes
+    lab2 = FakeLab()
+    asked_again = []
+
+    def operator(req):
+        asked_again.append(req.message)
+        lab2.world.place_patch(req.data["patch"])
+        return "ok"
+    lab2.operator = operator
+    r = make(lab2, store, SMALL).run(resume=e.run_uuid)
+    assert asked_again[0] == first.message
+    assert r.status == "done" and r.done == 12
