@@ -9,13 +9,13 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from normbox_lab.images.triplet import (  # noqa: E402
+from normbox_lab.images.triplet import (
     bsdf_dict,
     check_representable,
     render_triplets,
     rgb_variant,
 )
-from normbox_lab.materials import truth_patch, truth_wall  # noqa: E402
+from normbox_lab.materials import truth_patch, truth_wall
 
 #: every third band of the spectral renderer's 380…780 nm grid (9 RGB renders per batch pair)
 TEST_WAVELENGTHS_NM = np.arange(380.0, 781.0, 15.0)

@@ -189,7 +189,7 @@ class _TripletScene:
         self.bsdf_params = {role: mi.traverse(b) for role, b in self.bsdfs.items()}
 
     def _emitter_keys(self) -> list[str]:
-        keys = [k for k in self.params.keys()
+        keys = [k for k in self.params.keys()  # noqa: SIM118 (iterating yields pairs)
                 if k.startswith("panel_") and k.endswith("emitter.radiance.value")]
         keys.sort()
         if len(keys) != self.cell_factors.size:
@@ -199,12 +199,11 @@ class _TripletScene:
 
     def set_triplet(self, materials: dict[str, Any], lamp: Any,
                     wavelengths_nm: np.ndarray) -> None:
-        import mitsuba as mi
 
         for role in _ROLES:
             kd, ks = material_rgb(materials[role], wavelengths_nm)
             p = self.bsdf_params[role]
-            for key in p.keys():
+            for key in p.keys():  # noqa: SIM118 (SceneParameters iterate as pairs)
                 if key.endswith(".specular_reflectance.value"):      # the roughconductor
                     p[key] = _color(2.0 * ks)
                 elif key.endswith(".reflectance.value"):             # the diffuse
