@@ -124,7 +124,7 @@ def _mondrian():
 
 
 def test_ww_finds_the_light_on_the_white_object_gray_world_does_not():
-    raw, cwni, nwci, light = _mondrian()
+    raw, cwni, nwci, _light = _mondrian()
     est = wb.estimate_illuminant(cwni, nwci, w=2.0)
     err_ww = np.linalg.norm(est.illuminant_xy - RED_LIGHT_XY)
     err_gw = np.linalg.norm(wb.gray_world_xy(raw) - RED_LIGHT_XY)
