@@ -9,13 +9,19 @@ MIST had 1,957): `method="blend"` (the default) finds the Delaunay triangle of d
 chromaticities around the target and solves for the non-negative weights of those three spectra
 whose blended XYZ equals the target XYZ exactly (chromaticity is a projective map, so a point
 inside the triangle is a non-negative combination of the three XYZ vectors). Where that blend
-would exceed reflectance 1 (bright colours), a linear programme over the whole database finds the
-non-negative blend with the same XYZ and the smallest peak reflectance.
+would exceed reflectance 1 (bright colours) or the target lies outside the database's xy hull,
+the spectrum moves along the segment towards a physical sRGB basis blend (`srgb_basis`, three
+database blends for the sRGB primaries whose sum stays ≤ 1 — Mallett & Yuksel 2019's idea) just
+far enough that every band is ≤ 1; both ends have the target XYZ (the basis to within its XYZ
+residual, ≈ 2e-4 for the default database), so the result does too. For a
+database without such a basis, a linear programme over the whole database finds the
+non-negative blend with the target XYZ and the smallest peak reflectance.
 
 Physical limits. A reflectance lies in [0, 1]; a colour is *in range* when some non-negative blend
 of the database spectra reproduces its XYZ with peak ≤ 1 + `REFLECTANCE_TOLERANCE` (the excess,
 at most 0.1 %, is clipped; it exists because the sRGB matrix white and the CIE-integrated D65
-white differ in the fourth decimal). Colours outside the database's xy hull, or too bright for
+white differ in the fourth decimal). With the default database every sRGB colour in [0, 1]³ is
+in range (through `srgb_basis`); with a sparser one (`MetamerDatabase.from_spectra`), colours outside the database's xy hull, or too bright for
 any physical blend, raise `MetamerRangeError` (`strict=True`, the default); with `strict=False`
 they get MIST's behaviour: the nearest spectrum scaled by Y, clipped to [0, 1] (documented as an
 approximation, not a metamer).
