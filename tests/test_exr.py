@@ -157,6 +157,19 @@ def test_accepts_spectral_image_like_objects(tmp_path: Path) -> None:
     assert back["radiance"].tobytes() == doubled.tobytes()
 
 
+def test_extra_spectral_layers(tmp_path: Path) -> None:
+    wl = np.array([500.0, 600.0])
+    emission = np.full((2, 3, 2), 0.5, dtype=np.float32)
+    path = exr.write_spectral_exr(tmp_path / "e.exr", wavelength_nm=wl,
+                                  radiance=np.ones((2, 3, 2)), extra_spectral={"emission": emission})
+    back = exr.read_spectral_exr(path)
+    assert "emission.S0.500,000000nm" in back["channel_names"]
+    assert back["emission"].tobytes() == emission.tobytes()
+    with pytest.raises(ValueError, match="free identifier"):
+        exr.write_spectral_exr(tmp_path / "f.exr", wavelength_nm=wl, radiance=np.ones((2, 3, 2)),
+                               extra_spectral={"other": emission})
+
+
 def test_float64_input_is_stored_as_float32_and_partial_layers(tmp_path: Path) -> None:
     radiance = np.random.default_rng(6).random((3, 4, 2))  # float64
     path = exr.write_spectral_exr(tmp_path / "r.exr", wavelength_nm=[500.0, 600.0],

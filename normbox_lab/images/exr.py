@@ -37,6 +37,8 @@ PREVIEW_CHANNELS: tuple[str, ...] = ("R", "G", "B")
 LAYOUT_ATTRIBUTES: dict[str, str] = {"spectralLayoutVersion": "1.0",
                                      "emissiveUnits": "W.m^-2.sr^-1"}
 DEPTH_UNITS_ATTRIBUTE = "normboxDepthUnits"
+_RESERVED_KEYS = frozenset({*SPECTRAL_LAYERS, "wavelength_nm", "depth_m", "normal", "preview_rgb",
+                            "other", "channel_names", "attributes", "S0", "R", "G", "B", "Z"})
 
 _SPECTRAL_RE = re.compile(r"^(?:(?P<layer>[A-Za-z_][A-Za-z0-9_]*)\.)?S0\."
                           r"(?P<number>\d*,?\d*(?:[eE][-+]?\d+)?)nm$")
@@ -77,13 +79,16 @@ def write_spectral_exr(path: str | Path, image: Any = None, *,
                        radiance: Any = None, diffuse: Any = None, specular: Any = None,
                        indirect: Any = None, depth_m: Any = None, normal: Any = None,
                        preview_rgb: Any = None,
+                       extra_spectral: dict[str, Any] | None = None,
                        attributes: dict[str, str] | None = None) -> Path:
     """Write one multilayer spectral EXR and return its path.
 
     Layers come as numpy arrays (keywords) or from `image`, any object with the attributes
     wavelength_nm, radiance, diffuse, specular, indirect, depth_m, normal (and optionally
     preview_rgb), e.g. `images.camera.SpectralImage`; a keyword given explicitly wins over the
-    object's attribute. Absent (None) layers are left out. `attributes` adds string header
+    object's attribute. Absent (None) layers are left out. `extra_spectral` adds more (H, W, B)
+    layers on the same wavelengths, e.g. {"emission": ..., "cwni": ...}, written as
+    ``<name>.S0.<λ>nm`` and read back under their name. `attributes` adds string header
     attributes (they cannot replace the layout's own)."""
     given = {"wavelength_nm": wavelength_nm, "radiance": radiance, "diffuse": diffuse,
              "specular": specular, "indirect": indirect, "depth_m": depth_m, "normal": normal,
@@ -93,8 +98,13 @@ def write_spectral_exr(path: str | Path, image: Any = None, *,
             if value is None:
                 given[key] = getattr(image, key, None)
 
+    extra = dict(extra_spectral or {})
+    for name in extra:
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name) or name in _RESERVED_KEYS:
+            raise ValueError(f"extra spectral layer name {name!r} is not a free identifier")
     layers: list[_Layer] = []
-    spectral_present = [k for k in SPECTRAL_LAYERS if given[k] is not None]
+    given.update(extra)
+    spectral_present = [k for k in (*SPECTRAL_LAYERS, *extra) if given[k] is not None]
     if spectral_present:
         if given["wavelength_nm"] is None:
             raise ValueError("spectral layers need wavelength_nm")
@@ -171,7 +181,8 @@ def read_spectral_exr(path: str | Path) -> dict[str, Any]:
     other: dict[str, np.ndarray] = {}
     for name, i in column.items():
         parsed = parse_spectral_channel(name)
-        if parsed is not None:
+        if parsed is not None and (parsed[0] in SPECTRAL_LAYERS
+                                   or parsed[0] not in _RESERVED_KEYS):
             layer, wl = parsed
             spectral.setdefault(layer, {})[wl] = i
         elif name not in known:
