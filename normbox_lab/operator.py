@@ -18,6 +18,8 @@ from normbox_lab.clock import Clock
 
 
 class VirtualOperator:
+    interactive = False           # answers at once: Ctrl-C during its prompts is a normal pause
+
     def __init__(self, world: Any, clock: Clock, *, fault_policy: str = "retry",
                  response_s: float = 5.0, max_fault_retries: int = 3) -> None:
         if fault_policy not in ("retry", "skip", "abort"):
@@ -64,6 +66,7 @@ class TerminalOperator:
     """Asks on the terminal.  Enter = the first choice."""
 
     expected_response_s = 20.0
+    interactive = True            # a person is asked: Ctrl-C at the prompt stops the run there
 
     def __init__(self, stream_in: TextIO | None = None, stream_out: TextIO | None = None,
                  before: Any = None, world: Any = None) -> None:

@@ -156,8 +156,8 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
 
     def on_sigint(signum, frame):
         interrupts["n"] += 1
-        if engine.pending_prompt is not None:
-            raise KeyboardInterrupt      # waiting for the operator: nothing is being measured
+        if engine.pending_prompt is not None and getattr(engine.operator, "interactive", True):
+            raise KeyboardInterrupt      # waiting for a person: nothing is being measured
         if interrupts["n"] == 1:
             print("\npausing after the current reading (Ctrl-C again to abort now)…",
                   file=sys.stderr, flush=True)
