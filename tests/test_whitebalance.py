@@ -170,3 +170,53 @@ def test_spectral_inputs_and_white_balanced_preview():
     assert red_px[0] > red_px[1] + 0.2                          # the red wall stays red
     with pytest.raises(ValueError, match="bands"):
         wb.as_XYZ(raw, WL[:-1])
+
+
+def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
+    """The issue's acceptance test, on the virtual camera's Cornell-like box: a 1800 K lamp
+    (xy ≈ 0.549, 0.408: strongly orange), every wall, the floor and the ceiling strongly
+    coloured (greens and teal), one flat white cube (ρ = 0.85).
+
+    "The light on the white object" = the chromaticity of the raw radiance on the cube's lit
+    face (its pixels whose surface faces the ceiling lamp, normal·z > 0.9): for a spectrally
+    flat white that is the chromaticity of the light arriving there, lamp plus the green bounce
+    light (≈ 0.02 from the lamp's own xy).  W&W (w = 2) lands within 0.01 of it; gray world on
+    the raw image, pulled by the green walls, misses by more than 0.01."""
+    camera = pytest.importorskip("normbox_lab.images.camera")
+    pytest.importorskip("mitsuba")
+    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM, Material
+    from normbox_lab.render import planck_W_sr_m2_nm
+
+    wl = MATERIAL_WAVELENGTHS_NM
+
+    def band(centre_nm, width_nm, base, peak):
+        return base + peak * np.exp(-0.5 * ((wl - centre_nm) / width_nm) ** 2)
+
+    green = Material.diffuse("green", band(530.0, 35.0, 0.04, 0.6), wl)
+    teal = Material.diffuse("teal", band(495.0, 40.0, 0.03, 0.6), wl)
+    materials = {"back": green, "right": green, "floor": green, "left": teal, "ceiling": teal,
+                 "box": Material.diffuse("white", np.full(wl.shape, 0.85), wl)}
+    lamp_wl = np.arange(360.0, 831.0, 5.0)
+    lamp = planck_W_sr_m2_nm(lamp_wl, 1800.0)
+    lamp = lamp / lamp.max() * 10.0
+    img = camera.render_cornell(materials, lamp_wl, lamp, width=96, height=72, spp=64, seed=1)
+
+    raw = img.XYZ()
+    lit = img.mask("box") & (img.normal[..., 2] > 0.9)
+    assert lit.sum() >= 10
+    target_xy = wb.gray_world_xy(raw[lit])
+    lamp_xy = wb.gray_world_xy(wb.as_XYZ(lamp, lamp_wl))
+    assert 0.005 < np.linalg.norm(target_xy - lamp_xy) < 0.04     # bounce light is there
+
+    est = wb.estimate_illuminant(img.XYZ("cwni"), img.XYZ("nwci"), w=2.0)
+    err_ww = float(np.linalg.norm(est.illuminant_xy - target_xy))
+    err_gw = float(np.linalg.norm(wb.gray_world_xy(raw) - target_xy))
+    assert err_ww < 0.01 < err_gw, (err_ww, err_gw)
+    # the spectral path gives the same estimate
+    est_s = wb.estimate_illuminant(img.cwni, img.nwci, 2.0, wavelength_nm=img.wavelength_nm)
+    np.testing.assert_allclose(est_s.illuminant_xy, est.illuminant_xy, atol=1e-6)
+    # after the Bradford transform the white object's lit face is (nearly) D65
+    adapted = wb.adapt_to_display(raw, est.illuminant_XYZ)
+    assert np.linalg.norm(wb.gray_world_xy(adapted[lit]) - wb.display_white_xy()) < 0.01
+    srgb = wb.white_balanced_srgb(img)
+    assert srgb.shape == (72, 96, 3) and np.all((srgb >= 0) & (srgb <= 1))
