@@ -402,7 +402,9 @@ class CameraTracer(BandPathTracer):
         step = self.grid.step_nm
         idx = dr.arange(m.UInt32, n)
         gidx = m.UInt64(idx) + dr.opaque(m.UInt64, int(pix0) * int(spp))
-        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed_state)), initseq=gidx)
+        # seeded by the global path index (the constructor would add the chunk-local index)
+        rng = m.PCG32(size=n)
+        rng.seed(initstate=dr.opaque(m.UInt64, int(seed_state)) + gidx, initseq=gidx)
         delta = step * (rng.next_float32() - rng.next_float32())
         pix = dr.opaque(m.UInt32, int(pix0)) + idx // c.spp
         row = pix // c.width
@@ -734,6 +736,7 @@ class CornellScene:
     tracer: CameraTracer
     camera: PinholeCamera
     emitter: RectEmitter
+    bsdf_slots: list[tuple[Any, str]]
     box_centre_m: tuple[float, float, float]
     box_half_m: float
 
@@ -779,9 +782,10 @@ def cornell_scene(width: int = 64, height: int = 48, *, variant: str | None = No
     camera = PinholeCamera(origin_m=(0.0, -1.9, 0.5), target_m=(0.0, 0.0, 0.5),
                            fov_deg=math.degrees(2.0 * math.atan(tan_y * width / height)),
                            width_px=int(width), height_px=int(height))
-    tracer = CameraTracer(scene, [(bsdfs[n], n) for n in CORNELL_SLOTS + ("light",)], emitter,
-                          camera, variant=variant, emitter_slot="light", max_depth=max_depth)
-    return CornellScene(tracer, camera, emitter, centre, half)
+    slots = [(bsdfs[n], n) for n in CORNELL_SLOTS + ("light",)]
+    tracer = CameraTracer(scene, slots, emitter, camera, variant=variant, emitter_slot="light",
+                          max_depth=max_depth)
+    return CornellScene(tracer, camera, emitter, slots, centre, half)
 
 
 def cornell_materials() -> dict[str, Any]:
