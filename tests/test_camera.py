@@ -11,8 +11,8 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from normbox_lab.images import camera as cam  # noqa: E402
-from normbox_lab.materials import Material  # noqa: E402
+from normbox_lab.images import camera as cam
+from normbox_lab.materials import Material
 
 FLAT_NM = np.array([360.0, 830.0])
 SMALL = {"width": 32, "height": 24}
