@@ -82,8 +82,8 @@ from normbox_lab.fastrender import (
 LAYERS = ("emission", "diffuse", "specular", "indirect")
 #: the Wilkie & Weidlich auxiliary images
 AUX_IMAGES = ("cwni", "nwci")
-#: default samples per pixel of `render_normbox_camera`: 320×240 in about a minute on 2 cores
-NORMBOX_DEFAULT_SPP = 64
+#: default samples per pixel of `render_normbox_camera`: 320×240 in ≈ 30–35 s on 2 shared cores
+NORMBOX_DEFAULT_SPP = 128
 
 
 # --------------------------------------------------------------------------------------------
@@ -483,7 +483,7 @@ class CameraTracer(BandPathTracer):
     def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: list[Any], e1: Any,
                  spp: int) -> np.ndarray:
         """Per-path layers, CWNI, NWCI, radiance² and luminance (and its square), summed over
-        each pixel's spp paths: (7·B + 2, n_pixels) float64."""
+        each pixel's spp paths: (7·B + 2, n_pixels) float32."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         lookup = self._lookup(tab, fh.delta)
@@ -516,7 +516,7 @@ class CameraTracer(BandPathTracer):
         outputs = emission + diffuse + specular + indirect + cwni + nwci + rad2 + [y, y * y]
         dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
         sums = dr.block_sum(outputs, int(spp), mode="evaluated")
-        return np.stack([np.asarray(s, dtype=np.float64) for s in sums])
+        return np.stack([np.asarray(s, dtype=np.float32) for s in sums])
 
     def _luminance_weights(self) -> np.ndarray:
         """w_b with Y = Σ w_b·L_b in cd/m² (`images.color.spectral_to_XYZ` is linear)."""
@@ -564,7 +564,9 @@ class CameraTracer(BandPathTracer):
         w, h = int(cam.width_px), int(cam.height_px)
         n_pix = w * h
         n_b = self.grid.n_bands
-        sums = np.zeros((7 * n_b + 2, n_pix))
+        # per-pixel sums over the spp paths (float32 as Dr.Jit reduced them), then the means
+        # one (H, W, B) image at a time, to keep the peak memory low
+        sums = np.zeros((7 * n_b + 2, n_pix), dtype=np.float32)
         seed_state = _seed_state(seed)
         chunk_pix = max(1, self.chunk_paths // spp)
         for p0 in range(0, n_pix, chunk_pix):
@@ -574,20 +576,25 @@ class CameraTracer(BandPathTracer):
             sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp)
             del fh, acc, e1
         depth, normal, slot = self._geometry(c, cam)
-        mean = sums / spp
-        parts = {name: mean[i * n_b:(i + 1) * n_b].T.reshape(h, w, n_b)
-                 for i, name in enumerate(LAYERS + AUX_IMAGES)}
-        radiance = sum(parts[name] for name in LAYERS)
+
+        def mean_image(k: int) -> np.ndarray:
+            return (sums[k * n_b:(k + 1) * n_b].T.astype(np.float64) / spp).reshape(h, w, n_b)
+
+        f32: dict[str, np.ndarray] = {}
+        radiance = np.zeros((h, w, n_b))
+        for k, name in enumerate(LAYERS + AUX_IMAGES):
+            f32[name] = mean_image(k).astype(np.float32)
+            if name in LAYERS:
+                radiance += f32[name]
+        std_error = luminance_se = None
         if spp > 1:
-            rad_var = np.maximum(mean[6 * n_b:7 * n_b].T.reshape(h, w, n_b) - radiance ** 2,
-                                 0.0) * spp / (spp - 1)
+            rad_var = np.maximum(mean_image(6) - radiance ** 2, 0.0) * spp / (spp - 1)
             std_error = np.sqrt(rad_var / spp).astype(np.float32)
-            y_mean, y2_mean = mean[7 * n_b], mean[7 * n_b + 1]
+            del rad_var
+            y_mean = sums[7 * n_b].astype(np.float64) / spp
+            y2_mean = sums[7 * n_b + 1].astype(np.float64) / spp
             y_se = np.sqrt(np.maximum(y2_mean - y_mean ** 2, 0.0) / (spp - 1)).reshape(h, w)
             luminance_se = y_se.astype(np.float32)
-        else:
-            std_error = luminance_se = None
-        f32 = {k: v.astype(np.float32) for k, v in parts.items()}
         image = SpectralImage(
             wavelength_nm=self.grid.centres_nm.copy(), radiance=radiance.astype(np.float32),
             std_error=std_error, luminance_se_cd_m2=luminance_se, depth_m=depth,
