@@ -671,6 +671,7 @@ class NormboxCamera:
     def tracer(self, angle_deg: float) -> CameraTracer:
         """The camera tracer with the patch at `angle_deg` (builds the scene once)."""
         bt = self.box.tracer(angle_deg)            # loads the scene / moves the patch in place
+        # the stand-in BSDFs are FastNormbox internals: the camera shares its loaded scene
         if self._tracer is None:
             slots = [(self.box._stand_in[r], STAND_INS[r]) for r in STAND_INS]
             self._tracer = CameraTracer(bt.scene, slots, bt.emitter, normbox_camera(self.geometry),
