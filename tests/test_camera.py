@@ -165,9 +165,11 @@ def test_normbox_view_frames_the_box_and_figure1_of_identical_materials_is_zero(
 
     patch, wall = mats.truth_patch(19, "model"), mats.truth_wall("model")
     truth = {"patch": patch, "wall": wall}
-    fig = cam.figure1(truth, truth, 60.0, width=40, height=30, spp=4, seed=1,
-                      white_XYZ=[90.0, 100.0, 60.0])
+    fig = cam.figure1(truth, truth, 60.0, width=40, height=30, spp=4, seed=1)
     img = fig.truth
+    # the default white: the radiometer's white patch at 30° (more direct light than at 60°)
+    assert fig.white_source.startswith("radiometer")
+    assert fig.white_XYZ[1] > 1.2 * img.luminance_cd_m2()[img.mask("patch")].mean()
     # the patch, the holder and the lit panel are in view; the corners are outside the box
     for slot in ("patch", "holder", "panel", "wall"):
         assert img.mask(slot).any(), slot

@@ -896,6 +896,15 @@ def white_reference_XYZ(wall: Any, *, white_patch: Any = None, holder: Any = Non
     return spectral_to_XYZ(r.wavelength_nm, r.radiance)
 
 
+def _white_patch_like(patch: Any) -> Any:
+    """The truth world's white patch (19) of the same truth kind as `patch` ("default" unless
+    its metadata says "model")."""
+    from normbox_lab.materials import TRUTH_KINDS, truth_patch
+
+    kind = getattr(patch, "metadata", {}).get("truth", "default")
+    return truth_patch(19, kind if kind in TRUTH_KINDS else "default")
+
+
 def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: float, *,
             lamp: Any = None, geometry: Any = None, width: int = 320, height: int = 240,
             spp: int = NORMBOX_DEFAULT_SPP, seed: int = 0, white_XYZ: Any = None,
@@ -907,8 +916,9 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     ΔE00 follows `normbox_lab.compare`: both images' XYZ divided by the Y of one white
     reference, Lab with D65, kL = kC = kH = 1.  The white (`white_XYZ`, absolute, cd/m²) is by
     default the radiometer reading of the white patch at 30° in the truth world
-    (`white_reference_XYZ`), i.e. the normalisation of the comparison tables, so image and
-    tables speak the same ΔE.  The sRGB previews use the same white for scale (no white
+    (`white_reference_XYZ`; the white patch is `white_patch`, else `truth["white"]`, else
+    ColorChecker 19 of the truth patch's kind), i.e. the normalisation of the comparison
+    tables, so image and tables speak the same ΔE.  The sRGB previews use the same white for scale (no white
     balance: the 3100 K lamp shows warm)."""
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map
 
@@ -919,6 +929,8 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     img_f = nc.render(patch=fitted["patch"], wall=fitted["wall"], holder=fitted.get("holder"),
                       **kw)
     if white_XYZ is None:
+        if white_patch is None:
+            white_patch = truth.get("white") or _white_patch_like(truth["patch"])
         white = white_reference_XYZ(truth["wall"], white_patch=white_patch,
                                     holder=truth.get("holder"), lamp=lamp, geometry=geometry,
                                     seed=seed)
