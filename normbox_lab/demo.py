@@ -6,7 +6,10 @@
     4. light-map: the 25 points of the opal panel
     5. reference-sweep: 24 patches × 13 angles = 312 radiometer readings
     6. predict: every patch × angle rendered with the fitted materials
-    7. compare (+ error model) and the HTML report
+    7. compare (+ error model)
+    8. images: the box seen from its open side, truth vs fitted materials, per-pixel ΔE00 and
+       the Wilkie–Weidlich white balance (the paper's Fig. 1), PNGs + spectral EXR
+    9. the HTML report
 
 Everything goes through the same code the lab uses: the engine drives the drivers, the drivers
 talk bytes to the emulators, the store keeps every reading, the pipeline reads the store.
@@ -27,6 +30,9 @@ from pathlib import Path
 from typing import Any
 
 QUICK_PATCHES = [19, 13, 7, 24]
+#: the virtual camera's view (the paper's Fig. 1): the orange patch at 45°
+CAMERA_PATCH = 7
+CAMERA_ANGLE_DEG = 45.0
 QUICK_ANGLES = [30, 60, 90]
 FULL_ANGLES = list(range(30, 91, 5))
 
@@ -146,6 +152,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     from normbox_lab.config import parse_config
     from normbox_lab.lab import build_lab
     from normbox_lab.pipeline import (
+        camera_figures_run,
         compare_run,
         fit_run,
         lamp_from_light_map,
@@ -193,6 +200,11 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                                              quality=quality, lamp=lamp, render=render,
                                              progress=progress))
         comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id))
+        camera_size = (80, 60, 16) if opts.quick else (320, 240, None)
+        images = timed("images", lambda: camera_figures_run(
+            store, ref.run_id, patch=CAMERA_PATCH, angle_deg=CAMERA_ANGLE_DEG, truth=opts.truth,
+            lamp=lamp, geometry=config.geometry, width=camera_size[0], height=camera_size[1],
+            spp=camera_size[2], seed=opts.seed, out_dir=out / "images"))
         notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
                   f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
                   f"quality {quality}."),
@@ -208,5 +220,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                "nrmse_max_pct": 100 * float(np.nanmax(nr)),
                "nrmse_by_angle_pct": {f"{a:g}": 100 * float(np.nanmean(nr[:, i]))
                                       for i, a in enumerate(comparison.angle_deg)},
-               "ratings": comparison.rating_counts()}
+               "ratings": comparison.rating_counts(),
+               "camera_delta_e00": images.delta_e00,
+               "camera_files": {k: str(v) for k, v in images.files.items()}}
     return DemoResult(report, store_path, runs, timings, summary)

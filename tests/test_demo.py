@@ -2,6 +2,8 @@
 noise off, what the instruments measured and what the pipeline predicts from its own fits agree
 (the remaining difference is Monte-Carlo noise of the quick renders and the fit's grid)."""
 
+from pathlib import Path
+
 import numpy as np
 
 from normbox_lab.demo import QUICK_ANGLES, QUICK_PATCHES, DemoOptions, run_demo
@@ -20,6 +22,12 @@ def test_quick_demo_closes_through_the_instruments(tmp_path):
     assert result.report.exists() and result.report.stat().st_size > 10_000
     html = result.report.read_text()
     assert "fig-deltae" in html and "tab-fits" in html
+    assert "fig-camera" in html and "fig-whitebalance" in html     # the virtual camera
+    for path in s["camera_files"].values():
+        head = Path(path).read_bytes()[:8]
+        assert head in (b"\x89PNG\r\n\x1a\n", b"v/1\x01\x02\x00\x00\x00"), path
+    # truth = model and the same random numbers: the images differ only by the fit
+    assert s["camera_delta_e00"]["patch_region"] < 0.5, s["camera_delta_e00"]
     with Store(result.store) as store:
         ref = store.get_run(result.runs["reference-sweep"])
         assert ref.status == "done"
@@ -27,5 +35,5 @@ def test_quick_demo_closes_through_the_instruments(tmp_path):
     assert n == len(QUICK_PATCHES) * len(QUICK_ANGLES)
     assert [line.split(":")[0] for line in lines] == [
         "set-up", "brdf-inplane", "fit", "light-map", "reference-sweep", "predict", "compare",
-        "report"]
+        "images", "report"]
     assert np.isfinite(list(s["nrmse_by_angle_pct"].values())).all()

@@ -184,18 +184,9 @@ def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
     the raw image, pulled by the green walls, misses by more than 0.01."""
     camera = pytest.importorskip("normbox_lab.images.camera")
     pytest.importorskip("mitsuba")
-    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM, Material
     from normbox_lab.render import planck_W_sr_m2_nm
 
-    wl = MATERIAL_WAVELENGTHS_NM
-
-    def band(centre_nm, width_nm, base, peak):
-        return base + peak * np.exp(-0.5 * ((wl - centre_nm) / width_nm) ** 2)
-
-    green = Material.diffuse("green", band(530.0, 35.0, 0.04, 0.6), wl)
-    teal = Material.diffuse("teal", band(495.0, 40.0, 0.03, 0.6), wl)
-    materials = {"back": green, "right": green, "floor": green, "left": teal, "ceiling": teal,
-                 "box": Material.diffuse("white", np.full(wl.shape, 0.85), wl)}
+    materials = wb.coloured_room_materials()
     lamp_wl = np.arange(360.0, 831.0, 5.0)
     lamp = planck_W_sr_m2_nm(lamp_wl, 1800.0)
     lamp = lamp / lamp.max() * 10.0

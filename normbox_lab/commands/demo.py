@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -57,6 +58,11 @@ def _demo(args: argparse.Namespace) -> int:
     print("NRMSE by angle (%): " + ", ".join(f"{a}° {v:.2f}"
                                             for a, v in s["nrmse_by_angle_pct"].items()))
     print("ratings: " + ", ".join(f"{k}: {v}" for k, v in s["ratings"].items()))
+    c = s["camera_delta_e00"]
+    print(f"virtual camera (Fig. 1): ΔE00 per pixel mean {c['mean']:.2f}, p95 {c['p95']:.2f}; "
+          f"region means patch {c.get('patch_region', float('nan')):.2f}, "
+          f"wall {c.get('wall_region', float('nan')):.2f}; images: "
+          f"{Path(s['camera_files']['truth_png']).parent}")
     print(f"store: {result.store} (runs {result.runs})")
     print(f"report: {result.report}")
     return 0

@@ -202,3 +202,20 @@ def white_balanced_srgb(image: Any, *, cwni: Any = None, nwci: Any = None,
     else:
         illuminant = gray_world(raw)
     return XYZ_to_srgb(adapt_to_display(raw, illuminant), white_Y)
+
+
+def coloured_room_materials() -> dict[str, Any]:
+    """The acceptance scene's materials for `images.camera.render_cornell`: every wall, the
+    floor and the ceiling strongly coloured (greens and teal), one flat white cube (ρ = 0.85).
+    Lit by a 1800 K Planckian lamp this is the case W&W is built for (docs/images.md)."""
+    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM, Material
+
+    wl = MATERIAL_WAVELENGTHS_NM
+
+    def band(centre_nm: float, width_nm: float, base: float, peak: float) -> np.ndarray:
+        return base + peak * np.exp(-0.5 * ((wl - centre_nm) / width_nm) ** 2)
+
+    green = Material.diffuse("green", band(530.0, 35.0, 0.04, 0.6), wl)
+    teal = Material.diffuse("teal", band(495.0, 40.0, 0.03, 0.6), wl)
+    return {"back": green, "right": green, "floor": green, "left": teal, "ceiling": teal,
+            "box": Material.diffuse("white", np.full(wl.shape, 0.85), wl)}

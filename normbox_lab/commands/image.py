@@ -1,0 +1,353 @@
+"""`normbox-lab image …`: spectral images — the virtual camera (the paper's Fig. 1), the MIST
+cross-check and metamers, the Wilkie–Weidlich white balance, spectral OpenEXR files."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from normbox_lab.commands.common import add_store_argument
+
+
+def _size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(v) for v in text.lower().split("x"))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT (e.g. 320x240), "
+                                         f"got {text!r}") from exc
+    if not (8 <= w <= 4096 and 8 <= h <= 4096):
+        raise argparse.ArgumentTypeError(f"size {w}x{h} out of range (8…4096 per side)")
+    return w, h
+
+
+def _w(text: str) -> float:
+    from normbox_lab.images.whitebalance import check_w
+
+    try:
+        return check_w(float(text))
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from exc
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("image", help="spectral images: virtual camera, Fig. 1, MIST, W&W, EXR",
+                       description="Spectral images of the virtual Normbox and the tools of the "
+                                   "MIST and Wilkie & Weidlich papers (docs/images.md).")
+    s = p.add_subparsers(dest="image_command", metavar="SUBCOMMAND", required=True)
+
+    c = s.add_parser("camera", help="render the box interior from the open side",
+                     description="Render the virtual Normbox seen from its open side with the "
+                                 "truth materials of the virtual world (or the fits of a store) "
+                                 "and write a multilayer spectral OpenEXR (radiance, diffuse, "
+                                 "specular, indirect, depth, normal, preview) and a "
+                                 "white-balanced sRGB PNG.")
+    c.add_argument("--patch", type=int, default=7, help="ColorChecker patch 1…24 (default 7)")
+    c.add_argument("--angle", type=float, default=45.0, help="sample angle in degrees "
+                   "(0 = facing the light, 90 = facing the radiometer; default 45)")
+    c.add_argument("--materials", choices=("truth", "fitted"), default="truth",
+                   help="truth (the virtual world's) or fitted (latest fits in --store)")
+    c.add_argument("--truth", choices=("default", "model"), default="default",
+                   help="which truth materials (default: measured-like; model: the fit model)")
+    _render_args(c)
+    c.add_argument("--white-balance", choices=("ww", "gray-world", "none"), default="ww",
+                   help="preview white balance: Wilkie & Weidlich (default), plain gray world, "
+                        "or none (the lamp's colour shows)")
+    c.add_argument("--no-exr", action="store_true", help="write the PNG only")
+    add_store_argument(c)
+    c.set_defaults(handler=_camera)
+
+    f = s.add_parser("figure1", help="truth vs prediction images and the ΔE00 map into the store",
+                     description="The paper's Fig. 1, virtually: the box with the truth materials "
+                                 "and with the latest fits, the per-pixel ΔE00 map and the W&W "
+                                 "white balance; stored as image figures of the reference run "
+                                 "(the report and the TUI's Images tab show them) and written "
+                                 "as PNGs (+ the truth image as spectral EXR).")
+    f.add_argument("run", metavar="REFERENCE_RUN_ID", nargs="?",
+                   help="reference sweep (default: the latest)")
+    f.add_argument("--patch", type=int, default=7, help="patch on the holder (default 7)")
+    f.add_argument("--angle", type=float, default=45.0, help="sample angle (default 45°)")
+    f.add_argument("--truth", choices=("default", "model"), default="default")
+    f.add_argument("--light-map", metavar="RUN_ID",
+                   help="take the lamp luminance from this light-map run")
+    f.add_argument("--no-exr", action="store_true", help="skip the spectral EXR")
+    _render_args(f)
+    add_store_argument(f)
+    f.set_defaults(handler=_figure1)
+
+    m = s.add_parser("metamer", help="reflectance spectra for sRGB colours (MIST)",
+                     description="A physical reflectance spectrum (380–780 nm, 5 nm) whose "
+                                 "colour under D65 is the given sRGB colour: MIST's KD-tree "
+                                 "nearest in xy over colour-science's reflectance sets, or "
+                                 "(default) an exact-XYZ blend of database spectra.")
+    m.add_argument("colours", nargs="+", metavar="COLOUR",
+                   help="sRGB as #rrggbb, rrggbb or r,g,b (0–255)")
+    m.add_argument("--nearest", action="store_true", help="MIST's plain nearest match")
+    m.add_argument("--csv", metavar="PATH", help="write wavelength_nm + one column per colour")
+    m.set_defaults(handler=_metamer)
+
+    t = s.add_parser("triplet", help="MIST wavelength-triplet cross-check of the renderer",
+                     description="Render the radiometer's view with three wavelengths per "
+                                 "render in Mitsuba's RGB variant and compare with the spectral "
+                                 "renderer band by band (z-scores of the difference).")
+    t.add_argument("--patch", type=int, default=15, help="patch (model-family truth; default 15)")
+    t.add_argument("--angle", type=float, default=30.0, help="sample angle (default 30°)")
+    t.add_argument("--every", type=int, default=3, help="every N-th 5 nm band (default 3)")
+    t.add_argument("--spp", type=int, default=64, help="samples per pixel per batch")
+    t.add_argument("--batches", type=int, default=10, help="independent batches (default 10)")
+    t.add_argument("--seed", type=int, default=0)
+    t.set_defaults(handler=_triplet)
+
+    wb = s.add_parser("whitebalance", help="Wilkie & Weidlich vs gray world on a coloured room",
+                      description="Render the Cornell-like test room lit by a Planckian lamp of "
+                                  "--lamp-k kelvin, estimate the illuminant by Wilkie & Weidlich "
+                                  "(CWNI/NWCI images, 1−Chroma weights) and by plain gray world, "
+                                  "and compare both with the light on the white cube's lit face.")
+    wb.add_argument("--lamp-k", type=float, default=1800.0, help="lamp temperature (default 1800)")
+    wb.add_argument("--room", choices=("coloured", "cornell"), default="coloured",
+                    help="coloured: green/teal walls (the acceptance test's room); cornell: "
+                         "red/green/grey walls")
+    wb.add_argument("--w", type=_w, default=2.0, help="1−Chroma exponent w, 1…4 (default 2)")
+    wb.add_argument("--size", type=_size, default=(96, 72), help="WIDTHxHEIGHT (default 96x72)")
+    wb.add_argument("--spp", type=int, default=64)
+    wb.add_argument("--seed", type=int, default=1)
+    wb.add_argument("-o", "--out", metavar="DIR", help="also write raw and balanced PNGs here")
+    wb.set_defaults(handler=_whitebalance)
+
+    e = s.add_parser("exr-info", help="list the layers of a spectral OpenEXR file")
+    e.add_argument("path")
+    e.set_defaults(handler=_exr_info)
+
+
+def _render_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--size", type=_size, default=(320, 240), help="WIDTHxHEIGHT (default 320x240)")
+    p.add_argument("--spp", type=int, default=None,
+                   help="samples per pixel (default 128: ~35 s at 320×240 on 2 cores)")
+    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--w", type=_w, default=2.0, help="W&W 1−Chroma exponent, 1…4 (default 2)")
+    p.add_argument("-o", "--out", metavar="DIR", default="images",
+                   help="output folder (default ./images)")
+
+
+def _open_store(args: argparse.Namespace):
+    from normbox_lab.errors import StoreError
+    from normbox_lab.store import Store
+
+    if not Path(args.store).exists():
+        raise StoreError(f"no store at {args.store}")
+    return Store(args.store)
+
+
+def _camera(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from normbox_lab.images import camera, whitebalance
+    from normbox_lab.images.color import XYZ_to_srgb, write_png
+    from normbox_lab.materials import holder_material, truth_patch, truth_wall
+
+    if args.materials == "fitted":
+        from normbox_lab.materials import Material
+        from normbox_lab.pipeline import fit_key, latest_fits
+
+        with _open_store(args) as store:
+            fits = latest_fits(store)
+        missing = [k for k in (fit_key(args.patch), "wall") if k not in fits]
+        if missing:
+            from normbox_lab.errors import StoreError
+
+            raise StoreError(f"no fits for {', '.join(missing)} in {args.store}")
+        patch = Material.from_fit(fits[fit_key(args.patch)])
+        wall = Material.from_fit(fits["wall"])
+    else:
+        patch, wall = truth_patch(args.patch, args.truth), truth_wall(args.truth)
+    width, height = args.size
+    spp = args.spp if args.spp is not None else camera.NORMBOX_DEFAULT_SPP
+    print(f"rendering {width}×{height} px, {spp} spp, patch {args.patch} at {args.angle:g}° "
+          f"({args.materials})…", file=sys.stderr, flush=True)
+    img = camera.render_normbox_camera(patch, wall, args.angle, holder=holder_material(),
+                                       width=width, height=height, spp=spp, seed=args.seed)
+    XYZ = img.XYZ()
+    if args.white_balance == "ww":
+        illuminant = whitebalance.estimate_illuminant(img.cwni, img.nwci, args.w,
+                                                      wavelength_nm=img.wavelength_nm)
+        XYZ = whitebalance.adapt_to_display(XYZ, illuminant.illuminant_XYZ)
+    elif args.white_balance == "gray-world":
+        XYZ = whitebalance.adapt_to_display(XYZ, whitebalance.gray_world(XYZ))
+    out = Path(args.out)
+    stem = f"camera-p{args.patch:02d}-{args.angle:g}deg-{args.materials}"
+    png = write_png(out / f"{stem}.png", XYZ_to_srgb(XYZ))
+    print(f"render: {img.time_s:.1f} s; luminance median relative SE "
+          f"{100 * img.info.get('median_rel_se_luminance', float('nan')):.1f} %")
+    print(f"png: {png}")
+    if not args.no_exr:
+        from normbox_lab.images.exr import write_spectral_exr
+
+        path = write_spectral_exr(out / f"{stem}.exr", img,
+                                  extra_spectral={"emission": img.emission},
+                                  attributes={"normbox.materials": args.materials})
+        print(f"exr: {path} ({path.stat().st_size / 1e6:.0f} MB)")
+    return 0 if np.all(np.isfinite(img.radiance)) else 1
+
+
+def _figure1(args: argparse.Namespace) -> int:
+    from normbox_lab.pipeline import camera_figures_run, lamp_from_light_map
+
+    with _open_store(args) as store:
+        ref = args.run
+        if ref is None:
+            refs = [r for r in store.runs() if r.protocol == "reference-sweep"]
+            if not refs:
+                from normbox_lab.errors import StoreError
+
+                raise StoreError(f"no reference sweep in {args.store}")
+            ref = refs[-1].id
+        width, height = args.size
+        print(f"rendering truth and prediction, {width}×{height} px…", file=sys.stderr,
+              flush=True)
+        r = camera_figures_run(store, ref, patch=args.patch, angle_deg=args.angle,
+                               truth=args.truth, lamp=lamp_from_light_map(store, args.light_map),
+                               width=width, height=height, spp=args.spp, seed=args.seed,
+                               w=args.w, out_dir=args.out, exr=not args.no_exr)
+    d = r.delta_e00
+    print(f"render: {r.render_s:.1f} s")
+    print(f"ΔE00 per pixel over the box: mean {d['mean']:.2f}, median {d['median']:.2f}, "
+          f"p95 {d['p95']:.2f}, max {d['max']:.2f}; region means: patch "
+          f"{d.get('patch_region', float('nan')):.2f}, wall {d.get('wall_region', float('nan')):.2f}")
+    print(f"illuminant xy: W&W ({r.ww_xy[0]:.4f}, {r.ww_xy[1]:.4f}), gray world "
+          f"({r.gray_world_xy[0]:.4f}, {r.gray_world_xy[1]:.4f})")
+    for name, path in r.files.items():
+        print(f"{name}: {path}")
+    print(f"stored image figures (artifacts {', '.join(map(str, r.artifact_ids))}) on run {ref}; "
+          f"`normbox-lab report {ref}` shows them")
+    return 0
+
+
+def _parse_colour(text: str) -> tuple[int, int, int]:
+    t = text.strip().lstrip("#")
+    try:
+        if "," in t:
+            rgb = tuple(int(v) for v in t.split(","))
+        elif len(t) == 6:
+            rgb = tuple(int(t[i:i + 2], 16) for i in (0, 2, 4))
+        else:
+            raise ValueError
+    except ValueError:
+        from normbox_lab.errors import NormboxError
+
+        raise NormboxError(f"colour {text!r}: use #rrggbb, rrggbb or r,g,b (0–255)") from None
+    if len(rgb) != 3 or not all(0 <= v <= 255 for v in rgb):
+        from normbox_lab.errors import NormboxError
+
+        raise NormboxError(f"colour {text!r}: three values 0–255")
+    return rgb  # type: ignore[return-value]
+
+
+def _metamer(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from normbox_lab.compare import XYZ_to_Lab_D65, delta_e00
+    from normbox_lab.images.color import reflectance_to_XYZ
+    from normbox_lab.images.metamer import linear_srgb_to_XYZ, metamer_for_srgb, srgb_decode
+
+    method = "nearest" if args.nearest else "blend"
+    columns = []
+    wl = None
+    for text in args.colours:
+        rgb = _parse_colour(text)
+        wl, refl = metamer_for_srgb(rgb, method=method)
+        want = linear_srgb_to_XYZ(srgb_decode(np.asarray(rgb) / 255.0))
+        got = reflectance_to_XYZ(wl, refl)
+        de = float(delta_e00(XYZ_to_Lab_D65(want), XYZ_to_Lab_D65(got)))
+        print(f"{text}: ΔE00 {de:.3f} under D65, reflectance {refl.min():.3f}…{refl.max():.3f}, "
+              f"at 450/550/650 nm: {np.interp(450, wl, refl):.3f} {np.interp(550, wl, refl):.3f} "
+              f"{np.interp(650, wl, refl):.3f}")
+        columns.append(refl)
+    if args.csv:
+        header = "wavelength_nm," + ",".join(c.replace(",", " ") for c in args.colours)
+        np.savetxt(args.csv, np.column_stack([wl, *columns]), delimiter=",", header=header,
+                   comments="", fmt="%.6g")
+        print(f"csv: {args.csv}")
+    return 0
+
+
+def _triplet(args: argparse.Namespace) -> int:
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from normbox_lab.images.triplet import render_triplets
+    from normbox_lab.materials import truth_patch, truth_wall
+    from normbox_lab.render import BAND_CENTRES_NM, Quality, render_view
+
+    patch, wall = truth_patch(args.patch, "model"), truth_wall("model")
+    bands = np.asarray(BAND_CENTRES_NM)[::max(1, args.every)]
+    n = len(bands) - len(bands) % 3
+    bands = bands[:n]
+    print(f"triplets: {n} wavelengths in {n // 3} RGB renders × {args.batches} batches…",
+          file=sys.stderr, flush=True)
+    tri = render_triplets(patch, wall, args.angle, wavelengths_nm=bands, spp=args.spp,
+                          batches=args.batches, seed=args.seed)
+    ref = render_view(patch=patch, wall=wall, angle_deg=args.angle, cache=False, seed=args.seed,
+                      quality=Quality("triplet-check", spp=1024, batches=10))
+    on = np.isin(np.asarray(ref.wavelength_nm), bands)
+    z = tri.z_scores(SimpleNamespace(wavelength_nm=np.asarray(ref.wavelength_nm)[on],
+                                     radiance=ref.radiance[on], std_error=ref.std_error[on]))
+    print(f"triplet render {tri.render_time_s:.1f} s ({tri.variant}); spectral {ref.time_s:.1f} s "
+          f"({ref.variant})")
+    print(f"max |z| {np.max(np.abs(z)):.2f}, mean z² {np.mean(z ** 2):.2f} over {z.size} bands "
+          f"(agreement within Monte-Carlo error: mean z² ≈ 1, |z| < 4)")
+    return 0 if np.max(np.abs(z)) < 4.0 else 1
+
+
+def _whitebalance(args: argparse.Namespace) -> int:
+    import numpy as np
+
+    from normbox_lab.images import camera, whitebalance
+    from normbox_lab.images.color import XYZ_to_srgb, write_png
+    from normbox_lab.render import planck_W_sr_m2_nm
+
+    mats = whitebalance.coloured_room_materials() if args.room == "coloured" else None
+    lamp_nm = np.arange(360.0, 831.0, 5.0)
+    lamp = planck_W_sr_m2_nm(lamp_nm, args.lamp_k)
+    lamp = lamp / lamp.max() * 10.0
+    width, height = args.size
+    img = camera.render_cornell(mats, lamp_nm, lamp, width, height, args.spp, args.seed)
+    XYZ = img.XYZ()
+    lit = img.mask("box") & (img.normal[..., 2] > 0.9)      # the cube's face under the lamp
+    target = whitebalance.gray_world_xy(XYZ[lit])
+    est = whitebalance.estimate_illuminant(img.XYZ("cwni"), img.XYZ("nwci"), args.w)
+    gw = whitebalance.gray_world_xy(XYZ)
+    err_ww = float(np.hypot(*(est.illuminant_xy - target)))
+    err_gw = float(np.hypot(*(gw - target)))
+    print(f"light on the white cube's lit face: xy ({target[0]:.4f}, {target[1]:.4f})")
+    print(f"Wilkie & Weidlich (w = {args.w:g}): ({est.illuminant_xy[0]:.4f}, "
+          f"{est.illuminant_xy[1]:.4f}), off by {err_ww:.4f}")
+    print(f"gray world on the raw image:  ({gw[0]:.4f}, {gw[1]:.4f}), off by {err_gw:.4f}")
+    if args.out:
+        out = Path(args.out)
+        white_Y = float(np.percentile(XYZ[..., 1], 99))
+        print(f"png: {write_png(out / 'whitebalance-raw.png', XYZ_to_srgb(XYZ, white_Y))}")
+        balanced = whitebalance.adapt_to_display(XYZ, est.illuminant_XYZ)
+        print(f"png: {write_png(out / 'whitebalance-ww.png', XYZ_to_srgb(balanced, white_Y))}")
+        grey = whitebalance.adapt_to_display(XYZ, whitebalance.gray_world(XYZ))
+        print(f"png: {write_png(out / 'whitebalance-grayworld.png', XYZ_to_srgb(grey, white_Y))}")
+    return 0
+
+
+def _exr_info(args: argparse.Namespace) -> int:
+    from normbox_lab.images.exr import read_spectral_exr
+
+    d = read_spectral_exr(args.path)
+    wl = d["wavelength_nm"]
+    if wl is not None and len(wl):
+        print(f"wavelengths: {len(wl)} from {wl[0]:g} to {wl[-1]:g} nm")
+    for key in ("radiance", "diffuse", "specular", "indirect", "depth_m", "normal",
+                "preview_rgb"):
+        v = d.get(key)
+        if v is not None:
+            print(f"{key}: {'×'.join(map(str, v.shape))} float32")
+    for key, v in (d.get("other") or {}).items():
+        print(f"{key}: {'×'.join(map(str, getattr(v, 'shape', ())))}")
+    for key, v in (d.get("attributes") or {}).items():
+        print(f"attribute {key} = {v}")
+    return 0
