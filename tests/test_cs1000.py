@@ -8,14 +8,11 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from normbox_lab.drivers.cs1000 import CS1000A
-from normbox_lab.sim import core
-from normbox_lab.sim.cs1000 import CS1000AEmulator
-from normbox_lab.sim.transport import open_port
 from serial import SerialException
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.errors import (
     ConfigError,
     DeviceError,
@@ -25,6 +22,9 @@ from normbox_lab.errors import (
     ProtocolError,
 )
 from normbox_lab.interfaces import Spectroradiometer
+from normbox_lab.sim import core
+from normbox_lab.sim.cs1000 import CS1000AEmulator
+from normbox_lab.sim.transport import open_port
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM

@@ -8,13 +8,10 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
-from normbox_lab.sim import core
-from normbox_lab.sim.cs2000 import CS2000AEmulator, fmt_hex, fmt_lv
-from normbox_lab.sim.transport import open_port
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
 from normbox_lab.errors import (
     ConfigError,
     DeviceError,
@@ -23,6 +20,9 @@ from normbox_lab.errors import (
     ProtocolError,
 )
 from normbox_lab.interfaces import Spectroradiometer
+from normbox_lab.sim import core
+from normbox_lab.sim.cs2000 import CS2000AEmulator, fmt_hex, fmt_lv
+from normbox_lab.sim.transport import open_port
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM

@@ -127,6 +127,7 @@ def campaign(tmp_path: Path, kills_wanted: int, seed: int, max_readings: int = 3
         segments = sum(1 for _, k, _ in store.events(run.id) if k == "segment")
         if lab_kind == "sim":
             import numpy as np
+
             from normbox_lab.sim.analytic_world import AnalyticWorld
 
             truth = AnalyticWorld()

@@ -6,14 +6,14 @@ import math
 
 import numpy as np
 import pytest
+
+from normbox_lab.clock import VirtualClock
 from normbox_lab.drivers.gonio import Gonioreflectometer, OperatorWhiteStandard
 from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
+from normbox_lab.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.sim import core
 from normbox_lab.sim import qepro as sim_qepro
-
-from normbox_lab.clock import VirtualClock
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady
 
 LOBE_WIDTH_DEG = 12.0
 

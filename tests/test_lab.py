@@ -4,8 +4,6 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from normbox_lab.sim import core
-from normbox_lab.sim.analytic_world import AnalyticWorld, colorchecker_reflectances
 
 from normbox_lab import lab as labmod
 from normbox_lab.clock import VirtualClock
@@ -13,6 +11,8 @@ from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.engine import PromptRequest
 from normbox_lab.errors import ConfigError, NormboxError
 from normbox_lab.operator import TerminalOperator, VirtualOperator
+from normbox_lab.sim import core
+from normbox_lab.sim.analytic_world import AnalyticWorld, colorchecker_reflectances
 
 
 @pytest.fixture(scope="module")

@@ -7,12 +7,12 @@ import sys
 
 import numpy as np
 import pytest
-from normbox_lab.drivers.qepro import QEPro
-from normbox_lab.sim import core
-from normbox_lab.sim import qepro as sim
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.errors import DeviceError, InstrumentError
+from normbox_lab.sim import core
+from normbox_lab.sim import qepro as sim
 
 
 class FlatWorld:

@@ -14,12 +14,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from normbox_lab.drivers.cs1000 import CS1000A
-from normbox_lab.drivers.cs2000 import CS2000A
-from normbox_lab.sim import core
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.cs1000 import CS1000A
+from normbox_lab.drivers.cs2000 import CS2000A
 from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout
+from normbox_lab.sim import core
 from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM

@@ -5,13 +5,13 @@ from __future__ import annotations
 import struct
 
 import pytest
-from normbox_lab.drivers.rotator_apt import AptRotationStage
-from normbox_lab.sim import core
-from normbox_lab.sim.rotator_apt import AptRotatorEmulator
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.rotator_apt import AptRotationStage
 from normbox_lab.errors import DeviceError, InstrumentError, NotReady
+from normbox_lab.sim import core
+from normbox_lab.sim.rotator_apt import AptRotatorEmulator
 
 STEPS = 409600 / 3
 # host → controller frames, written out byte by byte from the protocol (not from the library)

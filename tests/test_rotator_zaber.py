@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import pytest
-from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
-from normbox_lab.sim import core
-from normbox_lab.sim.rotator_zaber import ZaberRotatorEmulator
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
 from normbox_lab.errors import DeviceError, InstrumentError, NotReady, ProtocolError
+from normbox_lab.sim import core
+from normbox_lab.sim.rotator_zaber import ZaberRotatorEmulator
 
 STEPS = 1 / 0.000234375        # 4266.67 µsteps/°
 SPEED = round(10 * STEPS * 1.6384)            # 10 °/s  → 69905

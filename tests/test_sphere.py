@@ -4,14 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from normbox_lab.drivers.sphere import SphereLightSource
-from normbox_lab.sim import core
-from normbox_lab.sim.sphere import WARMUP_S, SphereEmulator
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.clock import VirtualClock
+from normbox_lab.drivers.sphere import SphereLightSource
 from normbox_lab.errors import DeviceError, InstrumentError, NotReady, ProtocolError
 from normbox_lab.scene import panel_map as truth_panel_map
+from normbox_lab.sim import core
+from normbox_lab.sim.sphere import WARMUP_S, SphereEmulator
 
 
 def scripted(script: list[Exchange]) -> tuple[SphereLightSource, ScriptedPort]:

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from normbox_lab.sim.world import VirtualNormbox
 
 from normbox_lab import brdf_model as bm
 from normbox_lab.materials import truth_brdf_inplane, truth_patch, truth_wall
+from normbox_lab.sim.world import VirtualNormbox
 
 pytest.importorskip("mitsuba")
 
@@ -143,9 +143,8 @@ def test_constructed_from_a_lab_config(cache_dir):
 def test_driver_emulator_world_reading(world):
     """CS-1000A driver ⇄ bytes ⇄ emulator ⇄ VirtualNormbox: the reading is the render."""
     cs1000 = pytest.importorskip("normbox_lab.drivers.cs1000")
-    from normbox_lab.sim import core
-
     from normbox_lab.clock import VirtualClock
+    from normbox_lab.sim import core
 
     clock = VirtualClock()
     core.CONTEXT.reset(clock=clock, world=world)
