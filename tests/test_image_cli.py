@@ -1,0 +1,62 @@
+"""`normbox-lab image …` end to end: metamers, the camera with its EXR, W&W on the test room,
+clear errors."""
+
+import numpy as np
+import pytest
+
+from normbox_lab.cli import main
+
+
+def test_metamer_reproduces_its_colours_and_writes_csv(tmp_path, capsys):
+    csv = tmp_path / "m.csv"
+    assert main(["image", "metamer", "#c0392b", "40,120,200", "--csv", str(csv)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    for line in out[:2]:
+        de = float(line.split("ΔE00 ")[1].split()[0])
+        assert de < 0.05, line
+    data = np.loadtxt(csv, delimiter=",", skiprows=1)
+    assert data.shape == (81, 3)
+    assert data[0, 0] == 380 and data[-1, 0] == 780
+    assert np.all((data[:, 1:] >= 0) & (data[:, 1:] <= 1))
+    # red reflects long wavelengths, blue short ones
+    assert data[-10, 1] > 0.5 > data[10, 1] and data[15, 2] > data[-10, 2]
+
+
+def test_bad_arguments_are_refused_with_a_reason(capsys):
+    assert main(["image", "metamer", "12,300,4"]) == 1
+    assert "three values 0–255" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["image", "camera", "--size", "big"])
+    assert "WIDTHxHEIGHT" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["image", "whitebalance", "--w", "6"])
+    assert "w" in capsys.readouterr().err
+
+
+def test_figure1_needs_a_store(tmp_path, capsys):
+    assert main(["image", "figure1", "--store", str(tmp_path / "none.sqlite")]) == 1
+    assert "no store" in capsys.readouterr().err
+
+
+def test_camera_writes_png_and_a_spectral_exr_whose_layers_sum(tmp_path, capsys):
+    from normbox_lab.images.exr import read_spectral_exr
+
+    assert main(["image", "camera", "--size", "32x24", "--spp", "4", "-o", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    exr = tmp_path / "camera-p07-45deg-truth.exr"
+    assert f"exr: {exr}" in out and (tmp_path / "camera-p07-45deg-truth.png").exists()
+    d = read_spectral_exr(exr)
+    assert d["radiance"].shape == (24, 32, 81) and d["normal"].shape == (24, 32, 3)
+    total = d["emission"] + d["diffuse"] + d["specular"] + d["indirect"]
+    np.testing.assert_allclose(total, d["radiance"], rtol=1e-5, atol=1e-7)
+    assert main(["image", "exr-info", str(exr)]) == 0
+    info = capsys.readouterr().out
+    assert "radiance: 24×32×81 float32" in info and "depth_m: 24×32 float32" in info
+
+
+def test_whitebalance_on_the_coloured_room(capsys):
+    assert main(["image", "whitebalance"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    err_ww = float(lines[1].rsplit("off by ", 1)[1])
+    err_gw = float(lines[2].rsplit("off by ", 1)[1])
+    assert err_ww < 0.01 < err_gw
