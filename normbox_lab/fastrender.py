@@ -412,7 +412,7 @@ class BandPathTracer:
             deta = dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None
 
             vx = SimpleNamespace(wi=wi, alpha=alpha, eta=eta, c=cc, kd=kd, ks=ks, kb=kb,
-                                 inv_s2=inv_s2, deta=deta, delta=delta)
+                                 inv_s2=inv_s2, deta=deta, delta=delta, p_spec=p_spec)
 
             # emitter sampling (next-event estimation): a uniform point of the rectangle
             o = self._offset(p, nf)
@@ -436,18 +436,7 @@ class BandPathTracer:
             for b in range(n_b):
                 acc[b] = dr.fma(thr[b], fac[b], acc[b])
             # BSDF sampling: cosine or GGX, by a λ-independent coin
-            uc = rng.next_float32()
-            us = m.Point2f(rng.next_float32(), rng.next_float32())
-            wo_cos = m.warp.square_to_cosine_hemisphere(us)
-            t2 = alpha * alpha * us.x / dr.fmax(1.0 - us.x, 1e-7)
-            cth = dr.rsqrt(1.0 + t2)
-            sth = dr.safe_sqrt(1.0 - cth * cth)
-            phi = 2.0 * dr.pi * us.y
-            hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
-            wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
-            wo = dr.select(uc < p_spec, wo_spec, wo_cos)
-            bpdf = self._pdf(wi, wo, alpha, p_spec)
-            active = active & (wo.z > 0) & (bpdf > 0)
+            wo, bpdf, active = self._sample(vx, rng, active)
             fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), active)
             for b in range(n_b):
                 thr[b] = thr[b] * fac[b]
@@ -523,6 +512,24 @@ class BandPathTracer:
                 fb = dr.fma(vx.kb[b], k_, fb)
             out.append(fb)
         return out
+
+    def _sample(self, vx: Any, rng: Any, active: Any) -> tuple[Any, Any, Any]:
+        """Cosine or GGX (D·cos θh) direction by a λ-independent coin at vertex `vx` (wi, alpha,
+        p_spec): (local wo, its mixture pdf, `active` where wo is usable)."""
+        dr, m = self.dr, self.m
+        wi, alpha = vx.wi, vx.alpha
+        uc = rng.next_float32()
+        us = m.Point2f(rng.next_float32(), rng.next_float32())
+        wo_cos = m.warp.square_to_cosine_hemisphere(us)
+        t2 = alpha * alpha * us.x / dr.fmax(1.0 - us.x, 1e-7)
+        cth = dr.rsqrt(1.0 + t2)
+        sth = dr.safe_sqrt(1.0 - cth * cth)
+        phi = 2.0 * dr.pi * us.y
+        hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
+        wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
+        wo = dr.select(uc < vx.p_spec, wo_spec, wo_cos)
+        bpdf = self._pdf(wi, wo, alpha, vx.p_spec)
+        return wo, bpdf, active & (wo.z > 0) & (bpdf > 0)
 
     def _pdf(self, wi: Any, wo: Any, alpha: Any, p_spec: Any) -> Any:
         """Solid-angle pdf of the cosine + GGX(D·cos θh) mixture for the outgoing wo."""

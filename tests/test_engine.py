@@ -284,7 +284,8 @@ def test_stop_while_paused_in_process_ends_the_segment_resumably(store):
     assert make(FakeLab(), store, SMALL).run(resume=e.run_uuid).done == 12
 
 
-def test_abort_while_waiting_for_an_answer(store):
+def waiting_at_first_prompt(store):
+    """An engine without an operator callable, run in a worker until it waits for an answer."""
     lab = FakeLab()
     lab.operator = None
     e = make(lab, store, SMALL)
@@ -294,6 +295,11 @@ def test_abort_while_waiting_for_an_answer(store):
     worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
     worker.start()
     assert asked.wait(10)
+    return e, worker, result
+
+
+def test_abort_while_waiting_for_an_answer(store):
+    e, worker, result = waiting_at_first_prompt(store)
     e.abort()
     worker.join(10)
     assert result["r"].status == "aborted" and result["r"].done == 0
@@ -315,15 +321,7 @@ def test_a_lamp_that_keeps_dropping_out_becomes_an_operator_decision(store):
 
 
 def test_stop_while_waiting_for_an_answer_pauses_and_resume_asks_again(store):
-    lab = FakeLab()
-    lab.operator = None
-    e = make(lab, store, SMALL)
-    asked = threading.Event()
-    e.subscribe(lambda ev: asked.set() if ev.kind == "prompt" else None)
-    result = {}
-    worker = threading.Thread(target=lambda: result.setdefault("r", e.run()))
-    worker.start()
-    assert asked.wait(10)
+    e, worker, result = waiting_at_first_prompt(store)
     first = e.pending_prompt
     e.stop()
     worker.join(10)

@@ -363,23 +363,6 @@ class CameraTracer(BandPathTracer):
         mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
         return wo, self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30) * mis * wo.z, ok
 
-    def _sample(self, vx: SimpleNamespace, rng: Any, active: Any) -> tuple[Any, Any, Any]:
-        """Cosine or GGX direction by a λ-independent coin: (local wo, pdf, mask)."""
-        dr, m = self.dr, self.m
-        wi, alpha = vx.wi, vx.alpha
-        uc = rng.next_float32()
-        us = m.Point2f(rng.next_float32(), rng.next_float32())
-        wo_cos = m.warp.square_to_cosine_hemisphere(us)
-        t2 = alpha * alpha * us.x / dr.fmax(1.0 - us.x, 1e-7)
-        cth = dr.rsqrt(1.0 + t2)
-        sth = dr.safe_sqrt(1.0 - cth * cth)
-        phi = 2.0 * dr.pi * us.y
-        hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
-        wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
-        wo = dr.select(uc < vx.p_spec, wo_spec, wo_cos)
-        bpdf = self._pdf(wi, wo, alpha, vx.p_spec)
-        return wo, bpdf, active & (wo.z > 0) & (bpdf > 0)
-
     def _lobes(self, vx: SimpleNamespace, wo: Any, weight: Any,
                mask: Any) -> tuple[list[Any], list[Any]]:
         """weight·f_b split into the diffuse part (kd_b/π − c) and the angular lobes (GGX and
