@@ -34,6 +34,7 @@ Fit error: relative RMS over all valid samples, 100·√mean(((f_fit − f_meas)
 from __future__ import annotations
 
 import time
+import warnings
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -339,7 +340,9 @@ def fit_error_at(fit: MaterialFit, data: BrdfData, theta_i_deg: float,
     if not ok.any():
         return np.full(data.wavelength_nm.size, np.nan)
     near = ok & (d <= d[ok].min() + 1e-9)
-    return np.nanmean(rel[near], axis=0)
+    with warnings.catch_warnings():          # a wavelength with no valid sample stays NaN
+        warnings.simplefilter("ignore", RuntimeWarning)
+        return np.nanmean(rel[near], axis=0)
 
 
 def fit_error_pct(fit: MaterialFit, data: BrdfData, mask: np.ndarray | None = None) -> float:
