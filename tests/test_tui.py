@@ -461,12 +461,15 @@ def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
             await pilot.press("6")
             await until(pilot, lambda: getattr(app, "_image_shown", None) is not None,
                         "the image preview")
-            shown = app.query_one("#images-text").content
-            lines = [r for r in shown.renderables]
-            assert lines[0].plain.startswith("virtual camera")
-            assert lines[1].plain == "truth" and lines[3].plain == "ΔE00 [0…5 ΔE00]"
-            block = lines[2]
+            figure = app.query_one("#images-text").content.renderables[0]
+            title, grid = figure.renderables
+            assert title.plain.startswith("virtual camera")
+            labels = [c._cells[0].plain for c in grid.columns]
+            assert labels == ["truth", "ΔE00 (0…5 ΔE00)"]
+            block = grid.columns[0]._cells[1]
             assert set(block.plain) <= {"▀", "\n"}
             assert any("rgb(200,30,40)" in str(s.style) for s in block.spans), block.spans[:3]
+            # side by side: each panel gets about half of the console's width
+            assert 30 <= len(block.plain.split("\n")[0]) <= 40
     asyncio.run(scenario())
     session.close()

@@ -58,3 +58,28 @@ def half_block_text(image: Any, width_cells: int = 40, vmax: float | None = None
         if j + 2 < px.shape[0]:
             text.append("\n")
     return text
+
+
+def figure_renderable(title: str, panels: list[tuple[str, Any, float | None, str]],
+                      width_cells: int = 80) -> Any:
+    """A titled row of panels (label, image or map, vmax, unit) side by side, sharing
+    `width_cells` columns (one column of space between panels), as a rich Group."""
+    from rich.console import Group
+    from rich.table import Table
+    from rich.text import Text
+
+    n = max(len(panels), 1)
+    each = max(8, (int(width_cells) - (n - 1)) // n)
+    grid = Table.grid(padding=(0, 1))
+    for _ in panels:
+        grid.add_column(width=each, no_wrap=True)
+    grid.add_row(*[Text(_panel_label(label, vmax, unit), overflow="ellipsis", no_wrap=True)
+                   for label, _data, vmax, unit in panels])
+    grid.add_row(*[half_block_text(data, each, vmax) for _label, data, vmax, _unit in panels])
+    return Group(Text(title, style="bold"), grid)
+
+
+def _panel_label(label: str, vmax: float | None, unit: str) -> str:
+    if not vmax:
+        return label
+    return f"{label} (0…{vmax:g}{' ' + unit if unit else ''})"

@@ -832,12 +832,12 @@ class NormboxConsole(App):
         self.show_heatmap(hm)
 
     def _refresh_images(self) -> None:
-        """The latest image figure of the store (virtual camera: truth | prediction | ΔE00) as
-        half-block previews, panels one under the other, as wide as the pane allows."""
+        """The store's latest image figures (one per id; the virtual camera's truth | prediction
+        | ΔE00 first) as half-block previews, each figure's panels side by side across the
+        console's width."""
         from rich.console import Group
-        from rich.text import Text
 
-        from normbox_lab.images.terminal import half_block_text
+        from normbox_lab.images.terminal import figure_renderable
 
         store = self.session.store
         if store is None:
@@ -845,16 +845,17 @@ class NormboxConsole(App):
         found = store.artifacts(kind="image-figure")
         if not found or getattr(self, "_image_shown", None) == found[-1].id:
             return
-        a = found[-1]
-        self._image_shown = a.id
-        width = max(16, min(100, self.query_one("#images-view").size.width - 2 or 60))
-        parts: list[Any] = [Text(f"{a.metadata.get('title', a.name)} (artifact {a.id})",
-                                 style="bold")]
-        for k, p in enumerate(a.metadata.get("panels", [])):
-            unit = f" [0…{p['vmax']:g} {p.get('unit', '')}]" if p.get("vmax") else ""
-            parts += [Text(f"{p['label']}{unit}"),
-                      half_block_text(a.arrays[f"p{k}"], width, p.get("vmax"))]
-        self.query_one("#images-text", Static).update(Group(*parts))
+        latest = {a.name: a for a in found}
+        order = sorted(latest.values(), key=lambda a: (a.name != "fig-camera", -a.id))
+        self._image_shown = found[-1].id
+        width = max(24, min(160, self.size.width - 4))
+        figures = []
+        for a in order:
+            panels = [(p["label"], a.arrays[f"p{k}"], p.get("vmax"), p.get("unit", ""))
+                      for k, p in enumerate(a.metadata.get("panels", []))]
+            title = f"{a.metadata.get('title', a.name)} (artifact {a.id}, run {a.run_id})"
+            figures.append(figure_renderable(title, panels, width))
+        self.query_one("#images-text", Static).update(Group(*figures))
 
     def show_heatmap(self, hm: Any) -> None:
         from rich.text import Text
