@@ -175,7 +175,9 @@ def _camera(args: argparse.Namespace) -> int:
         XYZ = whitebalance.adapt_to_display(XYZ, whitebalance.gray_world(XYZ))
     out = Path(args.out)
     stem = f"camera-p{args.patch:02d}-{args.angle:g}deg-{args.materials}"
-    png = write_png(out / f"{stem}.png", XYZ_to_srgb(XYZ))
+    # display white: the white patch at 30° seen by the radiometer in the same box (as figure1)
+    white = camera.white_reference_XYZ(wall, holder=holder_material(), seed=args.seed)
+    png = write_png(out / f"{stem}.png", XYZ_to_srgb(XYZ, float(white[1])))
     print(f"render: {img.time_s:.1f} s; luminance median relative SE "
           f"{100 * img.info.get('median_rel_se_luminance', float('nan')):.1f} %")
     print(f"png: {png}")
