@@ -60,3 +60,12 @@ def test_whitebalance_on_the_coloured_room(capsys):
     err_ww = float(lines[1].rsplit("off by ", 1)[1])
     err_gw = float(lines[2].rsplit("off by ", 1)[1])
     assert err_ww < 0.01 < err_gw
+
+
+def test_triplet_cross_check_agrees_within_monte_carlo_error(capsys):
+    assert main(["image", "triplet"]) == 0
+    out = capsys.readouterr().out
+    line = next(ln for ln in out.splitlines() if ln.startswith("max |z|"))
+    max_z = float(line.split()[2].rstrip(","))
+    mean_z2 = float(line.split("mean z² ")[1].split()[0])
+    assert max_z < 4.0 and 0.2 < mean_z2 < 3.0, line

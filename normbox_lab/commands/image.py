@@ -294,7 +294,7 @@ def _triplet(args: argparse.Namespace) -> int:
     on = np.isin(np.asarray(ref.wavelength_nm), bands)
     z = tri.z_scores(SimpleNamespace(wavelength_nm=np.asarray(ref.wavelength_nm)[on],
                                      radiance=ref.radiance[on], std_error=ref.std_error[on]))
-    print(f"triplet render {tri.render_time_s:.1f} s ({tri.variant}); spectral {ref.time_s:.1f} s "
+    print(f"triplet render {tri.render_time_s:.1f} s ({tri.variant}); spectral {ref.render_time_s:.1f} s "
           f"({ref.variant})")
     print(f"max |z| {np.max(np.abs(z)):.2f}, mean z² {np.mean(z ** 2):.2f} over {z.size} bands "
           f"(agreement within Monte-Carlo error: mean z² ≈ 1, |z| < 4)")
