@@ -10,7 +10,7 @@ from normbox_lab.demo import QUICK_ANGLES, QUICK_PATCHES, DemoOptions, run_demo
 from normbox_lab.store import Store
 
 
-def test_quick_demo_closes_through_the_instruments(tmp_path):
+def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):
     lines: list[str] = []
     result = run_demo(DemoOptions(quick=True, truth="model", noise=False,
                                   out_dir=str(tmp_path / "demo")), log=lines.append)
@@ -37,3 +37,16 @@ def test_quick_demo_closes_through_the_instruments(tmp_path):
         "set-up", "brdf-inplane", "fit", "light-map", "reference-sweep", "predict", "compare",
         "images", "report"]
     assert np.isfinite(list(s["nrmse_by_angle_pct"].values())).all()
+    # the same figures from the command line, on the demo's store
+    from normbox_lab.cli import main
+
+    out_dir = tmp_path / "fig"
+    assert main(["image", "figure1", "--store", str(result.store), "--size", "32x24", "--spp",
+                 "4", "--no-exr", "-o", str(out_dir)]) == 0
+    printed = capsys.readouterr().out
+    assert "ΔE00 per pixel over the box" in printed and "illuminant xy: W&W" in printed
+    assert (out_dir / "figure1-p07-45deg-delta-e00.png").exists()
+    with Store(result.store) as store:
+        figs = store.artifacts("image-figure", run_ref=result.runs["reference-sweep"])
+    assert [a.name for a in figs][-2:] == ["fig-camera", "fig-whitebalance"]
+    assert figs[-2].arrays["p0"].shape == (24, 32, 3)
