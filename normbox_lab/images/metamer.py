@@ -77,14 +77,14 @@ only Munsell *renotation* xyY, no spectra). Smits 1999 spectra exceed 1 by ≤ 1
 clipped to [0, 1]; spectra narrower than 380–780 nm are extended with their end values; exact
 duplicates after resampling are dropped."""
 
-SRGB_TO_XYZ: np.ndarray = np.array([[0.4124, 0.3576, 0.1805],
-                                     [0.2126, 0.7152, 0.0722],
-                                     [0.0193, 0.1192, 0.9505]])
-"""Linear sRGB → XYZ (Y of white = 1): the IEC 61966-2-1 matrix as printed (MIST Eq. 2; the same
-numbers colour-science's `sRGB_to_XYZ` uses). Its white, (0.9505, 1, 1.089), differs from the
-CIE-integrated D65 white (0.95043, 1, 1.08880) in the fourth decimal; `REFLECTANCE_TOLERANCE`
-absorbs that for white itself."""
-SRGB_TO_XYZ.setflags(write=False)
+def srgb_to_XYZ_matrix() -> np.ndarray:
+    """Linear sRGB → XYZ (Y of white = 1): colour-science's sRGB colourspace matrix, which is the
+    IEC 61966-2-1 matrix as printed (MIST Eq. 2). Its white, (0.9505, 1, 1.089), differs from the
+    CIE-integrated D65 white (0.95043, 1, 1.08880) in the fourth decimal;
+    `REFLECTANCE_TOLERANCE` absorbs that for white itself."""
+    import colour
+
+    return np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
 
 
 class MetamerRangeError(NormboxError, ValueError):
@@ -92,15 +92,16 @@ class MetamerRangeError(NormboxError, ValueError):
 
 
 def srgb_decode(encoded: np.ndarray) -> np.ndarray:
-    """sRGB transfer function inverse (MIST Eq. 1): encoded values in [0, 1] → linear."""
-    c = np.asarray(encoded, dtype=np.float64)
-    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+    """sRGB transfer function inverse (MIST Eq. 1), colour-science's: encoded [0, 1] → linear."""
+    import colour
+
+    return np.asarray(colour.cctf_decoding(np.asarray(encoded, dtype=np.float64), "sRGB"))
 
 
 def linear_srgb_to_XYZ(linear_rgb: np.ndarray) -> np.ndarray:
     """(..., 3) linear sRGB → XYZ with Y(white) = 1, elementwise (bit-identical for any batch)."""
     rgb = np.asarray(linear_rgb, dtype=np.float64)
-    m = SRGB_TO_XYZ
+    m = srgb_to_XYZ_matrix()
     r, g, b = rgb[..., 0], rgb[..., 1], rgb[..., 2]
     return np.stack([m[i, 0] * r + m[i, 1] * g + m[i, 2] * b for i in range(3)], axis=-1)
 
@@ -296,7 +297,7 @@ class MetamerDatabase:
             a_eq[3 * i:3 * i + 3, i * n_spectra:(i + 1) * n_spectra] = self.XYZ.T
         a_eq[:, n_weights:n_weights + 9] = np.eye(9)
         a_eq[:, n_weights + 9:] = -np.eye(9)
-        b_eq = SRGB_TO_XYZ.T.reshape(-1)  # primary i's XYZ at rows 3i..3i+2
+        b_eq = srgb_to_XYZ_matrix().T.reshape(-1)  # primary i's XYZ at rows 3i..3i+2
         a_ub = np.hstack([self.spectra.T, self.spectra.T, self.spectra.T, np.zeros((n_bands, 18))])
         result = linprog(cost, A_ub=a_ub, b_ub=np.ones(n_bands), A_eq=a_eq, b_eq=b_eq,
                          bounds=(0.0, None), method="highs")
