@@ -11,7 +11,7 @@ STAMP  := $(VENV)/.normbox-installed
 
 setup: $(STAMP)
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml setup.py
 	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
 	    && ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then \
 	  echo ">> installing Debian libllvm19 (Mitsuba's llvm_ad_spectral needs libLLVM >= 16)"; \
@@ -24,7 +24,7 @@ $(STAMP): pyproject.toml
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
-	$(PY) -m normbox_lab.mitsuba_setup
+	$(PY) -m normbox_lab.predict.mitsuba_setup
 	@touch $(STAMP)
 
 test: $(STAMP)

@@ -41,21 +41,21 @@ from typing import Any
 import numpy as np
 from serial import SerialException
 
-from normbox_lab.clock import Clock
-from normbox_lab.drivers.radiometer_common import (
-    SerialRadiometer,
-    check_spectrum,
-    colorimetry_from,
-)
-from normbox_lab.errors import (
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import (
     ConfigError,
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.interfaces import InstrumentIdentity
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.interfaces import InstrumentIdentity
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.drivers.radiometer_common import (
+    SerialRadiometer,
+    check_spectrum,
+    colorimetry_from,
+)
 
 BAUD_RATES = (4800, 9600, 19200)
 SPEEDS = {"normal": 0, "fast": 1}

@@ -32,21 +32,21 @@ from typing import Any
 
 from serial import SerialException
 
-from normbox_lab.clock import Clock
-from normbox_lab.drivers.radiometer_common import (
-    SerialRadiometer,
-    check_spectrum,
-    colorimetry_from,
-)
-from normbox_lab.errors import (
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import (
     ConfigError,
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.interfaces import InstrumentIdentity
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.interfaces import InstrumentIdentity
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.drivers.radiometer_common import (
+    SerialRadiometer,
+    check_spectrum,
+    colorimetry_from,
+)
 
 ERRORS = {
     "ER00": "invalid command or number of parameters (or not in remote mode, or a command "

@@ -38,10 +38,10 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.clock import Clock
-from normbox_lab.errors import DeviceError, NotReady
-from normbox_lab.interfaces import InstrumentIdentity
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, BrdfReading
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import DeviceError, NotReady
+from normbox_lab.core.interfaces import InstrumentIdentity
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, BrdfReading
 
 THETA_I_DEG = tuple(range(-80, 1, 10))
 THETA_O_DEG = tuple(range(-80, 81, 10))

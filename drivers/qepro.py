@@ -30,9 +30,9 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.clock import Clock
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady
-from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
+from normbox_lab.core.interfaces import InstrumentIdentity
 
 MIN_INTEGRATION_S = 8e-3
 MAX_INTEGRATION_S = 1600.0

@@ -21,15 +21,15 @@ from typing import Any, TypeVar
 import numpy as np
 from serial import SerialException
 
-from normbox_lab.clock import Clock
-from normbox_lab.errors import (
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import (
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.types import Colorimetry
+from normbox_lab.core.types import Colorimetry
 
 T = TypeVar("T")
 

@@ -21,8 +21,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
-from normbox_lab.clock import Clock
-from normbox_lab.errors import DeviceError, NotReady
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import DeviceError, NotReady
 
 
 def trapezoid_time_s(distance_deg: float, max_velocity_deg_s: float,

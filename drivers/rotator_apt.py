@@ -40,10 +40,10 @@ from typing import Any
 import thorlabs_apt_protocol as apt
 from serial import SerialException
 
-from normbox_lab.clock import Clock
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
+from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.drivers.rotation import RotationStageBase
-from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
-from normbox_lab.interfaces import InstrumentIdentity
 
 HOST = 0x01
 DEVICE = 0x50

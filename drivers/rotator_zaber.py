@@ -34,10 +34,10 @@ from typing import Any
 
 from serial import SerialException
 
-from normbox_lab.clock import Clock
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
+from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.drivers.rotation import RotationStageBase
-from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
-from normbox_lab.interfaces import InstrumentIdentity
 
 X_RSW60A_STEPS_PER_DEG = 1.0 / 0.000234375
 SPEED_NATIVE_PER_STEP_S = 1.6384

@@ -30,15 +30,15 @@ from typing import Any
 import numpy as np
 from serial import SerialException
 
-from normbox_lab.clock import Clock
-from normbox_lab.errors import (
+from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import (
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
     NotReady,
     ProtocolError,
 )
-from normbox_lab.interfaces import InstrumentIdentity
+from normbox_lab.core.interfaces import InstrumentIdentity
 
 STATES = ("off", "settling", "stable", "error")
 

@@ -54,7 +54,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from normbox_lab.errors import NormboxError
+    from normbox_lab.core.errors import NormboxError
 
     parser = build_parser()
     args = parser.parse_args(argv)

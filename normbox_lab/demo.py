@@ -61,7 +61,7 @@ class DemoResult:
 
 
 def _lab_config_text(opts: DemoOptions, quality: str, cache_dir: Path) -> str:
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE
 
     text = SIM_CONFIG_TEMPLATE.replace('quality = "default"     # quick | default | high',
                                        f'quality = "{quality}"\ntruth = "{opts.truth}"\n'
@@ -81,7 +81,7 @@ class _FastRenderWorld:
     target_rel_se: float = 0.004
 
     def render(self, patch, angle_deg, *, direct_only=False, quality=None):
-        from normbox_lab.fastrender import config_seed
+        from normbox_lab.predict.fastrender import config_seed
         from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG
 
         angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
@@ -98,7 +98,7 @@ def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Calla
 
     if opts.renderer == "stock":
         return VirtualNormbox(config=config), None
-    from normbox_lab.fastrender import FastNormbox, config_seed
+    from normbox_lab.predict.fastrender import FastNormbox, config_seed
 
     fast = FastNormbox(config.geometry)
     world_cls = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})
@@ -125,7 +125,7 @@ def _truth_name(fit_name: str) -> str:
 
 def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
                  on_progress: Callable[[str, int, int], None]) -> Any:
-    from normbox_lab import engine as eng
+    from normbox_lab.acquire import engine as eng
 
     module = eng.load_protocol(protocol)
     full = eng.resolve_parameters(module, lab.config.protocol_defaults(protocol), params)
@@ -138,7 +138,7 @@ def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
     engine.subscribe(on_event)
     result = engine.run()
     if result.status != "done":
-        from normbox_lab.errors import NormboxError
+        from normbox_lab.core.errors import NormboxError
 
         raise NormboxError(f"{protocol} ended {result.status} ({result.done}/{result.planned}); "
                            f"resume with: normbox-lab run --resume {result.uuid}")
@@ -149,9 +149,10 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
              log: Callable[[str], None] = print) -> DemoResult:
     import numpy as np
 
-    from normbox_lab.config import parse_config
-    from normbox_lab.lab import build_lab
-    from normbox_lab.pipeline import (
+    from normbox_lab.acquire.config import parse_config
+    from normbox_lab.acquire.lab import build_lab
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze.pipeline import (
         camera_figures_run,
         compare_run,
         fit_run,
@@ -159,7 +160,6 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
         predict_run,
         report_run,
     )
-    from normbox_lab.store import Store
 
     progress = on_progress or (lambda stage, done, total: None)
     out = Path(opts.out_dir)

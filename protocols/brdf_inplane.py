@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from normbox_lab.engine import Step, calibrate, measure, prompt
+from normbox_lab.acquire.engine import Step, calibrate, measure, prompt
 from normbox_lab.protocols._common import patch_name, signed_key
 
 PARAMETERS: dict[str, Any] = {

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from normbox_lab.engine import Step, measure, prompt, wait_stable
+from normbox_lab.acquire.engine import Step, measure, prompt, wait_stable
 
 PARAMETERS: dict[str, Any] = {
     "rows": 5,

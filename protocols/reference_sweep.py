@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from normbox_lab.engine import Step, measure, move, prompt, wait_stable
+from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
 from normbox_lab.protocols._common import angle_key, patch_name
 
 PARAMETERS: dict[str, Any] = {

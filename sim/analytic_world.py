@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 
 H_J_S = 6.62607015e-34
 C_M_S = 2.99792458e8
@@ -34,8 +34,8 @@ HOLDER_REFLECTANCE = 0.03
 def colorchecker_reflectances() -> np.ndarray:
     """(24, 401) reflectances at RADIOMETER_WAVELENGTHS_NM, patch N at row N - 1 (the virtual
     Normbox's cached 5 nm table — the Ohta data's own grid — interpolated to 1 nm)."""
-    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM
-    from normbox_lab.materials import colorchecker_reflectances as table_5nm
+    from normbox_lab.predict.materials import MATERIAL_WAVELENGTHS_NM
+    from normbox_lab.predict.materials import colorchecker_reflectances as table_5nm
 
     return np.array([np.interp(RADIOMETER_WAVELENGTHS_NM, MATERIAL_WAVELENGTHS_NM, row)
                      for row in table_5nm()])

@@ -30,7 +30,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from normbox_lab.clock import Clock, VirtualClock
+from normbox_lab.core.clock import Clock, VirtualClock
 
 TRANSPORT_FAULTS = ("no-reply", "late-reply", "garble", "truncate", "disconnect")
 

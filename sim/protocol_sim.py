@@ -14,7 +14,7 @@ import urllib.parse
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
 from normbox_lab.sim import core
 
 

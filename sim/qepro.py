@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.clock import Clock, VirtualClock
+from normbox_lab.core.clock import Clock, VirtualClock
 from normbox_lab.sim import core
 
 PIXELS = 1044

@@ -33,7 +33,7 @@ Behaviour (all on the injected clock):
 - switch-on: output starts at 80 % of the set level and rises as 1 − 0.2·exp(−t/τ), τ = 60 s;
   STABLE once within 0.1 % (t = τ·ln 200 ≈ 318 s); a level change re-settles for 30 s;
 - slow drift −0.05 %/h while on, noise 0.02 % rms per reading;
-- the opal panel's 25-point map (`normbox_lab.scene.panel_map`, ±3 % homogeneity).
+- the opal panel's 25-point map (`normbox_lab.predict.scene.panel_map`, ±3 % homogeneity).
 
 Device faults: ``unstable`` (at a command: the regulation loses lock, a 2 % dip and SETTLING
 for `parameter` s, default 60), ``lamp-fail`` (at a command: output 0, state ERROR, error 201
@@ -48,7 +48,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.scene import panel_map as truth_panel_map
+from normbox_lab.predict.scene import panel_map as truth_panel_map
 from normbox_lab.sim import core
 
 WARMUP_TAU_S = 60.0

@@ -11,7 +11,7 @@ from typing import TextIO
 
 import serial
 
-from normbox_lab.clock import RealClock
+from normbox_lab.core.clock import RealClock
 from normbox_lab.sim import core
 
 

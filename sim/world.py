@@ -14,7 +14,7 @@ World state, and who changes it:
 
 What the instruments see:
 - `radiance_in_view()` → (wavelength_nm 380…780 step 1, W·sr⁻¹·m⁻²·nm⁻¹): a Mitsuba render
-  of the box with the truth materials (`normbox_lab.render.render_view`, cached on disk by
+  of the box with the truth materials (`normbox_lab.predict.render.render_view`, cached on disk by
   patch × angle × lamp × quality), interpolated from the 5 nm render bands; the full result with
   its Monte-Carlo standard error is kept in `last_render`.  The radiometer emulator adds the
   instrument's own behaviour (noise, wavelength shift, timing) on top.
@@ -28,16 +28,16 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.materials import (
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.predict.materials import (
     Material,
     holder_material,
     truth_material,
     truth_patch,
     truth_wall,
 )
-from normbox_lab.render import Lamp, RenderResult, luminance_cd_m2, render_view
-from normbox_lab.scene import as_geometry, panel_map_at
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.predict.render import Lamp, RenderResult, luminance_cd_m2, render_view
+from normbox_lab.predict.scene import as_geometry, panel_map_at
 
 #: render angles are rounded to this (rotator encoder noise must not defeat the cache)
 ANGLE_RESOLUTION_DEG = 0.001
@@ -159,7 +159,7 @@ class VirtualNormbox:
 
     def brdf_truth(self, theta_i_deg: float, theta_o_deg: float, tilt_deg: float,
                    wavelength_nm: np.ndarray) -> np.ndarray:
-        from normbox_lab.materials import truth_brdf_inplane
+        from normbox_lab.predict.materials import truth_brdf_inplane
 
         material = (self.holder if self.gonio_material is None
                     else truth_material(self.gonio_material, self.truth,

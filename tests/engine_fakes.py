@@ -13,10 +13,10 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.clock import VirtualClock
-from normbox_lab.errors import DeviceError, InstrumentTimeout
-from normbox_lab.interfaces import InstrumentIdentity
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentTimeout
+from normbox_lab.core.interfaces import InstrumentIdentity
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 
 
 class FakeWorld:
@@ -243,7 +243,7 @@ class FakeGonio:
         return {"dark_counts": np.zeros(5), "white_counts": np.full(5, 1000.0)}
 
     def measure_brdf(self, theta_i_deg: float, theta_o_deg: float):
-        from normbox_lab.types import BrdfReading
+        from normbox_lab.core.types import BrdfReading
 
         self.clock.sleep(self.measure_s)
         wl = np.arange(400.0, 701.0, 100.0)

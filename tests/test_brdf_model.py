@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 from scipy import integrate
 
-from normbox_lab.brdf_model import (
+from normbox_lab.acquire.store import Store
+from normbox_lab.predict.brdf_model import (
     MaterialFit,
     ct_ggx_brdf,
     fresnel_cook_torrance,
@@ -14,7 +15,6 @@ from normbox_lab.brdf_model import (
     smith_g1,
     specular_basis,
 )
-from normbox_lab.store import Store
 
 
 def _random_upper(rng, n):

@@ -12,7 +12,7 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from normbox_lab.images import camera as cam
-from normbox_lab.materials import Material
+from normbox_lab.predict.materials import Material
 
 FLAT_NM = np.array([360.0, 830.0])
 SMALL = {"width": 32, "height": 24}
@@ -134,8 +134,8 @@ def test_a_camera_at_the_radiometer_closes_on_the_radiometer(truth):
     what `FastNormbox.render_view` does, and emission + diffuse + specular what its direct-only
     render (max_depth 2) does — independent estimators of the same band radiances.  "default":
     the truth materials (backscatter lobe, dispersive Fresnel; other kernels, so slow)."""
-    from normbox_lab import materials as mats
-    from normbox_lab.scene import radiometer_position_m, sample_centre_m
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.scene import radiometer_position_m, sample_centre_m
 
     patch, wall = mats.truth_patch(7, truth), mats.truth_wall(truth)
     nc = cam.normbox_camera_renderer()
@@ -161,7 +161,7 @@ def test_a_camera_at_the_radiometer_closes_on_the_radiometer(truth):
 
 
 def test_normbox_view_frames_the_box_and_figure1_of_identical_materials_is_zero():
-    from normbox_lab import materials as mats
+    from normbox_lab.predict import materials as mats
 
     patch, wall = mats.truth_patch(19, "model"), mats.truth_wall("model")
     truth = {"patch": patch, "wall": wall}

@@ -4,7 +4,8 @@ import colour
 import numpy as np
 import pytest
 
-from normbox_lab.compare import (
+from normbox_lab.acquire.store import Store
+from normbox_lab.analyze.compare import (
     ComparisonResult,
     compare,
     delta_e00,
@@ -14,7 +15,6 @@ from normbox_lab.compare import (
     rate_delta_e,
     rating_index,
 )
-from normbox_lab.store import Store
 
 WL = np.arange(380.0, 781.0, 1.0)
 ANG = np.arange(30.0, 91.0, 5.0)

@@ -4,8 +4,13 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config, write_sim_config
-from normbox_lab.errors import ConfigError
+from normbox_lab.acquire.config import (
+    SIM_CONFIG_TEMPLATE,
+    load_config,
+    parse_config,
+    write_sim_config,
+)
+from normbox_lab.core.errors import ConfigError
 
 
 def test_template_is_a_complete_simulated_lab(tmp_path):

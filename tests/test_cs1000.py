@@ -11,9 +11,8 @@ from hypothesis import strategies as st
 from serial import SerialException
 from wire import Exchange, ScriptedPort
 
-from normbox_lab.clock import VirtualClock
-from normbox_lab.drivers.cs1000 import CS1000A
-from normbox_lab.errors import (
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import (
     ConfigError,
     DeviceError,
     InstrumentError,
@@ -21,11 +20,12 @@ from normbox_lab.errors import (
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.interfaces import Spectroradiometer
+from normbox_lab.core.interfaces import Spectroradiometer
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.sim import core
 from normbox_lab.sim.cs1000 import CS1000AEmulator
 from normbox_lab.sim.transport import open_port
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM
 SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)          # a known ramp, W·sr⁻¹·m⁻²·nm⁻¹

@@ -10,20 +10,20 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from wire import Exchange, ScriptedPort
 
-from normbox_lab.clock import VirtualClock
-from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
-from normbox_lab.errors import (
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import (
     ConfigError,
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.interfaces import Spectroradiometer
+from normbox_lab.core.interfaces import Spectroradiometer
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
 from normbox_lab.sim import core
 from normbox_lab.sim.cs2000 import CS2000AEmulator, fmt_hex, fmt_lv
 from normbox_lab.sim.transport import open_port
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM
 SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)
@@ -398,7 +398,7 @@ def test_fuzz_emulator_input_never_crashes_it(chunks):
 
 
 def test_abort_from_another_thread_cancels_the_measurement():
-    from normbox_lab.errors import OperatorAbort
+    from normbox_lab.core.errors import OperatorAbort
 
     emu = emulator(scene=lambda: (WL, np.full(401, 1e-5)))      # dark: ttt = 242 s
 

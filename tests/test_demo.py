@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from normbox_lab.acquire.store import Store
 from normbox_lab.demo import QUICK_ANGLES, QUICK_PATCHES, DemoOptions, run_demo
-from normbox_lab.store import Store
 
 
 def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):

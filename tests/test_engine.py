@@ -10,9 +10,9 @@ import threading
 import pytest
 from engine_fakes import FakeLab, timeout
 
-from normbox_lab import engine as eng
-from normbox_lab.errors import DeviceError, NormboxError, StoreError
-from normbox_lab.store import Store
+from normbox_lab.acquire import engine as eng
+from normbox_lab.acquire.store import Store
+from normbox_lab.core.errors import DeviceError, NormboxError, StoreError
 
 SMALL = {"angles_deg": [30, 60, 90], "patches": [1, 2, 3, 4]}
 

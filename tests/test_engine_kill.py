@@ -27,8 +27,8 @@ HERE = Path(__file__).resolve().parent
 
 def sim_lab_available() -> bool:
     try:
-        from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
-        from normbox_lab.lab import driver_class
+        from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+        from normbox_lab.acquire.lab import driver_class
 
         cfg = parse_config(SIM_CONFIG_TEMPLATE)
         for role in ("radiometer", "rotator", "sphere"):
@@ -39,13 +39,13 @@ def sim_lab_available() -> bool:
 
 
 def child(store_path: str, lab_kind: str) -> int:
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     store = Store(store_path)
     if lab_kind == "sim":
-        from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
-        from normbox_lab.lab import build_lab
+        from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+        from normbox_lab.acquire.lab import build_lab
 
         lab = build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
     else:
@@ -117,8 +117,8 @@ def campaign(tmp_path: Path, kills_wanted: int, seed: int, max_readings: int = 3
         assert proc.returncode in (-9, 0, 1), err[-2000:]
     else:
         pytest.fail("the sweep never finished")
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     with Store(store_path) as store:
         (run,) = store.runs()
@@ -175,7 +175,7 @@ def cli_child(argv: list[str]) -> int:
     sys.path.insert(0, str(HERE))
     from engine_fakes import FAKE_DRIVERS
 
-    from normbox_lab import lab as labmod
+    from normbox_lab.acquire import lab as labmod
     from normbox_lab.cli import main
 
     if not sim_lab_available():

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab.executors import InProcessExecutor, dask_available, make_executor
+from normbox_lab.predict.executors import InProcessExecutor, dask_available, make_executor
 
 
 def _square(x: int) -> int:
@@ -33,8 +33,8 @@ def test_dask_missing_says_how_to_install():
 @pytest.mark.skipif(not dask_available(), reason="dask.distributed not installed")
 def test_local_dask_cluster_gives_the_in_process_spectra():
     pytest.importorskip("mitsuba")
-    from normbox_lab import materials as mats
-    from normbox_lab.fastrender import predict_spectra
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.fastrender import predict_spectra
 
     patches = [mats.truth_patch(n, "model") for n in (2, 24)]
     wall = mats.truth_wall("model")

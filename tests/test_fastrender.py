@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab.brdf_model import ct_ggx_brdf
-from normbox_lab.fastrender import (
+from normbox_lab.predict.brdf_model import ct_ggx_brdf
+from normbox_lab.predict.fastrender import (
     BandGrid,
     BandPathTracer,
     FastNormbox,
@@ -107,7 +107,7 @@ def test_direct_light_closes_on_the_closed_form():
 
 
 def _model_materials():
-    from normbox_lab import materials as mats
+    from normbox_lab.predict import materials as mats
 
     return mats.truth_patch(13, "model"), mats.truth_wall("model")
 
@@ -151,8 +151,8 @@ def test_agrees_with_stock_mitsuba_within_mc_error(truth, patch_no, angle_deg):
     """Stock `llvm_ad_spectral` (hero wavelengths, the project's BSDF) and the band renderer
     estimate the same band radiances; also for the truth materials (backscatter lobe and
     dispersive Fresnel, which the band renderer evaluates per band)."""
-    from normbox_lab import materials as mats
-    from normbox_lab.render import Quality, render_view
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.render import Quality, render_view
 
     patch = mats.truth_patch(patch_no, truth)
     wall = mats.truth_wall(truth)

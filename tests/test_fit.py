@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from normbox_lab.brdf_model import MaterialFit, ct_ggx_brdf, gonio_geometry, inplane_directions
-from normbox_lab.fit import (
+from normbox_lab.acquire.store import Store
+from normbox_lab.analyze.fit import (
     BrdfData,
     FitProblem,
     _nnls2,
@@ -15,8 +15,13 @@ from normbox_lab.fit import (
     polar_plot,
     relative_error,
 )
-from normbox_lab.store import Store
-from normbox_lab.types import BrdfReading
+from normbox_lab.core.types import BrdfReading
+from normbox_lab.predict.brdf_model import (
+    MaterialFit,
+    ct_ggx_brdf,
+    gonio_geometry,
+    inplane_directions,
+)
 
 WL = np.arange(380.0, 781.0, 5.0)          # 81 bands keep the tests quick
 TI, TO = gonio_geometry()

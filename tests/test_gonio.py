@@ -7,11 +7,11 @@ import math
 import numpy as np
 import pytest
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.drivers.gonio import Gonioreflectometer, OperatorWhiteStandard
 from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.sim import core
 from normbox_lab.sim import qepro as sim_qepro
 
@@ -195,8 +195,8 @@ def test_stop_halts_both_arms():
 
 
 def test_roles():
-    from normbox_lab.interfaces import Gonioreflectometer as GonioRole
-    from normbox_lab.interfaces import RotationStage, Spectrometer
+    from normbox_lab.core.interfaces import Gonioreflectometer as GonioRole
+    from normbox_lab.core.interfaces import RotationStage, Spectrometer
 
     gonio, _ = build()
     assert isinstance(gonio, GonioRole)

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from normbox_lab.images import color
-from normbox_lab.render import Lamp, luminance_cd_m2
+from normbox_lab.predict.render import Lamp, luminance_cd_m2
 
 WL = np.arange(380.0, 781.0, 5.0)
 

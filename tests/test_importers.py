@@ -5,10 +5,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from normbox_lab.errors import DataError
-from normbox_lab.export import export_run
-from normbox_lab.importers import load_brdf_json, parse_brdf_json, store_brdf
-from normbox_lab.store import Store
+from normbox_lab.acquire.export import export_run
+from normbox_lab.acquire.importers import load_brdf_json, parse_brdf_json, store_brdf
+from normbox_lab.acquire.store import Store
+from normbox_lab.core.errors import DataError
 
 WL = [400.0, 500.0, 600.0]
 

@@ -5,12 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab import lab as labmod
-from normbox_lab.clock import VirtualClock
-from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
-from normbox_lab.engine import PromptRequest
-from normbox_lab.errors import ConfigError, NormboxError
-from normbox_lab.operator import TerminalOperator, VirtualOperator
+from normbox_lab.acquire import lab as labmod
+from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.acquire.engine import PromptRequest
+from normbox_lab.acquire.operator import TerminalOperator, VirtualOperator
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import ConfigError, NormboxError
 from normbox_lab.sim import core
 from normbox_lab.sim.analytic_world import AnalyticWorld, colorchecker_reflectances
 
@@ -124,9 +124,9 @@ def fake_drivers(monkeypatch, tmp_path):
 
 
 def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
-    from normbox_lab import engine as eng
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
     from normbox_lab.cli import main
-    from normbox_lab.store import Store
 
     store = str(fake_drivers / "cli.sqlite")
     common = ["--world", "analytic", "--store", store, "--param", "angles_deg=[30,90]",
@@ -190,7 +190,7 @@ def test_world_follows_attached_emulators_and_gonio_names():
 
 
 def test_luminance_hint_is_closed_form_for_any_world():
-    from normbox_lab import engine as eng
+    from normbox_lab.acquire import engine as eng
 
     cfg = parse_config(SIM_CONFIG_TEMPLATE)
     lab = labmod.build_lab(cfg, world="none")
@@ -216,8 +216,8 @@ def _sim_lab_or_skip():
 
 
 def test_reference_sweep_on_the_simulated_lab_sees_the_right_patch_and_angle(tmp_path):
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     lab = _sim_lab_or_skip()
     with Store(tmp_path / "s.sqlite") as store:
@@ -241,8 +241,8 @@ def test_reference_sweep_on_the_simulated_lab_sees_the_right_patch_and_angle(tmp
 
 
 def test_brdf_inplane_on_the_simulated_gonio_closes_on_the_truth(tmp_path):
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     lab = _sim_lab_or_skip()
     with Store(tmp_path / "b.sqlite") as store:
@@ -262,8 +262,8 @@ def test_brdf_inplane_on_the_simulated_gonio_closes_on_the_truth(tmp_path):
 
 
 def test_simulated_lamp_instability_and_wire_faults_are_ridden_out(tmp_path):
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     _sim_lab_or_skip()
     # the sphere's STAT? count is deterministic on the virtual clock: ~620 polls of the warm-up,

@@ -8,11 +8,17 @@ instrument noise → the fits recover the materials and the prediction matches t
 import numpy as np
 import pytest
 
-from normbox_lab.brdf_model import gonio_geometry
-from normbox_lab.materials import truth_brdf_inplane, truth_material
-from normbox_lab.pipeline import compare_run, fit_run, predict_run, reference_data, report_run
-from normbox_lab.store import Store
-from normbox_lab.types import BrdfReading, SpectralReading
+from normbox_lab.acquire.store import Store
+from normbox_lab.analyze.pipeline import (
+    compare_run,
+    fit_run,
+    predict_run,
+    reference_data,
+    report_run,
+)
+from normbox_lab.core.types import BrdfReading, SpectralReading
+from normbox_lab.predict.brdf_model import gonio_geometry
+from normbox_lab.predict.materials import truth_brdf_inplane, truth_material
 
 PATCHES = (19, 13, 7)
 ANGLES = (30.0, 60.0, 90.0)
@@ -47,7 +53,7 @@ def _reference_run(store, world):
 
 
 def _world(truth):
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
     from normbox_lab.demo import DemoOptions, make_world
 
     config = parse_config(SIM_CONFIG_TEMPLATE.replace('quality = "default"',
@@ -80,7 +86,7 @@ def test_reference_data_refuses_holes(tmp_path):
             store.add_spectral(run.id, f"a{a:g}/p{p}", SpectralReading(wl, np.ones(401), None,
                                                                        1.0, 0.0, "x"),
                                {"patch": p, "angle_deg": a})
-        from normbox_lab.errors import DataError
+        from normbox_lab.core.errors import DataError
 
         with pytest.raises(DataError, match="1 readings missing"):
             reference_data(store, run.id)

@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from engine_fakes import FakeLab, add_gonio
 
-from normbox_lab import engine as eng
-from normbox_lab.store import Store
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.acquire import engine as eng
+from normbox_lab.acquire.store import Store
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 
 
 @pytest.fixture
@@ -67,7 +67,7 @@ def test_parameters_from_lab_defaults_and_overrides(tmp_path):
 def test_a_user_protocol_file(tmp_path):
     path = tmp_path / "two_points.py"
     path.write_text('"""Two readings."""\n'
-                    "from normbox_lab.engine import measure, move\n"
+                    "from normbox_lab.acquire.engine import measure, move\n"
                     "PARAMETERS = {'angles_deg': [40, 50]}\n"
                     "def steps(params, lab=None):\n"
                     "    out = []\n"

@@ -8,9 +8,9 @@ import sys
 import numpy as np
 import pytest
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError
 from normbox_lab.drivers.qepro import QEPro
-from normbox_lab.errors import DeviceError, InstrumentError
 from normbox_lab.sim import core
 from normbox_lab.sim import qepro as sim
 

@@ -15,12 +15,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError, InstrumentTimeout
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.drivers.cs2000 import CS2000A
-from normbox_lab.errors import DeviceError, InstrumentError, InstrumentTimeout
 from normbox_lab.sim import core
-from normbox_lab.types import RADIOMETER_WAVELENGTHS_NM
 
 WL = RADIOMETER_WAVELENGTHS_NM
 TRUTH = 2e-3 * (1.0 + np.sin(WL / 37.0) ** 2)       # ~ 200 cd/m²
@@ -226,8 +226,8 @@ def test_faults_from_the_url_alone(model):
 def test_the_lab_assembly_opens_the_driver_on_the_analytic_world(model):
     """As `build_lab` does it: config options (baud, …) through `open`, the world's radiance
     through `sim://`, the ETA from the same timing model as the emulator."""
-    from normbox_lab import lab as labmod
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.acquire import lab as labmod
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 
     text = SIM_CONFIG_TEMPLATE.replace('driver = "cs1000a"', f'driver = "{model}"') \
         .replace('port = "sim://cs1000a"', f'port = "sim://{model}?noise=off"')

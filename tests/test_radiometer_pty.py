@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 import serial
 
-from normbox_lab.clock import RealClock
+from normbox_lab.core.clock import RealClock
 
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs a pty")
 

@@ -5,7 +5,7 @@ import re
 
 import numpy as np
 
-from normbox_lab.report import ReportData, build_html, synthetic_report_data, write_report
+from normbox_lab.analyze.report import ReportData, build_html, synthetic_report_data, write_report
 
 FIGURES = ["fig-reference", "fig-prediction", "fig-rmse", "fig-nrmse", "fig-deltae", "fig-nse",
            "fig-polar-patch08", "fig-errormodel", "fig-nse-fit"]
@@ -49,8 +49,8 @@ def test_report_with_comparison_only():
 
 
 def test_image_figures_survive_the_store_and_appear_in_the_report(tmp_path):
-    from normbox_lab.report import ImageFigure, ImagePanel
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze.report import ImageFigure, ImagePanel
 
     rng = np.random.default_rng(2)
     rgb = rng.integers(0, 256, size=(6, 8, 3), dtype=np.uint8)

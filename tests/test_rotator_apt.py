@@ -7,9 +7,9 @@ import struct
 import pytest
 from wire import Exchange, ScriptedPort
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.drivers.rotator_apt import AptRotationStage
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.sim import core
 from normbox_lab.sim.rotator_apt import AptRotatorEmulator
 
@@ -300,7 +300,7 @@ def test_served_on_a_pty_the_driver_drives_it_from_another_process():
     import subprocess
     import sys
 
-    from normbox_lab.clock import RealClock
+    from normbox_lab.core.clock import RealClock
 
     proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", "rotator-apt",
                              "--pty"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -322,7 +322,7 @@ def test_served_on_a_pty_the_driver_drives_it_from_another_process():
 
 
 def test_implements_the_rotation_stage_role():
-    from normbox_lab.interfaces import RotationStage
+    from normbox_lab.core.interfaces import RotationStage
 
     stage, _ = scripted([])
     assert isinstance(stage, RotationStage)

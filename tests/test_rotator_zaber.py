@@ -5,9 +5,9 @@ from __future__ import annotations
 import pytest
 from wire import Exchange, ScriptedPort
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady, ProtocolError
 from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady, ProtocolError
 from normbox_lab.sim import core
 from normbox_lab.sim.rotator_zaber import ZaberRotatorEmulator
 
@@ -240,7 +240,7 @@ def test_served_on_tcp_a_plain_socket_client_and_the_driver_drive_it():
     import subprocess
     import sys
 
-    from normbox_lab.clock import RealClock
+    from normbox_lab.core.clock import RealClock
 
     proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", "rotator-zaber",
                              "--tcp", "127.0.0.1:0"], stdout=subprocess.PIPE,

@@ -8,8 +8,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab import brdf_model as bm
-from normbox_lab.materials import (
+from normbox_lab.predict import brdf_model as bm
+from normbox_lab.predict.materials import (
     HOLDER_REFLECTANCE,
     MATERIAL_WAVELENGTHS_NM,
     PATCH_NAMES,
@@ -22,7 +22,7 @@ from normbox_lab.materials import (
     truth_patch,
     truth_wall,
 )
-from normbox_lab.scene import SceneGeometry, as_geometry, panel_map, panel_map_at
+from normbox_lab.predict.scene import SceneGeometry, as_geometry, panel_map, panel_map_at
 
 WL = np.array([380.0, 452.5, 550.0, 633.0, 780.0])
 
@@ -101,7 +101,7 @@ def test_material_names():
 
 # --- geometry --------------------------------------------------------------------------------------
 def test_geometry_from_config_objects():
-    from normbox_lab.config import GeometryConfig
+    from normbox_lab.acquire.config import GeometryConfig
 
     g = as_geometry(GeometryConfig(sample_height_mm=250.0))
     assert g.sample_height_mm == 250.0 and g.box_inner_mm == 600.0
@@ -132,8 +132,8 @@ mi = pytest.importorskip("mitsuba")
 def _bsdf_eval(material: Material, wi: np.ndarray, wo: np.ndarray, wl: np.ndarray) -> np.ndarray:
     import drjit as dr
 
-    from normbox_lab.mitsuba_bsdf import make_bsdf
-    from normbox_lab.render import ensure_variant
+    from normbox_lab.predict.mitsuba_bsdf import make_bsdf
+    from normbox_lab.predict.render import ensure_variant
 
     ensure_variant()
     b = make_bsdf(material)
@@ -169,13 +169,13 @@ def cache_dir(tmp_path_factory):
 
 
 def _lum(r, radiance=None):
-    from normbox_lab.render import luminance_cd_m2
+    from normbox_lab.predict.render import luminance_cd_m2
 
     return luminance_cd_m2(r.wavelength_nm, r.radiance if radiance is None else radiance)
 
 
 def test_white_patch_at_30_matches_the_analytic_direct_light(cache_dir):
-    from normbox_lab.render import direct_estimate, render_view
+    from normbox_lab.predict.render import direct_estimate, render_view
 
     white, wall = truth_patch(19), truth_wall()
     est = direct_estimate(material=white, angle_deg=30.0)
@@ -200,7 +200,7 @@ def test_white_patch_at_30_matches_the_analytic_direct_light(cache_dir):
 
 
 def test_direct_light_falls_with_the_sample_angle(cache_dir):
-    from normbox_lab.render import direct_estimate, render_view
+    from normbox_lab.predict.render import direct_estimate, render_view
 
     white, wall = truth_patch(19), truth_wall()
     lum_render, lum_est = [], []
@@ -218,7 +218,7 @@ def test_direct_light_falls_with_the_sample_angle(cache_dir):
 
 
 def test_cache_hit_returns_identical_results_and_keys_differ(cache_dir, tmp_path):
-    from normbox_lab.render import Lamp, render_view
+    from normbox_lab.predict.render import Lamp, render_view
 
     kw = {"patch": truth_patch(13), "wall": truth_wall(), "angle_deg": 45.0, "quality": "quick"}
     first = render_view(cache_dir=tmp_path, **kw)
@@ -234,8 +234,8 @@ def test_cache_hit_returns_identical_results_and_keys_differ(cache_dir, tmp_path
     # another angle or material is another key
     other = render_view(cache_dir=tmp_path, **{**kw, "angle_deg": 50.0})
     assert other.key != first.key and not other.cached
-    from normbox_lab.materials import holder_material
-    from normbox_lab.render import QUALITIES, render_key
+    from normbox_lab.predict.materials import holder_material
+    from normbox_lab.predict.render import QUALITIES, render_key
 
     k = render_key(None, truth_patch(13), truth_wall(), holder_material(), 45.0, Lamp(),
                    QUALITIES["quick"], 12, 0)
@@ -247,7 +247,7 @@ def test_cache_hit_returns_identical_results_and_keys_differ(cache_dir, tmp_path
 def test_renders_are_repeatable_and_the_moved_sample_matches(tmp_path):
     """Same configuration, same seed → the same numbers, also after other angles and materials
     went through the (reused) scene; a different seed is another noise realisation."""
-    from normbox_lab.render import render_view
+    from normbox_lab.predict.render import render_view
 
     kw = {"wall": truth_wall(), "quality": "quick", "cache": False}
     a = render_view(patch=truth_patch(2), angle_deg=55.0, **kw)
@@ -261,7 +261,7 @@ def test_renders_are_repeatable_and_the_moved_sample_matches(tmp_path):
 
 def test_fitted_materials_render(cache_dir):
     """The prediction path: a fit-model material (with c) renders like its truth twin."""
-    from normbox_lab.render import render_view
+    from normbox_lab.predict.render import render_view
 
     truth = truth_patch(19, truth="model")
     fit = Material.from_fit(bm.MaterialFit("patch-19", truth.wavelength_nm, truth.kd, truth.ks,
@@ -278,7 +278,7 @@ def test_fitted_materials_render(cache_dir):
 def test_default_quality_error_bars_and_accuracy(tmp_path):
     """Default quality: < 1 % standard error per 5 nm band at 30°, and the direct-only render
     agrees with the quadrature band by band within its error bars."""
-    from normbox_lab.render import direct_estimate, render_view
+    from normbox_lab.predict.render import direct_estimate, render_view
 
     white = truth_patch(19)
     est = direct_estimate(material=white, angle_deg=30.0)
@@ -293,7 +293,7 @@ def test_default_quality_error_bars_and_accuracy(tmp_path):
 @pytest.mark.slow
 def test_scalar_spectral_fallback_renders_the_same_light(tmp_path):
     """The fallback variant (no libLLVM) runs the same Python BSDF, one path at a time."""
-    from normbox_lab.render import Quality, direct_estimate, ensure_variant, render_view
+    from normbox_lab.predict.render import Quality, direct_estimate, ensure_variant, render_view
 
     white = truth_patch(19)
     est = direct_estimate(material=white, angle_deg=30.0)
@@ -302,7 +302,7 @@ def test_scalar_spectral_fallback_renders_the_same_light(tmp_path):
     assert r.variant == "scalar_spectral"
     assert _lum(r) == pytest.approx(_lum(r, est), rel=0.05)
     # the next default render switches back to this machine's variant
-    from normbox_lab.mitsuba_setup import choose_variant
+    from normbox_lab.predict.mitsuba_setup import choose_variant
 
     assert ensure_variant() == choose_variant() == mi.variant()
 
@@ -310,10 +310,10 @@ def test_scalar_spectral_fallback_renders_the_same_light(tmp_path):
 def test_panel_emitter_texture_orientation():
     """The single-emitter panel shows cell (j along y, i along x) of the map where
     `panel_cells_m` puts it: look straight up at three cell centres."""
-    from normbox_lab.materials import holder_material
-    from normbox_lab.mitsuba_bsdf import make_bsdf, make_panel_texture
-    from normbox_lab.render import ensure_variant
-    from normbox_lab.scene import panel_cells_m, scene_dict
+    from normbox_lab.predict.materials import holder_material
+    from normbox_lab.predict.mitsuba_bsdf import make_bsdf, make_panel_texture
+    from normbox_lab.predict.render import ensure_variant
+    from normbox_lab.predict.scene import panel_cells_m, scene_dict
 
     ensure_variant()
     cell_map = 1.0 + 0.1 * np.arange(25.0).reshape(5, 5)       # unique per cell

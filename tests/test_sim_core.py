@@ -1,7 +1,7 @@
 import pytest
 import serial
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
 from normbox_lab.sim import core
 from normbox_lab.sim.transport import open_port
 

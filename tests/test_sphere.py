@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from wire import Exchange, ScriptedPort
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady, ProtocolError
 from normbox_lab.drivers.sphere import SphereLightSource
-from normbox_lab.errors import DeviceError, InstrumentError, NotReady, ProtocolError
-from normbox_lab.scene import panel_map as truth_panel_map
+from normbox_lab.predict.scene import panel_map as truth_panel_map
 from normbox_lab.sim import core
 from normbox_lab.sim.sphere import WARMUP_S, SphereEmulator
 
@@ -223,7 +223,7 @@ def test_served_on_a_pty_for_outside_programs():
 
 
 def test_status_reset_abort_lines_and_role():
-    from normbox_lab.interfaces import LightSource
+    from normbox_lab.core.interfaces import LightSource
 
     lamp, port = scripted([
         Exchange(b"*RST\n", b"OK\n"),

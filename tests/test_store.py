@@ -3,9 +3,9 @@ import sqlite3
 import numpy as np
 import pytest
 
-from normbox_lab.errors import StoreError
-from normbox_lab.store import SCHEMA_VERSION, Store
-from normbox_lab.types import BrdfReading, Colorimetry, SpectralReading
+from normbox_lab.acquire.store import SCHEMA_VERSION, Store
+from normbox_lab.core.errors import StoreError
+from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
 
 
 @pytest.fixture

@@ -13,12 +13,12 @@ import textwrap
 
 import numpy as np
 
-from normbox_lab.store import Store
+from normbox_lab.acquire.store import Store
 
 CHILD = textwrap.dedent("""
     import sys
     import numpy as np
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.store import Store
 
     store = Store(sys.argv[1])
     run_id = store.runs()[0].id

@@ -15,7 +15,7 @@ from normbox_lab.images.triplet import (
     render_triplets,
     rgb_variant,
 )
-from normbox_lab.materials import truth_patch, truth_wall
+from normbox_lab.predict.materials import truth_patch, truth_wall
 
 #: every third band of the spectral renderer's 380…780 nm grid (9 RGB renders per batch pair)
 TEST_WAVELENGTHS_NM = np.arange(380.0, 781.0, 15.0)
@@ -42,7 +42,7 @@ def test_rgb_values_are_used_as_is():
     `rgb` emitter radiance (> 1) are plain channel values: no upsampling, no clamping."""
     import mitsuba as mi
 
-    from normbox_lab.fastrender import in_variant
+    from normbox_lab.predict.fastrender import in_variant
 
     with in_variant(rgb_variant()):
         T = mi.ScalarTransform4f
@@ -71,8 +71,8 @@ def test_builtin_bsdf_is_the_model_family():
     channel, on both sides."""
     import mitsuba as mi
 
-    from normbox_lab.brdf_model import ct_ggx_brdf
-    from normbox_lab.fastrender import in_variant
+    from normbox_lab.predict.brdf_model import ct_ggx_brdf
+    from normbox_lab.predict.fastrender import in_variant
 
     m = truth_patch(18, "model")                 # the smooth one: α = 0.15
     wl = np.array([450.0, 550.0, 650.0])
@@ -114,7 +114,7 @@ def red_patch_30():
 
 
 def _spectral(patch, wall, angle_deg):
-    from normbox_lab.render import Quality, render_view
+    from normbox_lab.predict.render import Quality, render_view
 
     return render_view(patch=patch, wall=wall, angle_deg=angle_deg, cache=False, seed=5,
                        quality=Quality("triplet-test", spp=1024, batches=10))
@@ -136,7 +136,7 @@ def test_triplets_agree_with_band_vector_renderer(red_patch_30):
     """The same triplets against `fastrender` (its own BSDF code, wavelength jitter per path).
     fastrender feeds every band from the same paths, so its error is common to all bands: no
     χ² over bands, but every band within 4 σ, and a 1 % offset is caught."""
-    from normbox_lab.fastrender import FastNormbox
+    from normbox_lab.predict.fastrender import FastNormbox
 
     patch, wall, trip = red_patch_30
     fast = FastNormbox().render_view(patch=patch, wall=wall, angle_deg=30.0, target_rel_se=0.002,

@@ -12,9 +12,9 @@ import time
 import numpy as np
 import pytest
 
-from normbox_lab import lab as labmod
-from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
-from normbox_lab.store import Store
+from normbox_lab.acquire import lab as labmod
+from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.acquire.store import Store
 
 pytest.importorskip("textual")
 
@@ -166,7 +166,7 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
 def write_comparison(store: Store, run_id: int) -> np.ndarray:
     """A `comparison` artifact as `normbox-lab compare` writes it, with a prediction that
     differs from the measured spectra by a known factor per patch; returns its ΔE00."""
-    from normbox_lab.compare import compare
+    from normbox_lab.analyze.compare import compare
 
     patches, angles = [1, 9, 19], [30.0, 90.0]
     ref = np.stack([np.stack([store.reading(run_id, f"a{int(a)}/p{p:02d}")
@@ -184,7 +184,7 @@ def write_comparison(store: Store, run_id: int) -> np.ndarray:
 
 
 def rating_class_of(v: float) -> int:
-    from normbox_lab.compare import rating_index
+    from normbox_lab.analyze.compare import rating_index
 
     return int(rating_index(v))
 
@@ -215,7 +215,7 @@ def test_quit_at_a_prompt_leaves_a_resumable_run(lab_env):
         run_uuid = run.uuid
 
     # resume through the engine (what `normbox-lab run --resume` does), virtual operator
-    from normbox_lab import engine as eng
+    from normbox_lab.acquire import engine as eng
 
     lab = labmod.build_lab(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), world="analytic")
     with Store(lab_env / "tui.sqlite") as s:
@@ -444,7 +444,7 @@ def test_abort_at_a_prompt_then_resume_with_r(lab_env):
 
 
 def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
-    from normbox_lab.report import ImageFigure, ImagePanel
+    from normbox_lab.analyze.report import ImageFigure, ImagePanel
 
     rgb = np.zeros((24, 32, 3), dtype=np.uint8)
     rgb[:, :16] = (200, 30, 40)

@@ -146,7 +146,7 @@ def test_spectral_inputs_and_white_balanced_preview():
     the white-balanced preview of a white object under a coloured light is neutral."""
     from types import SimpleNamespace
 
-    from normbox_lab.render import planck_W_sr_m2_nm
+    from normbox_lab.predict.render import planck_W_sr_m2_nm
 
     H, W = 4, 6
     light = planck_W_sr_m2_nm(WL, 2000.0)
@@ -184,7 +184,7 @@ def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
     the raw image, pulled by the green walls, misses by more than 0.01."""
     camera = pytest.importorskip("normbox_lab.images.camera")
     pytest.importorskip("mitsuba")
-    from normbox_lab.render import planck_W_sr_m2_nm
+    from normbox_lab.predict.render import planck_W_sr_m2_nm
 
     materials = wb.coloured_room_materials()
     lamp_wl = np.arange(360.0, 831.0, 5.0)

@@ -6,8 +6,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab import brdf_model as bm
-from normbox_lab.materials import truth_brdf_inplane, truth_patch, truth_wall
+from normbox_lab.predict import brdf_model as bm
+from normbox_lab.predict.materials import truth_brdf_inplane, truth_patch, truth_wall
 from normbox_lab.sim.world import VirtualNormbox
 
 pytest.importorskip("mitsuba")
@@ -44,7 +44,7 @@ class FakeSphere:
 
 
 def _luminance(wl, radiance):
-    from normbox_lab.render import luminance_cd_m2
+    from normbox_lab.predict.render import luminance_cd_m2
 
     return luminance_cd_m2(wl, radiance)
 
@@ -89,7 +89,7 @@ def test_rotator_and_sphere_drive_the_view(world):
 
 
 def test_aim_panel_sees_the_lamp_map(world):
-    from normbox_lab.scene import panel_map
+    from normbox_lab.predict.scene import panel_map
 
     world.aim_panel(0.0, 0.0)
     wl, centre = world.radiance_in_view()
@@ -131,7 +131,7 @@ def test_brdf_truth_of_the_mounted_material(world, cache_dir):
 def test_constructed_from_a_lab_config(cache_dir):
     from types import SimpleNamespace
 
-    from normbox_lab.config import GeometryConfig
+    from normbox_lab.acquire.config import GeometryConfig
 
     cfg = SimpleNamespace(geometry=GeometryConfig(sample_height_mm=220.0),
                           render={"quality": "quick", "truth": "model", "cache_dir": cache_dir})
@@ -143,7 +143,7 @@ def test_constructed_from_a_lab_config(cache_dir):
 def test_driver_emulator_world_reading(world):
     """CS-1000A driver ⇄ bytes ⇄ emulator ⇄ VirtualNormbox: the reading is the render."""
     cs1000 = pytest.importorskip("normbox_lab.drivers.cs1000")
-    from normbox_lab.clock import VirtualClock
+    from normbox_lab.core.clock import VirtualClock
     from normbox_lab.sim import core
 
     clock = VirtualClock()

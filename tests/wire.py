@@ -23,7 +23,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from normbox_lab.clock import VirtualClock
+from normbox_lab.core.clock import VirtualClock
 
 Reply = bytes | list[tuple[float, bytes]]
 

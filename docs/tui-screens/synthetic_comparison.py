@@ -2,7 +2,7 @@
 
 The measured spectra are the run's readings; the "prediction" is the reference with a random
 spectral tilt (0–50 % from 380 to 780 nm) per patch × angle, so the ΔE00 heat map shows every
-rating class.  The metrics are computed by the pipeline's own `normbox_lab.compare.compare` and
+rating class.  The metrics are computed by the pipeline's own `normbox_lab.analyze.compare.compare` and
 stored under the pipeline's name (``ref-run-<id>``).  Usage: python synthetic_comparison.py STORE
 """
 
@@ -13,8 +13,8 @@ import sys
 import numpy as np
 from normbox_lab.protocols._common import patch_name
 
-from normbox_lab.compare import compare
-from normbox_lab.store import Store
+from normbox_lab.analyze.compare import compare
+from normbox_lab.acquire.store import Store
 
 
 def main(path: str) -> None:

@@ -23,13 +23,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="durable store file (default: a temporary file)")
     e.add_argument("--repeat", type=int, default=2, help="sweeps per variant (best is kept)")
     e.set_defaults(handler=_engine)
-    f = bsub.add_parser("fit", help="BRDF fit benchmark (normbox_lab.bench_fit)")
+    f = bsub.add_parser("fit", help="BRDF fit benchmark (normbox_lab.analyze.bench)")
     f.add_argument("--grid-step-nm", type=float, default=None, help="wavelength grid step")
     f.add_argument("--materials", type=int, default=None, help="number of materials")
     f.add_argument("--w", type=float, default=None, help="cos^w θi weight exponent")
     f.set_defaults(handler=_fit)
     pr = bsub.add_parser("predict", help="fast spectral prediction vs stock Mitsuba "
-                         "(normbox_lab.bench_predict)")
+                         "(normbox_lab.predict.bench)")
     pr.add_argument("--target", type=float, default=None,
                     help="relative standard error per band to reach (default 0.002)")
     pr.add_argument("--executor", default=None, choices=("inprocess", "dask", "ray"))
@@ -66,8 +66,8 @@ class _TimedStore:
 
 
 def _sim_lab():
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE, parse_config
-    from normbox_lab.lab import build_lab
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.acquire.lab import build_lab
 
     lab = build_lab(parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>"), world="analytic")
     for role in ("radiometer", "rotator", "sphere"):
@@ -80,8 +80,8 @@ def sweep_once(store_path: str) -> dict:
     the instruments (driver + emulator), per reading."""
     import time
 
-    from normbox_lab import engine as eng
-    from normbox_lab.store import Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
 
     lab = _sim_lab()
     timer = time.perf_counter
@@ -114,7 +114,7 @@ def drivers_only() -> dict:
     calls — no engine, no store."""
     import time
 
-    from normbox_lab import engine as eng
+    from normbox_lab.acquire import engine as eng
 
     lab = _sim_lab()
     try:
@@ -144,7 +144,7 @@ def _engine(args: argparse.Namespace) -> int:
     import os
     import tempfile
 
-    from normbox_lab.engine import format_duration
+    from normbox_lab.acquire.engine import format_duration
 
     reps = max(1, args.repeat)
     warm = _sim_lab()                 # first measurement imports colour-science: not timed
@@ -190,9 +190,9 @@ def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
 
 def _fit(args: argparse.Namespace) -> int:
     try:
-        from normbox_lab.bench_fit import run_bench_fit
+        from normbox_lab.analyze.bench import run_bench_fit
     except ModuleNotFoundError as exc:
-        if exc.name != "normbox_lab.bench_fit":
+        if exc.name != "normbox_lab.analyze.bench":
             raise
         print("normbox-lab: bench fit is not available in this installation")
         return 2
@@ -203,9 +203,9 @@ def _predict(args: argparse.Namespace) -> int:
     import sys
 
     try:
-        from normbox_lab.bench_predict import run_bench_predict
+        from normbox_lab.predict.bench import run_bench_predict
     except ModuleNotFoundError as exc:
-        if exc.name != "normbox_lab.bench_predict":
+        if exc.name != "normbox_lab.predict.bench":
             raise
         print("normbox-lab: bench predict is not available in this installation")
         return 2

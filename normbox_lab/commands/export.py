@@ -22,9 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from normbox_lab.errors import StoreError
-    from normbox_lab.export import export_run
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.export import export_run
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import StoreError
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")

@@ -130,8 +130,8 @@ def _render_args(p: argparse.ArgumentParser) -> None:
 
 
 def _open_store(args: argparse.Namespace):
-    from normbox_lab.errors import StoreError
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import StoreError
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")
@@ -143,17 +143,17 @@ def _camera(args: argparse.Namespace) -> int:
 
     from normbox_lab.images import camera, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, write_png
-    from normbox_lab.materials import holder_material, truth_patch, truth_wall
+    from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
 
     if args.materials == "fitted":
-        from normbox_lab.materials import Material
-        from normbox_lab.pipeline import fit_key, latest_fits
+        from normbox_lab.analyze.pipeline import fit_key, latest_fits
+        from normbox_lab.predict.materials import Material
 
         with _open_store(args) as store:
             fits = latest_fits(store)
         missing = [k for k in (fit_key(args.patch), "wall") if k not in fits]
         if missing:
-            from normbox_lab.errors import StoreError
+            from normbox_lab.core.errors import StoreError
 
             raise StoreError(f"no fits for {', '.join(missing)} in {args.store}")
         patch = Material.from_fit(fits[fit_key(args.patch)])
@@ -192,14 +192,14 @@ def _camera(args: argparse.Namespace) -> int:
 
 
 def _figure1(args: argparse.Namespace) -> int:
-    from normbox_lab.pipeline import camera_figures_run, lamp_from_light_map
+    from normbox_lab.analyze.pipeline import camera_figures_run, lamp_from_light_map
 
     with _open_store(args) as store:
         ref = args.run
         if ref is None:
             refs = [r for r in store.runs() if r.protocol == "reference-sweep"]
             if not refs:
-                from normbox_lab.errors import StoreError
+                from normbox_lab.core.errors import StoreError
 
                 raise StoreError(f"no reference sweep in {args.store}")
             ref = refs[-1].id
@@ -234,11 +234,11 @@ def _parse_colour(text: str) -> tuple[int, int, int]:
         else:
             raise ValueError
     except ValueError:
-        from normbox_lab.errors import NormboxError
+        from normbox_lab.core.errors import NormboxError
 
         raise NormboxError(f"colour {text!r}: use #rrggbb, rrggbb or r,g,b (0–255)") from None
     if len(rgb) != 3 or not all(0 <= v <= 255 for v in rgb):
-        from normbox_lab.errors import NormboxError
+        from normbox_lab.core.errors import NormboxError
 
         raise NormboxError(f"colour {text!r}: three values 0–255")
     return rgb  # type: ignore[return-value]
@@ -247,7 +247,7 @@ def _parse_colour(text: str) -> tuple[int, int, int]:
 def _metamer(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from normbox_lab.compare import XYZ_to_Lab_D65, delta_e00
+    from normbox_lab.analyze.compare import XYZ_to_Lab_D65, delta_e00
     from normbox_lab.images.color import reflectance_to_XYZ
     from normbox_lab.images.metamer import linear_srgb_to_XYZ, metamer_for_srgb, srgb_decode
 
@@ -278,8 +278,8 @@ def _triplet(args: argparse.Namespace) -> int:
     import numpy as np
 
     from normbox_lab.images.triplet import render_triplets
-    from normbox_lab.materials import truth_patch, truth_wall
-    from normbox_lab.render import BAND_CENTRES_NM, Quality, render_view
+    from normbox_lab.predict.materials import truth_patch, truth_wall
+    from normbox_lab.predict.render import BAND_CENTRES_NM, Quality, render_view
 
     patch, wall = truth_patch(args.patch, "model"), truth_wall("model")
     bands = np.asarray(BAND_CENTRES_NM)[::max(1, args.every)]
@@ -306,7 +306,7 @@ def _whitebalance(args: argparse.Namespace) -> int:
 
     from normbox_lab.images import camera, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, write_png
-    from normbox_lab.render import planck_W_sr_m2_nm
+    from normbox_lab.predict.render import planck_W_sr_m2_nm
 
     mats = whitebalance.coloured_room_materials() if args.room == "coloured" else None
     lamp_nm = np.arange(360.0, 831.0, 5.0)

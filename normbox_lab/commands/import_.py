@@ -25,8 +25,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _import_brdf(args: argparse.Namespace) -> int:
-    from normbox_lab.importers import load_brdf_json, store_brdf
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.importers import load_brdf_json, store_brdf
+    from normbox_lab.acquire.store import Store
 
     data = load_brdf_json(args.file, args.material)
     with Store(args.store) as store:

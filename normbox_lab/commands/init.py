@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _init(args: argparse.Namespace) -> int:
-    from normbox_lab.config import load_config, write_sim_config
+    from normbox_lab.acquire.config import load_config, write_sim_config
 
     if not args.sim:
         print("normbox-lab: only simulated labs can be generated so far; write the template "

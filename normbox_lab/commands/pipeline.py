@@ -46,8 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _open(args: argparse.Namespace):
     from pathlib import Path
 
-    from normbox_lab.errors import StoreError
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import StoreError
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")
@@ -55,7 +55,7 @@ def _open(args: argparse.Namespace):
 
 
 def _fit(args: argparse.Namespace) -> int:
-    from normbox_lab.pipeline import fit_run
+    from normbox_lab.analyze.pipeline import fit_run
 
     with _open(args) as store:
         fits = fit_run(store, args.run, args.weight_exponent,
@@ -68,7 +68,7 @@ def _fit(args: argparse.Namespace) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from normbox_lab.pipeline import lamp_from_light_map, predict_run
+    from normbox_lab.analyze.pipeline import lamp_from_light_map, predict_run
 
     with _open(args) as store:
         aid = predict_run(store, args.run, quality=args.quality,
@@ -82,7 +82,7 @@ def _predict(args: argparse.Namespace) -> int:
 def _compare(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from normbox_lab.pipeline import compare_run
+    from normbox_lab.analyze.pipeline import compare_run
 
     with _open(args) as store:
         c = compare_run(store, args.run, args.brdf_run)
@@ -94,7 +94,7 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from normbox_lab.pipeline import report_run
+    from normbox_lab.analyze.pipeline import report_run
 
     with _open(args) as store:
         out = report_run(store, args.run, args.output, args.brdf_run)

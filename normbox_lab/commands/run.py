@@ -50,7 +50,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _load_lab_config(args: argparse.Namespace):
     from dataclasses import replace
 
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
 
     if args.lab:
         config = load_config(args.lab)
@@ -69,7 +69,7 @@ def _load_lab_config(args: argparse.Namespace):
 
 
 def _parse_overrides(module, items: list[str]) -> dict:
-    from normbox_lab.engine import PlanError, coerce_param
+    from normbox_lab.acquire.engine import PlanError, coerce_param
 
     out = {}
     for item in items:
@@ -86,9 +86,9 @@ def _parse_overrides(module, items: list[str]) -> dict:
 def _run(args: argparse.Namespace) -> int:
     import signal
 
-    from normbox_lab import engine as eng
-    from normbox_lab.lab import build_lab
-    from normbox_lab.store import DEFAULT_STORE, Store
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.lab import build_lab
+    from normbox_lab.acquire.store import DEFAULT_STORE, Store
 
     store_path = args.store or DEFAULT_STORE
     store = Store(store_path)
@@ -128,7 +128,7 @@ def _run(args: argparse.Namespace) -> int:
                     fault_policy=args.fault_policy)
     progress_ref: dict = {}
     if lab.operator is None:
-        from normbox_lab.operator import TerminalOperator
+        from normbox_lab.acquire.operator import TerminalOperator
 
         def before() -> None:
             prog = progress_ref.get("progress")
@@ -150,7 +150,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
-    from normbox_lab.engine import format_duration
+    from normbox_lab.acquire.engine import format_duration
 
     interrupts = {"n": 0}
 
@@ -208,7 +208,7 @@ def _run_with_progress(engine, run_ref, progress_ref, clock_note):
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
-    from normbox_lab.engine import format_duration
+    from normbox_lab.acquire.engine import format_duration
 
     console = Console(stderr=True)
     progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(),

@@ -25,7 +25,7 @@ def format_run_line(run) -> str:
 def _runs(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from normbox_lab.store import Store
+    from normbox_lab.acquire.store import Store
 
     if not Path(args.store).exists():
         print(f"no store at {args.store} (nothing measured yet)")

@@ -7,7 +7,7 @@ import argparse
 import sys
 from pathlib import Path
 
-DEFAULT_STORE = "normbox.sqlite"     # = normbox_lab.store.DEFAULT_STORE, without importing numpy
+DEFAULT_STORE = "normbox.sqlite"     # = normbox_lab.acquire.store.DEFAULT_STORE, without importing numpy
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -41,7 +41,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load_config(lab: str | None):
-    from normbox_lab.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
 
     if lab:
         return load_config(lab)
@@ -62,7 +62,7 @@ def _tui(args: argparse.Namespace) -> int:
     for item in args.param:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            from normbox_lab.engine import PlanError
+            from normbox_lab.acquire.engine import PlanError
 
             raise PlanError(f"--param expects K=V, got {item!r}")
         prefill[key.strip()] = value

@@ -1,7 +1,7 @@
 """The virtual camera: full spectral images (all 81 bands per path) with light-path layers,
 depth, normals and the Wilkie & Weidlich (2009) auxiliary images CWNI and NWCI.
 
-It is `normbox_lab.fastrender.BandPathTracer`'s machinery (Mitsuba mono variant for ray casting,
+It is `normbox_lab.predict.fastrender.BandPathTracer`'s machinery (Mitsuba mono variant for ray casting,
 band tables, λ-independent sampling, NEE + MIS, GGX/cosine mixture, Russian roulette) with a
 pinhole camera in place of the 1° radiometer.  Every path carries all bands, so every layer and
 both auxiliary images are exact per-path estimators from the same paths.
@@ -69,7 +69,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.fastrender import (
+from normbox_lab.predict.fastrender import (
     STAND_INS,
     BandGrid,
     BandPathTracer,
@@ -624,7 +624,7 @@ def normbox_camera(geometry: Any = None, width: int = 320, height: int = 240, *,
     aperture (seen from below, its back half and the panel through it), the sample holder and
     the patch are in view.  `distance_m` from the opening plane (default 10/6 of the box size,
     1.0 m for the 600 mm box)."""
-    from normbox_lab.scene import as_geometry
+    from normbox_lab.predict.scene import as_geometry
 
     g = as_geometry(geometry)
     size_m = g.box_inner_mm / 1000.0
@@ -672,8 +672,8 @@ class NormboxCamera:
                spp: int = NORMBOX_DEFAULT_SPP, seed: int = 0,
                camera: PinholeCamera | None = None) -> SpectralImage:
         """The box interior with `patch` at `angle_deg` (default camera: `normbox_camera`)."""
-        from normbox_lab.materials import holder_material
-        from normbox_lab.render import LAMP_GRID_NM, Lamp
+        from normbox_lab.predict.materials import holder_material
+        from normbox_lab.predict.render import LAMP_GRID_NM, Lamp
 
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
@@ -691,7 +691,7 @@ _NORMBOX_CAMERAS: dict[tuple[str, str], NormboxCamera] = {}
 
 def normbox_camera_renderer(geometry: Any = None, variant: str | None = None) -> NormboxCamera:
     """This process's `NormboxCamera` for a geometry (one loaded scene, reused)."""
-    from normbox_lab.scene import as_geometry
+    from normbox_lab.predict.scene import as_geometry
 
     key = (repr(as_geometry(geometry)), mono_variant(variant))
     nc = _NORMBOX_CAMERAS.get(key)
@@ -738,7 +738,7 @@ def cornell_scene(width: int = 64, height: int = 48, *, variant: str | None = No
     left x = −0.5, right x = +0.5; a 0.3 × 0.3 m light facing down 5 mm below the ceiling's
     centre (slot "light"); one cube of 0.36 m turned 20° about z standing on the floor (slot
     "box"); the camera outside on −y, looking +y.  Material slots: `CORNELL_SLOTS`."""
-    from normbox_lab.fastrender import in_variant
+    from normbox_lab.predict.fastrender import in_variant
 
     variant = mono_variant(variant)
     light_z = 0.995
@@ -782,7 +782,7 @@ def cornell_scene(width: int = 64, height: int = 48, *, variant: str | None = No
 def cornell_materials() -> dict[str, Any]:
     """Default materials per slot: red left wall, green right wall, grey floor / ceiling /
     back (reflectance 0.5), white box (0.85); all Lambertian, smooth spectra."""
-    from normbox_lab.materials import MATERIAL_WAVELENGTHS_NM, Material
+    from normbox_lab.predict.materials import MATERIAL_WAVELENGTHS_NM, Material
 
     wl = MATERIAL_WAVELENGTHS_NM
     red = 0.05 + 0.65 / (1.0 + np.exp(-(wl - 600.0) / 12.0))
@@ -866,11 +866,11 @@ class Figure1:
 def white_reference_XYZ(wall: Any, *, white_patch: Any = None, holder: Any = None,
                         lamp: Any = None, geometry: Any = None, angle_deg: float = 30.0,
                         target_rel_se: float = 0.002, seed: int = 0) -> np.ndarray:
-    """Absolute XYZ of the white reference of `normbox_lab.compare`: the white ColorChecker
+    """Absolute XYZ of the white reference of `normbox_lab.analyze.compare`: the white ColorChecker
     patch (default: `materials.truth_patch(19)`) at 30° seen by the radiometer in the world
     with `wall` (same scene as the camera: the radiometer of `FastNormbox`)."""
     from normbox_lab.images.color import spectral_to_XYZ
-    from normbox_lab.materials import truth_patch
+    from normbox_lab.predict.materials import truth_patch
 
     white = white_patch if white_patch is not None else truth_patch(19)
     box = normbox_camera_renderer(geometry).box
@@ -882,7 +882,7 @@ def white_reference_XYZ(wall: Any, *, white_patch: Any = None, holder: Any = Non
 def _white_patch_like(patch: Any) -> Any:
     """The truth world's white patch (19) of the same truth kind as `patch` ("default" unless
     its metadata says "model")."""
-    from normbox_lab.materials import TRUTH_KINDS, truth_patch
+    from normbox_lab.predict.materials import TRUTH_KINDS, truth_patch
 
     kind = getattr(patch, "metadata", {}).get("truth", "default")
     return truth_patch(19, kind if kind in TRUTH_KINDS else "default")
@@ -896,7 +896,7 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     fitted ones (`{"patch": Material, "wall": Material, "holder": Material (optional)}` each),
     rendered with the same seed, and the per-pixel ΔE00 between them.
 
-    ΔE00 follows `normbox_lab.compare`: both images' XYZ divided by the Y of one white
+    ΔE00 follows `normbox_lab.analyze.compare`: both images' XYZ divided by the Y of one white
     reference, Lab with D65, kL = kC = kH = 1.  The white (`white_XYZ`, absolute, cd/m²) is by
     default the radiometer reading of the white patch at 30° in the truth world
     (`white_reference_XYZ`; the white patch is `white_patch`, else `truth["white"]`, else

@@ -44,7 +44,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from normbox_lab.errors import NormboxError
+from normbox_lab.core.errors import NormboxError
 
 Method = Literal["blend", "nearest"]
 

@@ -5,15 +5,15 @@ the scene's spectra at three wavelengths into the R, G and B channels and repeat
 for the next three wavelengths until the range is covered.  Here the same trick runs in
 Mitsuba's RGB variant (`llvm_ad_rgb`; `cuda_ad_rgb` where the project's spectral variant is CUDA;
 `scalar_rgb` where LLVM does not work) as an independent cross-check of the project's spectral
-renderers (`normbox_lab.render`, stock Mitsuba with the Python `NormboxBSDF`, and
-`normbox_lab.fastrender`): different variant, different BSDF code, different wavelength
+renderers (`normbox_lab.predict.render`, stock Mitsuba with the Python `NormboxBSDF`, and
+`normbox_lab.predict.fastrender`): different variant, different BSDF code, different wavelength
 sampling, different emitter set-up — same expected radiance.
 
     r = render_triplets(patch, wall, angle_deg=30.0, spp=64, batches=16, seed=1)
     r.wavelength_nm, r.radiance, r.std_error            # W·sr⁻¹·m⁻²·nm⁻¹ per band
     r.z_scores(render.render_view(...))                  # (triplet − spectral) / combined SE
 
-How one render is set up (the Normbox scene of `normbox_lab.scene.scene_dict`, radiometer view,
+How one render is set up (the Normbox scene of `normbox_lab.predict.scene.scene_dict`, radiometer view,
 10 × 10 px, an RGB `hdrfilm` of the same sensor):
 - Materials: Mitsuba built-ins that *are* the fit-model family (reference notes §4, verified
   there to 6 digits against the closed form):
@@ -98,7 +98,7 @@ def rgb_variant(preferred: str | None = None) -> str:
     forced = os.environ.get("NORMBOX_TRIPLET_VARIANT")
     if forced:
         return forced
-    from normbox_lab.mitsuba_setup import choose_variant
+    from normbox_lab.predict.mitsuba_setup import choose_variant
 
     try:
         spectral = choose_variant()
@@ -122,7 +122,7 @@ def check_representable(material: Any) -> None:
 def material_rgb(material: Any, wavelengths_nm: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """(kd, ks) at each of the (3,) wavelengths, interpolated exactly as the spectral renderer's
     `NormboxBSDF` does (linear between its 5 nm grid values)."""
-    from normbox_lab.mitsuba_bsdf import GRID_NM
+    from normbox_lab.predict.mitsuba_bsdf import GRID_NM
 
     kd_grid, ks_grid, _ = material.spectra_at(GRID_NM)
     wl = np.asarray(wavelengths_nm, dtype=np.float64)
@@ -148,7 +148,7 @@ def bsdf_dict(material: Any, wavelengths_nm: np.ndarray) -> dict[str, Any]:
 def lamp_rgb(lamp: Any, wavelengths_nm: np.ndarray) -> np.ndarray:
     """Mean panel radiance at the (3,) wavelengths, linear on `render.LAMP_GRID_NM` (as the
     stock renderer's panel texture)."""
-    from normbox_lab.render import LAMP_GRID_NM
+    from normbox_lab.predict.render import LAMP_GRID_NM
 
     return np.interp(np.asarray(wavelengths_nm, dtype=np.float64), LAMP_GRID_NM,
                      lamp.radiance(LAMP_GRID_NM))
@@ -167,7 +167,7 @@ class _TripletScene:
                  pixels: int, max_depth: int) -> None:
         import mitsuba as mi
 
-        from normbox_lab.scene import as_geometry, panel_cells_m, scene_dict
+        from normbox_lab.predict.scene import as_geometry, panel_cells_m, scene_dict
 
         g = as_geometry(geometry)
         wl0 = np.full(3, 550.0)
@@ -243,9 +243,9 @@ def render_triplets(patch: Any, wall: Any, angle_deg: float, *, geometry: Any = 
     """
     import mitsuba as mi
 
-    from normbox_lab.fastrender import in_variant
-    from normbox_lab.materials import holder_material
-    from normbox_lab.render import Lamp
+    from normbox_lab.predict.fastrender import in_variant
+    from normbox_lab.predict.materials import holder_material
+    from normbox_lab.predict.render import Lamp
 
     if int(batches) < 2:
         raise ValueError(f"batches must be ≥ 2 for a standard error, got {batches}")

@@ -389,7 +389,7 @@ class NormboxConsole(App):
 
     def parameters(self) -> dict[str, Any]:
         """The parameters as typed in the Run tab (JSON, like `--param K=V`)."""
-        from normbox_lab import engine as eng
+        from normbox_lab.acquire import engine as eng
 
         module = eng.load_protocol(self.protocol)
         out: dict[str, Any] = {}
@@ -427,7 +427,7 @@ class NormboxConsole(App):
 
     @work(thread=True, exclusive=True, group="dry")
     def _dry_run(self, protocol: str, params: dict[str, Any]) -> None:
-        from normbox_lab.engine import format_duration
+        from normbox_lab.acquire.engine import format_duration
 
         try:
             dry = self.session.dry_run(protocol, params)
@@ -555,7 +555,7 @@ class NormboxConsole(App):
 
     @work(thread=True, group="export")
     def _export(self, run_id: int) -> None:
-        from normbox_lab.export import export_run
+        from normbox_lab.acquire.export import export_run
 
         try:
             path = export_run(self.session.open_store(), run_id, "csv")
@@ -582,7 +582,7 @@ class NormboxConsole(App):
                 self._finished(payload)
             return
         self.events_seen.append(ev.kind)
-        from normbox_lab.engine import format_duration
+        from normbox_lab.acquire.engine import format_duration
 
         k = ev.kind
         d = ev.data
@@ -921,6 +921,6 @@ def connection_text(row: dict[str, Any]) -> str:
 
 
 def _protocol_names() -> list[str]:
-    from normbox_lab.engine import PROTOCOL_NAMES
+    from normbox_lab.acquire.engine import PROTOCOL_NAMES
 
     return list(PROTOCOL_NAMES)

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from normbox_lab.errors import NormboxError, OperatorAbort
+from normbox_lab.core.errors import NormboxError, OperatorAbort
 
 log = logging.getLogger("normbox_lab.tui")
 
@@ -63,7 +63,7 @@ class ConsoleOperator:
             self.pending = None
         if req.kind == "operator" and choice == "ok":
             # a simulated lab: do on the world what the operator confirmed doing
-            from normbox_lab.operator import act_on_world
+            from normbox_lab.acquire.operator import act_on_world
 
             act_on_world(self.world, req)
         return choice
@@ -127,7 +127,7 @@ class Session:
 
     # --- setup (call from a worker thread: the world may take seconds) -------------------------
     def open_store(self) -> Any:
-        from normbox_lab.store import Store
+        from normbox_lab.acquire.store import Store
 
         with self._lock:
             if self.store is None:
@@ -135,7 +135,7 @@ class Session:
         return self.store
 
     def ensure_lab(self) -> Any:
-        from normbox_lab.lab import build_lab
+        from normbox_lab.acquire.lab import build_lab
 
         with self._lock:
             if self.lab is None:
@@ -153,13 +153,13 @@ class Session:
 
     # --- protocols ---------------------------------------------------------------------------
     def default_parameters(self, protocol: str) -> dict[str, Any]:
-        from normbox_lab import engine as eng
+        from normbox_lab.acquire import engine as eng
 
         module = eng.load_protocol(protocol)
         return eng.resolve_parameters(module, self.config.protocol_defaults(protocol))
 
     def make_engine(self, protocol: str, params: Mapping[str, Any]) -> Any:
-        from normbox_lab import engine as eng
+        from normbox_lab.acquire import engine as eng
 
         lab = self.ensure_lab()
         self.open_store()
@@ -193,7 +193,7 @@ class Session:
 
     def resume_run(self, run_ref: int | str) -> None:
         """Continue an interrupted run with its stored protocol and parameters."""
-        from normbox_lab import engine as eng
+        from normbox_lab.acquire import engine as eng
 
         if self.busy:
             raise NormboxError("a run is already active")

@@ -1,7 +1,7 @@
 """What the console's tables show, computed from the store (no Textual; rich for colour).
 
 - `heatmap(artifact)`: ΔE00 patches × angles from a pipeline `comparison` artifact
-  (`normbox_lab.compare.ComparisonResult.store`), coloured by the paper's rating scale, with the
+  (`normbox_lab.analyze.compare.ComparisonResult.store`), coloured by the paper's rating scale, with the
   NRMSE per angle and a per-patch drill-down.
 - `reading_row(stored)`: one line of the Runs tab's readings table.
 """
@@ -14,7 +14,7 @@ from typing import Any
 
 import numpy as np
 
-#: rating class (index into normbox_lab.compare.RATING_SCALE) → cell style and legend label
+#: rating class (index into normbox_lab.analyze.compare.RATING_SCALE) → cell style and legend label
 RATING_STYLES: tuple[tuple[str, str], ...] = (
     ("black on green", "≤1 below JND"),
     ("black on yellow", "≤2 noticeable"),
@@ -24,8 +24,8 @@ RATING_STYLES: tuple[tuple[str, str], ...] = (
 
 
 def rating_class(delta_e: float) -> int:
-    """0 (ΔE00 ≤ 1) … 3 (> 5): the class of `normbox_lab.compare.RATING_SCALE`."""
-    from normbox_lab.compare import rating_index
+    """0 (ΔE00 ≤ 1) … 3 (> 5): the class of `normbox_lab.analyze.compare.RATING_SCALE`."""
+    from normbox_lab.analyze.compare import rating_index
 
     return int(rating_index(delta_e))
 
@@ -48,7 +48,7 @@ class HeatMap:
         return np.nanmean(self.nrmse, axis=0)
 
     def counts(self) -> list[int]:
-        from normbox_lab.compare import rating_index
+        from normbox_lab.analyze.compare import rating_index
 
         idx = rating_index(self.delta_e00)
         return [int(np.sum(idx == k)) for k in range(len(RATING_STYLES))]

@@ -48,7 +48,7 @@ from pathlib import Path
 from types import ModuleType
 from typing import Any
 
-from normbox_lab.errors import (
+from normbox_lab.core.errors import (
     DeviceError,
     InstrumentError,
     InstrumentTimeout,
@@ -59,7 +59,7 @@ from normbox_lab.errors import (
     StoreError,
 )
 
-log = logging.getLogger("normbox_lab.engine")
+log = logging.getLogger("normbox_lab.acquire.engine")
 
 STEP_KINDS = ("move", "wait-stable", "prompt", "calibrate", "measure")
 COMMIT_KINDS = ("measure",)

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from normbox_lab.errors import DataError
+from normbox_lab.core.errors import DataError
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
 MAX_GEOMETRIES = 200_000

@@ -11,7 +11,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from normbox_lab.types import BrdfReading, SpectralReading
+from normbox_lab.core.types import BrdfReading, SpectralReading
 
 
 @dataclass(frozen=True)

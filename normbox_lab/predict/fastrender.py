@@ -9,15 +9,15 @@ How it works (a path tracer written with Dr.Jit, `BandPathTracer`; one symbolic-
 megakernel per chunk of paths, or a wavefront of one kernel per bounce with symbolic=False):
 - Mitsuba does ray intersection, emitter sampling (position, pdf, visibility) and the
   shape/BSDF bookkeeping, in a *mono* JIT variant (`llvm_ad_mono` on a CPU, `cuda_ad_mono` on a
-  GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.scene.scene_dict` — the
+  GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.predict.scene.scene_dict` — the
   same builder as the stock renderer — with geometry-only stand-in BSDFs (one per role, so a hit
   tells its material) and every panel cell's radiance replaced by its homogeneity-map factor.
   The spectral radiance of the lamp is applied per band.
 - Directions are sampled independently of λ: a mixture of cosine-hemisphere and GGX (D·cos θh)
   sampling, emitter sampling with MIS (power heuristic) as in Mitsuba's `path` integrator,
   Russian roulette after `rr_depth` on a λ-independent survival probability, `max_depth` as in
-  Mitsuba (12 segments by default, as `normbox_lab.render`).
-- The material family (`normbox_lab.materials.Material`, which contains the fit model) separates:
+  Mitsuba (12 segments by default, as `normbox_lab.predict.render`).
+- The material family (`normbox_lab.predict.materials.Material`, which contains the fit model) separates:
       f_b(ωi, ωo) = kd_b/π + ks_b · F(ωi·h; η_b) · D·G1·G1/(4 cos cos) + kb_b · B(ωi·ωo) − c
   so one bounce multiplies band b's throughput by  kd_b·A + ks_b·F_b·S + kb_b·K − C  where
   A, S, K, C are per-path numbers; F is per path when η does not depend on λ (the fit model)
@@ -110,7 +110,7 @@ def mono_variant(preferred: str | None = None) -> str:
     if forced:
         return forced
     try:
-        from normbox_lab.mitsuba_setup import choose_variant
+        from normbox_lab.predict.mitsuba_setup import choose_variant
 
         spectral = choose_variant()
     except RuntimeError:
@@ -623,7 +623,7 @@ STAND_INS = {"patch": "patch", "wall": "wall", "holder": "holder", "post": "hold
 class PredictConfig:
     """One radiometer reading to predict: a patch material at a sample angle."""
 
-    patch: Any                   # normbox_lab.materials.Material (fitted or truth)
+    patch: Any                   # normbox_lab.predict.materials.Material (fitted or truth)
     angle_deg: float
     key: str = ""                # e.g. "patch-19@30"; default: "<patch name>@<angle>"
 
@@ -633,12 +633,12 @@ class PredictConfig:
 
 
 class FastNormbox:
-    """The virtual Normbox (`normbox_lab.scene.scene_dict`) rendered by `BandPathTracer`.
+    """The virtual Normbox (`normbox_lab.predict.scene.scene_dict`) rendered by `BandPathTracer`.
 
     One geometry scene for all sample angles: the patch and the holder plate are moved in place
     (`mi.traverse`), so no kernel is ever recompiled for a new angle or material.  The
     materials and the lamp are data passed per render.  Results are
-    `normbox_lab.render.RenderResult`s on the stock renderer's bands (`render.BAND_CENTRES_NM`,
+    `normbox_lab.predict.render.RenderResult`s on the stock renderer's bands (`render.BAND_CENTRES_NM`,
     triangular 5 nm hats), in W·sr⁻¹·m⁻²·nm⁻¹.
     """
 
@@ -647,7 +647,7 @@ class FastNormbox:
     def __init__(self, geometry: Any = None, *, variant: str | None = None,
                  max_depth: int = 12, rr_depth: int = 6, grid: BandGrid | None = None,
                  chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
-        from normbox_lab.scene import as_geometry
+        from normbox_lab.predict.scene import as_geometry
 
         self.symbolic = bool(symbolic)
         self.geometry = as_geometry(geometry)
@@ -662,7 +662,7 @@ class FastNormbox:
 
     # ---- the geometry scene ------------------------------------------------------------
     def _scene_dict(self, mi: Any, angle_deg: float, stand_in: Mapping[str, Any]) -> dict:
-        from normbox_lab import scene as nbscene
+        from normbox_lab.predict import scene as nbscene
 
         d = nbscene.scene_dict(self.geometry, angle_deg=angle_deg,
                                patch_bsdf=stand_in["patch"], wall_bsdf=stand_in["wall"],
@@ -681,7 +681,7 @@ class FastNormbox:
         return d
 
     def _ensure_scene(self, angle_deg: float) -> None:
-        from normbox_lab import scene as nbscene
+        from normbox_lab.predict import scene as nbscene
 
         if self._scene is not None:
             self.set_angle(angle_deg)
@@ -755,8 +755,8 @@ class FastNormbox:
                     max_paths: int = 1 << 23) -> Any:
         """Like `render.render_view`: the radiance the radiometer sees, per band, with its MC
         standard error (`RenderResult`; `batches` holds the mean only, `info["n_paths"]`)."""
-        from normbox_lab.materials import holder_material
-        from normbox_lab.render import LAMP_GRID_NM, Lamp, RenderResult
+        from normbox_lab.predict.materials import holder_material
+        from normbox_lab.predict.render import LAMP_GRID_NM, Lamp, RenderResult
 
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
@@ -870,10 +870,10 @@ def predict_spectra(patches: Sequence[Any] | Mapping[str, Any], angles_deg: Sequ
     configuration's seed derives from `seed` and its name "<patch name>@<angle>", so any executor
     gives identical spectra.
     """
-    from normbox_lab.executors import InProcessExecutor
-    from normbox_lab.materials import holder_material
-    from normbox_lab.render import Lamp
-    from normbox_lab.scene import as_geometry
+    from normbox_lab.predict.executors import InProcessExecutor
+    from normbox_lab.predict.materials import holder_material
+    from normbox_lab.predict.render import Lamp
+    from normbox_lab.predict.scene import as_geometry
 
     items = list(patches.items()) if isinstance(patches, Mapping) else \
         [(p.name, p) for p in patches]

@@ -19,7 +19,7 @@ Coordinates (metres; the config is in mm):
   field of view, 10 × 10 px, every pixel a full spectrum (`specfilm`), averaged.  At s the
   radiometer sees the sample at 90° − s from its normal (paper: 60…0° for s = 30…90°).
 
-`SceneGeometry` has the defaults of `normbox_lab.config.GeometryConfig`; every function here
+`SceneGeometry` has the defaults of `normbox_lab.acquire.config.GeometryConfig`; every function here
 accepts any object with those attribute names.
 """
 
@@ -44,7 +44,7 @@ _MAP_PATTERN = np.array([[-1.00, -0.55, -0.30, -0.45, -0.85],
 
 @dataclass(frozen=True)
 class SceneGeometry:
-    """Normbox geometry (mm, degrees); the same fields as `normbox_lab.config.GeometryConfig`."""
+    """Normbox geometry (mm, degrees); the same fields as `normbox_lab.acquire.config.GeometryConfig`."""
 
     box_inner_mm: float = 600.0
     wall_thickness_mm: float = 15.0

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.errors import DataError
+from normbox_lab.core.errors import DataError
 
 #: ColorChecker patch numbering of the paper (1-based): 19 = white 9.5, 24 = black 2.
 WHITE_PATCH_INDEX = 18

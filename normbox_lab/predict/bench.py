@@ -1,6 +1,6 @@
 """`normbox-lab bench predict`: the fast band-vector renderer against stock Mitsuba, equal noise.
 
-Scene: the virtual Normbox (`normbox_lab.scene`), lamp `render.Lamp()`, the 24 ColorChecker
+Scene: the virtual Normbox (`normbox_lab.predict.scene`), lamp `render.Lamp()`, the 24 ColorChecker
 patches × 13 sample angles (30…90 step 5) = 312 configurations, with materials of the fit-model
 family (`materials.truth_patch(n, "model")`, `truth_wall("model")`: what the pipeline predicts
 with).  Bands: 81 triangular 5 nm hats, 380–780 nm.
@@ -84,10 +84,10 @@ def run_bench_predict(out: TextIO = sys.stdout,
     if quick:
         spp = min(spp, 16)
 
-    from normbox_lab import materials as mats
-    from normbox_lab.executors import make_executor
-    from normbox_lab.fastrender import FastNormbox, mono_variant, predict_spectra
-    from normbox_lab.render import Lamp, Quality, ensure_variant, render_view
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.executors import make_executor
+    from normbox_lab.predict.fastrender import FastNormbox, mono_variant, predict_spectra
+    from normbox_lab.predict.render import Lamp, Quality, ensure_variant, render_view
 
     def emit(line: str = "") -> None:
         print(line, file=out, flush=True)

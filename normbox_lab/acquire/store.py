@@ -29,8 +29,8 @@ from typing import Any, Self
 import numpy as np
 
 from normbox_lab import __version__
-from normbox_lab.errors import StoreError
-from normbox_lab.types import BrdfReading, Colorimetry, SpectralReading
+from normbox_lab.core.errors import StoreError
+from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
 
 DEFAULT_STORE = "normbox.sqlite"
 

@@ -31,9 +31,9 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.brdf_model import MaterialFit
-from normbox_lab.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
-from normbox_lab.fit import BrdfData, fit_error_at, polar_plot
+from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
+from normbox_lab.analyze.fit import BrdfData, fit_error_at, polar_plot
+from normbox_lab.predict.brdf_model import MaterialFit
 
 RATING_COLOURS = ("#2e7d32", "#9ccc65", "#ffb300", "#c62828")
 
@@ -183,7 +183,7 @@ def fig_prediction(c: ComparisonResult, patches: Sequence[int]) -> Any:
 
 def _bars_and_scatter(c: ComparisonResult, values: np.ndarray, label: str,
                       key_small: str, key_large: str) -> Any:
-    from normbox_lab.compare import LARGE_ANGLES_DEG, SMALL_ANGLES_DEG
+    from normbox_lab.analyze.compare import LARGE_ANGLES_DEG, SMALL_ANGLES_DEG
 
     fig = _new_fig(12, 3.4)
     gs = fig.add_gridspec(1, 4)
@@ -214,7 +214,7 @@ def _bars_and_scatter(c: ComparisonResult, values: np.ndarray, label: str,
 def fig_deltae(c: ComparisonResult) -> Any:
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
-    from normbox_lab.compare import rating_index
+    from normbox_lab.analyze.compare import rating_index
 
     fig = _new_fig(8, 7)
     ax = fig.add_subplot(1, 1, 1)
@@ -278,7 +278,7 @@ def fig_nse(c: ComparisonResult, patch: int) -> Any:
 def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]]] | None:
     """Paper Fig. 14: NSE at the smallest angle vs patch fit error at the direct geometry;
     NSE at the largest angle vs the wall's fit error at a grazing geometry."""
-    from normbox_lab.compare import direct_light_geometry
+    from normbox_lab.analyze.compare import direct_light_geometry
 
     names = list(d.patch_fit_names) if d.patch_fit_names is not None else list(c.patch_names)
     pairs = [(p, names[p]) for p in d.nse_fit_patches
@@ -362,7 +362,7 @@ text-align:right} th{background:#eee} .r0{background:#c8e6c9} .r1{background:#f1
 
 
 def _rating_class(_i: int, j: int, v: Any) -> str:
-    from normbox_lab.compare import rating_index
+    from normbox_lab.analyze.compare import rating_index
 
     if j == 0 or not isinstance(v, float | np.floating) or not np.isfinite(v):
         return ""
@@ -508,9 +508,9 @@ def synthetic_report_data(step_nm: float = 10.0, seed: int = 0, do_fit: bool = F
     """
     import colour
 
-    from normbox_lab.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
-    from normbox_lab.compare import compare, error_model
-    from normbox_lab.fit import fit_material
+    from normbox_lab.analyze.compare import compare, error_model
+    from normbox_lab.analyze.fit import fit_material
+    from normbox_lab.predict.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
 
     rng = np.random.default_rng(seed)
     wl = np.arange(380.0, 781.0, step_nm)
@@ -538,7 +538,7 @@ def synthetic_report_data(step_nm: float = 10.0, seed: int = 0, do_fit: bool = F
         fits[name] = (fit_material(data[name], 2.0) if do_fit else
                       MaterialFit(name, wl, kd, ks, alpha, eta, 0.0, float("nan"), 2.0))
         if not do_fit:
-            from normbox_lab.fit import fit_error_pct
+            from normbox_lab.analyze.fit import fit_error_pct
 
             fits[name].fit_error_pct = fit_error_pct(fits[name], data[name])
     angles = np.arange(30.0, 91.0, 5.0)

@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.errors import DataError, StoreError
+from normbox_lab.core.errors import DataError, StoreError
 
 WHITE_PATCH = 19
 ProgressFn = Callable[[str, int, int], None]
@@ -79,7 +79,7 @@ def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
 def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
             progress: ProgressFn = _noop) -> dict[str, Any]:
     """Fit every material of a gonio run; each fit is stored as a ``fit`` artifact."""
-    from normbox_lab.fit import data_from_store_run, fit_material
+    from normbox_lab.analyze.fit import data_from_store_run, fit_material
 
     data = data_from_store_run(store, brdf_run)
     if not data:
@@ -95,7 +95,7 @@ def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
 
 
 def latest_fits(store: Any) -> dict[str, Any]:
-    from normbox_lab.brdf_model import MaterialFit
+    from normbox_lab.predict.brdf_model import MaterialFit
 
     return {a.name: MaterialFit.from_artifact(a) for a in store.artifacts("fit")}
 
@@ -104,7 +104,7 @@ def latest_fits(store: Any) -> dict[str, Any]:
 
 def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
     """The prediction's lamp: nominal spectrum, luminance from the light-map run if given."""
-    from normbox_lab.render import Lamp, luminance_cd_m2
+    from normbox_lab.predict.render import Lamp, luminance_cd_m2
 
     if light_map_run is None:
         return Lamp()
@@ -120,8 +120,8 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
                 render: Callable[..., Any] | None = None,
                 progress: ProgressFn = _noop) -> int:
     """Render every patch × angle of the reference run with the fitted materials."""
-    from normbox_lab.materials import Material, holder_material
-    from normbox_lab.render import render_view
+    from normbox_lab.predict.materials import Material, holder_material
+    from normbox_lab.predict.render import render_view
 
     ref = reference_data(store, ref_run)
     fits = fits if fits is not None else latest_fits(store)
@@ -173,7 +173,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
 def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None) -> Any:
     """ΔE00, NRMSE… of the latest prediction against the reference; stores the comparison and
     (when the gonio data are at hand) the error model."""
-    from normbox_lab.compare import compare, direct_light_geometry, error_model
+    from normbox_lab.analyze.compare import compare, direct_light_geometry, error_model
 
     run_id = store.get_run(ref_run).id
     ref = reference_data(store, run_id)
@@ -188,7 +188,7 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
                      white_patch=white, white_angle_deg=float(ref.angle_deg.min()))
     result.store(store, f"ref-run-{run_id}", run_ref=run_id)
     if brdf_run is not None:
-        from normbox_lab.fit import data_from_store_run, fit_error_at
+        from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
 
         fits = latest_fits(store)
         data = data_from_store_run(store, brdf_run)
@@ -213,8 +213,8 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
 
 def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
                brdf_run: int | str | None = None, notes: Iterable[str] = ()) -> Path:
-    from normbox_lab.compare import ComparisonResult, ErrorModelResult
-    from normbox_lab.report import ImageFigure, ReportData, write_report
+    from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
+    from normbox_lab.analyze.report import ImageFigure, ReportData, write_report
 
     run_id = store.get_run(ref_run).id
     comparison = ComparisonResult.from_artifact(
@@ -226,7 +226,7 @@ def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
     fits = latest_fits(store)
     data = {}
     if brdf_run is not None:
-        from normbox_lab.fit import data_from_store_run
+        from normbox_lab.analyze.fit import data_from_store_run
 
         data = data_from_store_run(store, brdf_run)
     patch_fit_names = [fit_key(n.split()[0]) for n in comparison.patch_names]
@@ -273,10 +273,10 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
     random numbers), so the map shows the materials' fit, not the lamp or the noise.  Both
     previews get the Bradford adaptation of the *truth* image's W&W estimate, so they stay
     comparable."""
+    from normbox_lab.analyze.report import ImageFigure, ImagePanel
     from normbox_lab.images import camera, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map, write_png
-    from normbox_lab.materials import Material, holder_material, truth_patch, truth_wall
-    from normbox_lab.report import ImageFigure, ImagePanel
+    from normbox_lab.predict.materials import Material, holder_material, truth_patch, truth_wall
 
     run_id = store.get_run(ref_run).id
     fits = latest_fits(store)

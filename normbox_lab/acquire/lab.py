@@ -21,9 +21,9 @@ import importlib
 from collections.abc import Mapping
 from typing import Any
 
-from normbox_lab.clock import Clock, make_clock
-from normbox_lab.config import LabConfig
-from normbox_lab.errors import ConfigError, NormboxError
+from normbox_lab.acquire.config import LabConfig
+from normbox_lab.core.clock import Clock, make_clock
+from normbox_lab.core.errors import ConfigError, NormboxError
 
 #: config driver name → (module, class names to try, in order)
 DRIVERS: dict[str, tuple[str, tuple[str, ...]]] = {
@@ -162,7 +162,7 @@ class Lab:
 
     def ask_operator(self, key: str, message: str, **data: Any) -> str:
         """A prompt from inside an instrument (e.g. the gonio's white standard)."""
-        from normbox_lab.engine import PromptRequest
+        from normbox_lab.acquire.engine import PromptRequest
 
         return self.operator(PromptRequest(0, key, "operator", message, ("ok",), data))
 
@@ -263,7 +263,7 @@ def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock |
     if virtual_operator is None:
         virtual_operator = config.simulated and operator is None
     if operator is None and virtual_operator:
-        from normbox_lab.operator import VirtualOperator
+        from normbox_lab.acquire.operator import VirtualOperator
 
         operator = VirtualOperator(world_obj, clock, fault_policy=fault_policy,
                                    response_s=operator_response_s)

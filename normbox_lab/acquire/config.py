@@ -30,7 +30,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from normbox_lab.errors import ConfigError
+from normbox_lab.core.errors import ConfigError
 
 #: instrument roles and the drivers that can fill them
 ROLE_DRIVERS: dict[str, tuple[str, ...]] = {

@@ -41,13 +41,13 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.brdf_model import (
+from normbox_lab.core.errors import DataError
+from normbox_lab.predict.brdf_model import (
     GONIO_TILT_DEG,
     MaterialFit,
     inplane_directions,
     specular_basis,
 )
-from normbox_lab.errors import DataError
 
 #: Box bounds of the outer parameters: α (GGX roughness), η (refractive index), c (sr⁻¹).
 DEFAULT_BOUNDS: dict[str, tuple[float, float]] = {

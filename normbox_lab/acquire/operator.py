@@ -14,7 +14,7 @@ from __future__ import annotations
 import sys
 from typing import Any, TextIO
 
-from normbox_lab.clock import Clock
+from normbox_lab.core.clock import Clock
 
 
 class VirtualOperator:

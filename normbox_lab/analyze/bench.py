@@ -26,8 +26,14 @@ from typing import Any, TextIO
 
 import numpy as np
 
-from normbox_lab.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
-from normbox_lab.fit import DEFAULT_BOUNDS, DEFAULT_STARTS, BrdfData, FitProblem, fit_material
+from normbox_lab.analyze.fit import (
+    DEFAULT_BOUNDS,
+    DEFAULT_STARTS,
+    BrdfData,
+    FitProblem,
+    fit_material,
+)
+from normbox_lab.predict.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
 
 WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
 NOISE_REL = 0.01

@@ -1,4 +1,4 @@
-"""Which Mitsuba spectral variant works on this machine?  (`python -m normbox_lab.mitsuba_setup`)
+"""Which Mitsuba spectral variant works on this machine?  (`python -m normbox_lab.predict.mitsuba_setup`)
 
 `llvm_ad_spectral` aborts the whole process (not an exception) when only libLLVM 15 is present
 on some CPUs, so it is probed in a child process.  The answer is cached in

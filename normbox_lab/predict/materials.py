@@ -1,14 +1,14 @@
 """Materials of the virtual Normbox: the 24 ColorChecker patches, the grey wall, the black holder.
 
 A `Material` is plain data (numpy arrays and floats) so that it can come from colour-science
-(the *truth* of the virtual world) or from a fit (`normbox_lab.brdf_model.MaterialFit`, the
+(the *truth* of the virtual world) or from a fit (`normbox_lab.predict.brdf_model.MaterialFit`, the
 *prediction*).  One BRDF family covers both:
 
     f(λ, ωi, ωo) = kd(λ)/π + ks(λ) · D(h; α) · F(ωi·h; η(λ)) · G1(ωi) G1(ωo) / (4 cosθi cosθo) − c
                    + kb(λ) · exp((ωi·ωo − 1) / σb²) / π                     (backscatter lobe)
 
 with η(λ) = η + dη_per_100nm · (λ − 550 nm) / 100 nm.  With kb = 0 and dη = 0 this is exactly
-the fit model `normbox_lab.brdf_model.ct_ggx_brdf` (`truth_brdf` then calls it).  The truth
+the fit model `normbox_lab.predict.brdf_model.ct_ggx_brdf` (`truth_brdf` then calls it).  The truth
 materials (`truth_material(n, truth="default")`) switch both extras on, so the fit model cannot
 represent them exactly (as the paper found: blue-dominated backscatter, a wavelength-dependent
 Fresnel reflection that is stronger in the red); `truth="model"` drops them (closure test).
@@ -270,7 +270,7 @@ def truth_brdf(material: Material, wi: np.ndarray, wo: np.ndarray,
     """BRDF (sr⁻¹), shape (…, n_λ), for unit directions (…, 3) with z the surface normal.
 
     For a model-family material this *is* `brdf_model.ct_ggx_brdf` (called directly)."""
-    from normbox_lab import brdf_model as bm
+    from normbox_lab.predict import brdf_model as bm
 
     wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
     kd, ks, kb = material.spectra_at(wl)
@@ -298,7 +298,7 @@ def truth_brdf(material: Material, wi: np.ndarray, wo: np.ndarray,
 def truth_brdf_inplane(material: Material, theta_i_deg: Any, theta_o_deg: Any,
                        wavelength_nm: Any, tilt_deg: float = 4.0) -> np.ndarray:
     """The gonioreflectometer's view: signed in-plane angles, arms tilted ±tilt_deg."""
-    from normbox_lab.brdf_model import inplane_directions
+    from normbox_lab.predict.brdf_model import inplane_directions
 
     wi, wo = inplane_directions(theta_i_deg, theta_o_deg, tilt_deg)
     return truth_brdf(material, wi, wo, wavelength_nm)

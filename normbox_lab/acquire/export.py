@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.errors import StoreError
-from normbox_lab.store import Store, StoredReading
+from normbox_lab.acquire.store import Store, StoredReading
+from normbox_lab.core.errors import StoreError
 
 FORMATS = ("netcdf", "csv", "json")
 SUFFIX = {"netcdf": ".nc", "csv": ".csv", "json": ".json"}

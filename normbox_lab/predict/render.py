@@ -16,7 +16,7 @@
   working directory, or $NORMBOX_RENDER_CACHE), keyed by a hash of the materials, the patch
   material, the angle, the lamp, the geometry, the quality and the code version.
 - Variants: `llvm_ad_spectral` by default, `cuda_ad_spectral` when a GPU works,
-  `scalar_spectral` when llvm cannot be loaded (see `normbox_lab.mitsuba_setup`); force one with
+  `scalar_spectral` when llvm cannot be loaded (see `normbox_lab.predict.mitsuba_setup`); force one with
   $NORMBOX_MITSUBA_VARIANT.  Mitsuba is imported on the first render, never at module import.
 """
 
@@ -34,8 +34,8 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.materials import Material, holder_material
-from normbox_lab.scene import (
+from normbox_lab.predict.materials import Material, holder_material
+from normbox_lab.predict.scene import (
     MOVING_SHAPES,
     as_geometry,
     band_film,
@@ -81,7 +81,7 @@ def planck_W_sr_m2_nm(wavelength_nm: Any, temperature_K: float) -> np.ndarray:
 
 def photopic_v(wavelength_nm: Any) -> np.ndarray:
     """CIE 1924 photopic V(λ) from colour-science (cached on disk: colour imports slowly)."""
-    from normbox_lab.materials import _cache_dir
+    from normbox_lab.predict.materials import _cache_dir
 
     path = _cache_dir() / "cie1924_photopic_360_830_1nm.npy"
     try:
@@ -168,7 +168,7 @@ def ensure_variant(variant: str | None = None) -> str:
 
     if variant is None:
         if _VARIANT is None:
-            from normbox_lab.mitsuba_setup import choose_variant
+            from normbox_lab.predict.mitsuba_setup import choose_variant
 
             _VARIANT = choose_variant()
         variant = _VARIANT
@@ -236,7 +236,7 @@ class _PersistentScene:
                  materials: dict[str, Material]) -> None:
         import mitsuba as mi
 
-        from normbox_lab.mitsuba_bsdf import make_bsdf, make_panel_texture
+        from normbox_lab.predict.mitsuba_bsdf import make_bsdf, make_panel_texture
 
         self.bsdfs = {role: make_bsdf(m) for role, m in materials.items()}
         self.bsdfs["post"] = make_bsdf(materials["holder"])
@@ -397,8 +397,8 @@ def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: floa
                                                   angle_deg=angle_deg, lamp=lamp,
                                                   wavelength_nm=fine,
                                                   subdivisions=subdivisions))
-    from normbox_lab.materials import truth_brdf
-    from normbox_lab.scene import (
+    from normbox_lab.predict.materials import truth_brdf
+    from normbox_lab.predict.scene import (
         panel_cells_m,
         radiometer_position_m,
         sample_centre_m,
@@ -437,13 +437,13 @@ def direct_estimate(geometry: Any = None, *, material: Material, angle_deg: floa
     return lamp.radiance(wl) * np.sum(f * geom[:, None], axis=0)
 
 
-# --- a benchmark: `python -m normbox_lab.render [--quality default] [--patches 19,13,24] ...` ------
+# --- a benchmark: `python -m normbox_lab.predict.render [--quality default] [--patches 19,13,24] ...` ------
 def main(argv: list[str] | None = None) -> int:
     import argparse
 
-    from normbox_lab.materials import truth_patch, truth_wall
+    from normbox_lab.predict.materials import truth_patch, truth_wall
 
-    ap = argparse.ArgumentParser(prog="python -m normbox_lab.render",
+    ap = argparse.ArgumentParser(prog="python -m normbox_lab.predict.render",
                                  description="Render time and standard error per configuration")
     ap.add_argument("--quality", default="default", choices=sorted(QUALITIES))
     ap.add_argument("--patches", default="19,13,24")

@@ -1,7 +1,7 @@
 """The Normbox BRDF family as a Mitsuba 3 BSDF (a Python `mi.BSDF`, registered as "normbox").
 
-Same formula as `normbox_lab.materials.truth_brdf` (and, with the extras off, as the fit model
-`normbox_lab.brdf_model.ct_ggx_brdf`):
+Same formula as `normbox_lab.predict.materials.truth_brdf` (and, with the extras off, as the fit model
+`normbox_lab.predict.brdf_model.ct_ggx_brdf`):
 
     f = kd(λ)/π + ks(λ)·D·F(η(λ))·G1(ωi)G1(ωo)/(4 cosθi cosθo) − c + kb(λ)·exp((ωi·ωo−1)/σ²)/π
 
@@ -94,7 +94,7 @@ def bsdf_class() -> Any:
             self.p_diffuse = opaque(1.0 - p_glossy)
 
         def set_material(self, material: Any) -> None:
-            """From a `normbox_lab.materials.Material`."""
+            """From a `normbox_lab.predict.materials.Material`."""
             kd, ks, kb = material.spectra_at(GRID_NM)
             self.set_values(kd=kd, ks=ks, kb=kb, alpha=material.alpha, eta=material.eta,
                             c=material.c, deta_per_100nm=material.deta_per_100nm,

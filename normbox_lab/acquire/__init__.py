@@ -1,0 +1,1 @@
+"""Acquisition: lab config and assembly, the run engine, operator, store, exports and importers."""

@@ -1,0 +1,1 @@
+"""Types, errors, the injected clock, device capabilities and the neutral transport."""
