@@ -1,6 +1,6 @@
 """Konica Minolta CS-1000 / CS-1000A spectroradiometer over RS-232C (pyserial).
 
-Facts from /work/shared/reference/cs1000-cs2000-protocol.md §2, §3.1, §4.1, §6.  No official
+References: [KM-CS1000] in docs/references.md.  No official
 CS-1000 communication document is public: the command set below is what three independent
 drivers agree on; what is *assumed* is said so (docs/radiometers.md has the full table).
 

@@ -1,7 +1,7 @@
 """Konica Minolta CS-2000 / CS-2000A spectroradiometer (pyserial).
 
-Facts from the CS-2000/CS-2000A Communication Specifications (Rev. 7.00) as summarised in
-/work/shared/reference/cs1000-cs2000-protocol.md §2.2, §3.2, §4.2, §5, §6, §7.
+References: Konica Minolta, *Spectroradiometer CS-2000/CS-2000A Communication
+Specifications*, Rev. 7.00 (2020) — [KM-CS2000] in docs/references.md.
 
 Line: 115200 baud (RS-232C default; ignored over USB), 8N1, RTS/CTS.  Commands end in LF
 (`delimiter` option: LF or CR+LF); the reply ends in the same delimiter.  Every reply starts

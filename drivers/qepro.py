@@ -1,6 +1,7 @@
 """Ocean Optics / Ocean Insight QE Pro spectrometer through python-seabreeze.
 
-Facts: reference/instruments.md §3 (python-seabreeze, MIT).  The cseabreeze backend is the
+References: Ocean Insight, *QE Pro Installation and Operation Manual*; python-seabreeze
+documentation (MIT) — [QEPRO] in docs/references.md.  The cseabreeze backend is the
 default (it has the QE Pro's TEC and nonlinearity features); pyseabreeze is the fallback (no TEC,
 no nonlinearity correction for the QE Pro — the driver then reports them as unavailable).
 seabreeze is imported only when a real device is opened, never at module import.

@@ -1,7 +1,7 @@
 """Thorlabs APT rotation stage, K10CR1 profile, over a USB-serial port (pyserial).
 
-Facts: the Thorlabs "APT Communications Protocol" as summarised in
-/work/shared/reference/instruments.md §2.1.  Frames are encoded with `thorlabs-apt-protocol`
+References: Thorlabs, *APT Communications Protocol* (K10CR1 message subset) — [APT] in
+docs/references.md.  Frames are encoded with `thorlabs-apt-protocol`
 (MIT; ``thorlabs_apt_protocol.<message>(dest, source, …)``) and replies decoded with its
 `Unpacker`.  Line: 115200 baud 8N1, RTS/CTS flow control; host 0x01, device 0x50, channel 1.
 

@@ -1,6 +1,6 @@
 """Zaber rotation stage over the Zaber ASCII protocol (pyserial).
 
-Facts: "Zaber's ASCII Protocol" as summarised in /work/shared/reference/instruments.md §2.2.
+References: Zaber Technologies, *Zaber ASCII Protocol Manual* — [ZABER] in docs/references.md.
 Line: 115200 baud 8N1 (*assumed* default of current firmware), commands end in LF, replies
 end in CR LF.
 

@@ -1,7 +1,7 @@
 """Integrating-sphere light source (Image Engineering LE7-4x) — PLACEHOLDER protocol driver.
 
-Image Engineering publish no remote-control protocol for the LE7 (reference/instruments.md
-§1.1–1.2).  This driver speaks the SCPI-like command set *proposed* in §1.3 — invented names,
+Image Engineering publish no remote-control protocol for the LE7 ([LE7] in docs/references.md).
+This driver speaks a SCPI-like command set of our own ([SCPI]) — invented names,
 implemented by the emulator in sim/sphere.py — so that the lab, the protocols and the tests run
 end to end.  When the vendor document (or DLL / TCP service) arrives, write the real adapter as
 another class with the same public methods; nothing above this module changes.

@@ -1,6 +1,7 @@
 """Konica Minolta CS-1000A spectroradiometer, emulated at the wire.
 
-Written from /work/shared/reference/cs1000-cs2000-protocol.md (§2.1, §3.1, §4.1, §6, §8).
+Written from the instrument facts, not from the driver.  References: [KM-CS1000] in
+docs/references.md.
 No official CS-1000 communication document is public: where the sources disagree or are
 silent, the choices below are marked *assumed* and listed in docs/radiometers.md.
 

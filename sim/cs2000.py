@@ -1,7 +1,7 @@
 """Konica Minolta CS-2000A spectroradiometer, emulated at the wire.
 
-Written from the CS-2000/CS-2000A Communication Specifications as summarised in
-/work/shared/reference/cs1000-cs2000-protocol.md (§2.2, §3.2, §4.2, §5, §6, §8).
+Written from Konica Minolta, *Spectroradiometer CS-2000/CS-2000A Communication
+Specifications*, Rev. 7.00 (2020) — [KM-CS2000] in docs/references.md.
 
 Line: 115200 baud 8N1 RTS/CTS (the emulator ignores the settings, as the instrument does over
 USB).  A command ends in CR, LF or CR+LF; **the reply ends in the same delimiter**.  Replies are

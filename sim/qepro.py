@@ -8,7 +8,7 @@ shape of `seabreeze.spectrometers.Spectrometer` (``from_serial_number``,
 ``serial_number``, ``model``, ``features[...]`` / ``f.<feature>``, ``open``/``close``).
 Nothing here imports seabreeze.
 
-The device (QE Pro facts from reference/instruments.md §3.2): 1044 pixels, electrically dark
+The device (QE Pro facts from [QEPRO] in docs/references.md): 1044 pixels, electrically dark
 pixels 0–3 and 1040–1043, 18-bit counts (max 262143), integration time 8 ms … 1600 s,
 polynomial wavelength calibration λ(px) = 350 + 0.55·px − 3·10⁻⁵·px² nm (*assumed*
 coefficients, ≈ 350–891 nm), TEC with a −10 °C default set point.

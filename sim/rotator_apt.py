@@ -1,6 +1,6 @@
 """Thorlabs K10CR1 rotation mount (integrated APT stepper controller), emulated at the wire.
 
-Written from the APT protocol facts in /work/shared/reference/instruments.md §2.1 with its own
+Written from Thorlabs' *APT Communications Protocol* ([APT] in docs/references.md) with its own
 small frame codec (struct), independently of the driver (which uses thorlabs-apt-protocol).
 
 Frames: 6-byte header ``<H id><B p1><B p2><B dest><B src>`` (short) or

@@ -1,6 +1,6 @@
 """Zaber rotary stage (X-RSW60A-like) speaking the Zaber ASCII protocol, emulated at the wire.
 
-Written from "Zaber's ASCII Protocol" (/work/shared/reference/instruments.md §2.2).
+Written from the *Zaber ASCII Protocol Manual* ([ZABER] in docs/references.md).
 
 Line: commands ``/<device> <axis> <command…>`` end in LF or CR; replies
 ``@<dd> <axis> <OK|RJ> <IDLE|BUSY> <flag> <data>`` end in CR LF.  Device 1, one axis.

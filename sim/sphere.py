@@ -1,8 +1,8 @@
 """Integrating-sphere light source (Image Engineering LE7-4x stand-in), emulated at the wire.
 
 PLACEHOLDER PROTOCOL.  Image Engineering publish no remote-control protocol for the LE7; this
-emulator speaks the SCPI-like command set *proposed* in /work/shared/reference/instruments.md
-§1.3 (every name there is invented), so the app, its tests and outside programs have something
+emulator speaks a SCPI-like command set of our own ([LE7], [SCPI] in docs/references.md;
+every name is invented), so the app, its tests and outside programs have something
 real to talk to.  The real adapter is written when the vendor document arrives, behind the same
 `LightSource` interface (drivers/sphere.py).
 

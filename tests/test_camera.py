@@ -9,8 +9,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-pytest.importorskip("mitsuba")
-
 from normbox_lab.images import camera as cam
 from normbox_lab.predict.materials import Material
 

@@ -25,19 +25,6 @@ import pytest
 HERE = Path(__file__).resolve().parent
 
 
-def sim_lab_available() -> bool:
-    try:
-        from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-        from normbox_lab.acquire.lab import driver_class
-
-        cfg = parse_config(SIM_CONFIG_TEMPLATE)
-        for role in ("radiometer", "rotator", "sphere"):
-            driver_class(cfg.instruments[role].driver)
-        return True
-    except Exception:  # noqa: BLE001 - any missing piece means: not available
-        return False
-
-
 def child(store_path: str, lab_kind: str) -> int:
     from normbox_lab.acquire import engine as eng
     from normbox_lab.acquire.store import Store
@@ -68,8 +55,6 @@ def child(store_path: str, lab_kind: str) -> int:
 def campaign(tmp_path: Path, kills_wanted: int, seed: int, max_readings: int = 30,
              max_delay_s: float = 0.01, lab_kind: str = "sim") -> dict:
     store_path = tmp_path / "kill.sqlite"
-    if lab_kind == "sim" and not sim_lab_available():
-        pytest.skip("the simulated lab's drivers are not installed")
     rng = random.Random(seed)
     env = dict(os.environ, NORMBOX_LAB_CACHE=os.environ.get(
         "NORMBOX_LAB_CACHE", str(Path.home() / ".cache" / "normbox-lab")))
@@ -171,15 +156,9 @@ def test_sigkill_campaign_large(tmp_path, capsys):
 
 
 def cli_child(argv: list[str]) -> int:
-    """`normbox-lab run ...` with the fake drivers behind the lab assembly."""
-    sys.path.insert(0, str(HERE))
-    from engine_fakes import FAKE_DRIVERS
-
-    from normbox_lab.acquire import lab as labmod
+    """`normbox-lab run ...` on the simulated lab, in this process."""
     from normbox_lab.cli import main
 
-    if not sim_lab_available():
-        labmod.DRIVERS = FAKE_DRIVERS
     return main(argv)
 
 

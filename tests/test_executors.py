@@ -32,7 +32,6 @@ def test_dask_missing_says_how_to_install():
 
 @pytest.mark.skipif(not dask_available(), reason="dask.distributed not installed")
 def test_local_dask_cluster_gives_the_in_process_spectra():
-    pytest.importorskip("mitsuba")
     from normbox_lab.predict import materials as mats
     from normbox_lab.predict.fastrender import predict_spectra
 

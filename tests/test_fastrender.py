@@ -16,8 +16,6 @@ from normbox_lab.predict.fastrender import (
     mono_variant,
 )
 
-pytest.importorskip("mitsuba")
-
 
 def test_band_average_is_the_hat_average():
     g = BandGrid()

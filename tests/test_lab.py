@@ -206,12 +206,7 @@ def test_luminance_hint_is_closed_form_for_any_world():
 
 # --- the simulated lab end to end: wire-level emulators, analytic world -------------------------
 
-def _sim_lab_or_skip():
-    try:
-        for name in ("cs1000a", "apt-k10cr1", "sphere-scpi", "zaber", "qepro"):
-            labmod.driver_class(name)
-    except NormboxError as exc:
-        pytest.skip(f"drivers not installed: {exc}")
+def _sim_lab():
     return labmod.build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
 
 
@@ -219,7 +214,7 @@ def test_reference_sweep_on_the_simulated_lab_sees_the_right_patch_and_angle(tmp
     from normbox_lab.acquire import engine as eng
     from normbox_lab.acquire.store import Store
 
-    lab = _sim_lab_or_skip()
+    lab = _sim_lab()
     with Store(tmp_path / "s.sqlite") as store:
         plan = eng.build_plan("reference-sweep", {"angles_deg": [30, 90],
                                                   "patches": [2, 19, 24]}, lab)
@@ -244,7 +239,7 @@ def test_brdf_inplane_on_the_simulated_gonio_closes_on_the_truth(tmp_path):
     from normbox_lab.acquire import engine as eng
     from normbox_lab.acquire.store import Store
 
-    lab = _sim_lab_or_skip()
+    lab = _sim_lab()
     with Store(tmp_path / "b.sqlite") as store:
         plan = eng.build_plan("brdf-inplane", {"materials": [7, "wall"], "theta_i_deg": [-40],
                                                "theta_o_deg": [-30, 30, 60]}, lab)
@@ -265,7 +260,7 @@ def test_simulated_lamp_instability_and_wire_faults_are_ridden_out(tmp_path):
     from normbox_lab.acquire import engine as eng
     from normbox_lab.acquire.store import Store
 
-    _sim_lab_or_skip()
+    _sim_lab()
     # the sphere's STAT? count is deterministic on the virtual clock: ~620 polls of the warm-up,
     # then two per reading, so the 640th command lands in the middle of the first angle
     text = SIM_CONFIG_TEMPLATE.replace('port = "sim://sphere"',

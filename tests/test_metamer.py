@@ -5,14 +5,13 @@ from __future__ import annotations
 import subprocess
 import sys
 
+import colour
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from normbox_lab.images import metamer as m
-
-colour = pytest.importorskip("colour")
 
 _CMFS = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
 _D65 = colour.SDS_ILLUMINANTS["D65"]

@@ -7,8 +7,6 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-pytest.importorskip("mitsuba")
-
 from normbox_lab.images.triplet import (
     bsdf_dict,
     check_representable,

@@ -15,9 +15,6 @@ import pytest
 from normbox_lab.acquire import lab as labmod
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
-
-pytest.importorskip("textual")
-
 from normbox_lab.tui.app import DrillScreen, NormboxConsole, PromptScreen, ResumeScreen
 from normbox_lab.tui.controller import Session
 

@@ -182,8 +182,7 @@ def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
     flat white that is the chromaticity of the light arriving there, lamp plus the green bounce
     light (≈ 0.02 from the lamp's own xy).  W&W (w = 2) lands within 0.01 of it; gray world on
     the raw image, pulled by the green walls, misses by more than 0.01."""
-    camera = pytest.importorskip("normbox_lab.images.camera")
-    pytest.importorskip("mitsuba")
+    from normbox_lab.images import camera
     from normbox_lab.predict.render import planck_W_sr_m2_nm
 
     materials = wb.coloured_room_materials()

@@ -10,8 +10,6 @@ from normbox_lab.predict import brdf_model as bm
 from normbox_lab.predict.materials import truth_brdf_inplane, truth_patch, truth_wall
 from normbox_lab.sim.world import VirtualNormbox
 
-pytest.importorskip("mitsuba")
-
 
 @pytest.fixture(scope="module")
 def cache_dir(tmp_path_factory):
@@ -142,8 +140,8 @@ def test_constructed_from_a_lab_config(cache_dir):
 
 def test_driver_emulator_world_reading(world):
     """CS-1000A driver ⇄ bytes ⇄ emulator ⇄ VirtualNormbox: the reading is the render."""
-    cs1000 = pytest.importorskip("normbox_lab.drivers.cs1000")
     from normbox_lab.core.clock import VirtualClock
+    from normbox_lab.drivers import cs1000
     from normbox_lab.sim import core
 
     clock = VirtualClock()

@@ -19,7 +19,7 @@ order; after a crash (physical state unknown: `known = {}`) it replays precisely
 prompts the first missing measurement needs (re-move to the angle, re-prompt for the patch),
 skips every committed key, and takes nothing twice.
 
-Execution semantics follow bluesky's run engine (reference/lab-frameworks.md §3): deferred pause
+Execution semantics follow bluesky's run engine ([BLUESKY] in docs/references.md): deferred pause
 (the current reading finishes and is committed first), immediate abort (the busy instrument is
 told to abort, motors stopped), suspension while the lamp is unstable with the interrupted
 reading taken again, bounded retries of transient faults (`InstrumentTimeout`, `ProtocolError`,

@@ -1,7 +1,7 @@
 """Import of measured BRDF data.
 
 Format (the layout of the TH Köln group's later in-plane data, read by vgonio's `clausen.rs`;
-see reference/fitting-and-rendering.md §1): a JSON array whose element 0 is
+see [LOW12] in docs/references.md): a JSON array whose element 0 is
 ``{"wavelengths": [nm, ...]}`` and every later element is one geometry
 ``{"thetaIn": deg, "phiIn": deg, "thetaOut": deg, "phiOut": deg, "spectrum": [...]}`` with
 ``spectrum`` as long as ``wavelengths``.  Values are BRDF in sr⁻¹.
