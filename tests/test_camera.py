@@ -1,5 +1,6 @@
-"""images.camera: the virtual camera closes on the radiometer, its layers and the Wilkie &
-Weidlich auxiliary images close on themselves, depth and normals are exact, seeds reproduce.
+"""images.camera / tracer / normbox_view / cornell / figure1: the virtual camera closes on the
+radiometer, its layers and the Wilkie & Weidlich auxiliary images close on themselves, depth and
+normals are exact, seeds reproduce.
 
 All scenes use fit-family materials (no backscatter, no dispersion), so every test shares one
 set of compiled kernels."""
@@ -10,6 +11,9 @@ import numpy as np
 import pytest
 
 from normbox_lab.images import camera as cam
+from normbox_lab.images import cornell as cornell_room
+from normbox_lab.images import normbox_view, tracer
+from normbox_lab.images.figure1 import figure1
 from normbox_lab.predict.materials import Material
 
 FLAT_NM = np.array([360.0, 830.0])
@@ -17,15 +21,15 @@ SMALL = {"width": 32, "height": 24}
 
 
 @pytest.fixture(scope="module")
-def cornell() -> cam.CornellScene:
-    return cam.cornell_scene(SMALL["width"], SMALL["height"])
+def cornell() -> cornell_room.CornellScene:
+    return cornell_room.cornell_scene(SMALL["width"], SMALL["height"])
 
 
 def _grey_materials() -> dict[str, Material]:
     """Neutral (flat) materials of different albedo, one glossy."""
     wl = np.array([380.0, 780.0])
     out = {name: Material.diffuse(name, [r, r], wl)
-           for name, r in zip(cam.CORNELL_SLOTS, (0.5, 0.7, 0.3, 0.6, 0.4, 0.85), strict=True)}
+           for name, r in zip(cornell_room.CORNELL_SLOTS, (0.5, 0.7, 0.3, 0.6, 0.4, 0.85), strict=True)}
     out["box"] = Material("glossy grey", wl, kd=[0.6, 0.6], ks=[0.4, 0.4], alpha=0.2, eta=1.5,
                           c=0.01)
     return out
@@ -46,7 +50,7 @@ def _blue_lamp() -> tuple[np.ndarray, np.ndarray]:
 
 
 def test_layers_sum_to_radiance_and_depth_normal_are_exact_on_planes(cornell):
-    img = cornell.tracer.render(cam.cornell_materials(), *_blue_lamp(), spp=8, seed=1)
+    img = cornell.tracer.render(cornell_room.cornell_materials(), *_blue_lamp(), spp=8, seed=1)
     h, w = SMALL["height"], SMALL["width"]
     assert img.radiance.shape == (h, w, 81) and img.wavelength_nm[0] == 380.0
     total = img.emission + img.diffuse + img.specular + img.indirect
@@ -98,7 +102,7 @@ def test_cwni_shows_the_white_object_neutral_under_a_coloured_light(cornell):
     neutral surface is its raw image, of the red wall it is not."""
     from normbox_lab.images.color import XYZ_to_xy
 
-    img = cornell.tracer.render(cam.cornell_materials(), *_blue_lamp(), spp=16, seed=3)
+    img = cornell.tracer.render(cornell_room.cornell_materials(), *_blue_lamp(), spp=16, seed=3)
     box = img.mask("box")
     assert box.sum() >= 10
     raw, cwni = img.radiance[box], img.cwni[box]
@@ -113,14 +117,14 @@ def test_cwni_shows_the_white_object_neutral_under_a_coloured_light(cornell):
 
 
 def test_seeded_images_reproduce_and_do_not_depend_on_chunking(cornell):
-    mats = cam.cornell_materials()
+    mats = cornell_room.cornell_materials()
     a = cornell.tracer.render(mats, *_blue_lamp(), spp=4, seed=7)
     b = cornell.tracer.render(mats, *_blue_lamp(), spp=4, seed=7)
     np.testing.assert_array_equal(a.radiance, b.radiance)
     np.testing.assert_array_equal(a.cwni, b.cwni)
     other = cornell.tracer.render(mats, *_blue_lamp(), spp=4, seed=8)
     assert not np.array_equal(a.radiance, other.radiance)
-    small_chunks = cam.CameraTracer(cornell.tracer.scene, cornell.bsdf_slots, cornell.emitter,
+    small_chunks = tracer.CameraTracer(cornell.tracer.scene, cornell.bsdf_slots, cornell.emitter,
                                     cornell.camera, emitter_slot="light", chunk_paths=100)
     c = small_chunks.render(mats, *_blue_lamp(), spp=4, seed=7)
     np.testing.assert_array_equal(a.radiance, c.radiance)
@@ -136,7 +140,7 @@ def test_a_camera_at_the_radiometer_closes_on_the_radiometer(truth):
     from normbox_lab.predict.scene import radiometer_position_m, sample_centre_m
 
     patch, wall = mats.truth_patch(7, truth), mats.truth_wall(truth)
-    nc = cam.normbox_camera_renderer()
+    nc = normbox_view.normbox_camera_renderer()
     g = nc.geometry
     radiometer = cam.PinholeCamera(tuple(radiometer_position_m(g)), tuple(sample_centre_m(g)),
                                    fov_deg=g.radiometer_view_deg, width_px=4, height_px=4)
@@ -163,7 +167,7 @@ def test_normbox_view_frames_the_box_and_figure1_of_identical_materials_is_zero(
 
     patch, wall = mats.truth_patch(19, "model"), mats.truth_wall("model")
     truth = {"patch": patch, "wall": wall}
-    fig = cam.figure1(truth, truth, 60.0, width=40, height=30, spp=4, seed=1)
+    fig = figure1(truth, truth, 60.0, width=40, height=30, spp=4, seed=1)
     img = fig.truth
     # the default white: the radiometer's white patch at 30° (more direct light than at 60°)
     assert fig.white_source.startswith("radiometer")

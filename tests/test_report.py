@@ -4,8 +4,9 @@ import base64
 import re
 
 import numpy as np
+from report_fixtures import synthetic_report_data
 
-from normbox_lab.analyze.report import ReportData, build_html, synthetic_report_data, write_report
+from normbox_lab.analyze.report import ReportData, build_html, write_report
 
 FIGURES = ["fig-reference", "fig-prediction", "fig-rmse", "fig-nrmse", "fig-deltae", "fig-nse",
            "fig-polar-patch08", "fig-errormodel", "fig-nse-fit"]

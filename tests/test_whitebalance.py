@@ -182,14 +182,14 @@ def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
     flat white that is the chromaticity of the light arriving there, lamp plus the green bounce
     light (≈ 0.02 from the lamp's own xy).  W&W (w = 2) lands within 0.01 of it; gray world on
     the raw image, pulled by the green walls, misses by more than 0.01."""
-    from normbox_lab.images import camera
+    from normbox_lab.images import cornell
     from normbox_lab.predict.render import planck_W_sr_m2_nm
 
     materials = wb.coloured_room_materials()
     lamp_wl = np.arange(360.0, 831.0, 5.0)
     lamp = planck_W_sr_m2_nm(lamp_wl, 1800.0)
     lamp = lamp / lamp.max() * 10.0
-    img = camera.render_cornell(materials, lamp_wl, lamp, width=96, height=72, spp=64, seed=1)
+    img = cornell.render_cornell(materials, lamp_wl, lamp, width=96, height=72, spp=64, seed=1)
 
     raw = img.XYZ()
     lit = img.mask("box") & (img.normal[..., 2] > 0.9)

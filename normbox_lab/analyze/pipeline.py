@@ -274,7 +274,7 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
     previews get the Bradford adaptation of the *truth* image's W&W estimate, so they stay
     comparable."""
     from normbox_lab.analyze.report import ImageFigure, ImagePanel
-    from normbox_lab.images import camera, whitebalance
+    from normbox_lab.images import figure1, normbox_view, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map, write_png
     from normbox_lab.predict.materials import Material, holder_material, truth_patch, truth_wall
 
@@ -289,9 +289,9 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
     fitted_mats = {"patch": Material.from_fit(fits[fit_key(patch)]),
                    "wall": Material.from_fit(fits["wall"]), "holder": holder}
     t0 = time.perf_counter()
-    fig = camera.figure1(truth_mats, fitted_mats, float(angle_deg), lamp=lamp, geometry=geometry,
+    fig = figure1.figure1(truth_mats, fitted_mats, float(angle_deg), lamp=lamp, geometry=geometry,
                          width=width, height=height,
-                         spp=spp if spp is not None else camera.NORMBOX_DEFAULT_SPP, seed=seed)
+                         spp=spp if spp is not None else normbox_view.NORMBOX_DEFAULT_SPP, seed=seed)
     render_s = time.perf_counter() - t0
     wl = fig.truth.wavelength_nm
     est = whitebalance.estimate_illuminant(fig.truth.cwni, fig.truth.nwci, w, wavelength_nm=wl)

@@ -141,7 +141,7 @@ def _open_store(args: argparse.Namespace):
 def _camera(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from normbox_lab.images import camera, whitebalance
+    from normbox_lab.images import normbox_view, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, write_png
     from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
 
@@ -161,10 +161,10 @@ def _camera(args: argparse.Namespace) -> int:
     else:
         patch, wall = truth_patch(args.patch, args.truth), truth_wall(args.truth)
     width, height = args.size
-    spp = args.spp if args.spp is not None else camera.NORMBOX_DEFAULT_SPP
+    spp = args.spp if args.spp is not None else normbox_view.NORMBOX_DEFAULT_SPP
     print(f"rendering {width}×{height} px, {spp} spp, patch {args.patch} at {args.angle:g}° "
           f"({args.materials})…", file=sys.stderr, flush=True)
-    img = camera.render_normbox_camera(patch, wall, args.angle, holder=holder_material(),
+    img = normbox_view.render_normbox_camera(patch, wall, args.angle, holder=holder_material(),
                                        width=width, height=height, spp=spp, seed=args.seed)
     XYZ = img.XYZ()
     if args.white_balance == "ww":
@@ -176,7 +176,7 @@ def _camera(args: argparse.Namespace) -> int:
     out = Path(args.out)
     stem = f"camera-p{args.patch:02d}-{args.angle:g}deg-{args.materials}"
     # display white: the white patch at 30° seen by the radiometer in the same box (as figure1)
-    white = camera.white_reference_XYZ(wall, holder=holder_material(), seed=args.seed)
+    white = normbox_view.white_reference_XYZ(wall, holder=holder_material(), seed=args.seed)
     png = write_png(out / f"{stem}.png", XYZ_to_srgb(XYZ, float(white[1])))
     print(f"render: {img.time_s:.1f} s; luminance median relative SE "
           f"{100 * img.info.get('median_rel_se_luminance', float('nan')):.1f} %")
@@ -304,7 +304,7 @@ def _triplet(args: argparse.Namespace) -> int:
 def _whitebalance(args: argparse.Namespace) -> int:
     import numpy as np
 
-    from normbox_lab.images import camera, whitebalance
+    from normbox_lab.images import cornell, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, write_png
     from normbox_lab.predict.render import planck_W_sr_m2_nm
 
@@ -313,7 +313,7 @@ def _whitebalance(args: argparse.Namespace) -> int:
     lamp = planck_W_sr_m2_nm(lamp_nm, args.lamp_k)
     lamp = lamp / lamp.max() * 10.0
     width, height = args.size
-    img = camera.render_cornell(mats, lamp_nm, lamp, width, height, args.spp, args.seed)
+    img = cornell.render_cornell(mats, lamp_nm, lamp, width, height, args.spp, args.seed)
     XYZ = img.XYZ()
     lit = img.mask("box") & (img.normal[..., 2] > 0.9)      # the cube's face under the lamp
     target = whitebalance.gray_world_xy(XYZ[lit])

@@ -205,7 +205,7 @@ def white_balanced_srgb(image: Any, *, cwni: Any = None, nwci: Any = None,
 
 
 def coloured_room_materials() -> dict[str, Any]:
-    """The acceptance scene's materials for `images.camera.render_cornell`: every wall, the
+    """The acceptance scene's materials for `images.cornell.render_cornell`: every wall, the
     floor and the ceiling strongly coloured (greens and teal), one flat white cube (ρ = 0.85).
     Lit by a 1800 K Planckian lamp this is the case W&W is built for (docs/images.md)."""
     from normbox_lab.predict.materials import MATERIAL_WAVELENGTHS_NM, Material

@@ -1,0 +1,469 @@
+"""The camera tracer: full spectral images (all 81 bands per path) with light-path layers,
+depth, normals and the Wilkie & Weidlich (2009) auxiliary images CWNI and NWCI.
+
+It is `normbox_lab.predict.fastrender.BandPathTracer`'s machinery (Mitsuba mono variant for ray casting,
+band tables, λ-independent sampling, NEE + MIS, GGX/cosine mixture, Russian roulette) with a
+pinhole camera in place of the 1° radiometer.  Every path carries all bands, so every layer and
+both auxiliary images are exact per-path estimators from the same paths.
+
+Image formation is `normbox_lab.images.camera.PinholeCamera`'s (a pixel is a box filter: the mean
+radiance over the pixel).  With a square image and `fov_deg` equal to the radiometer's view, the
+mean of all pixels estimates exactly what `FastNormbox.render_view` does.
+
+Path structure per sample: the camera ray's first hit x1 is traced in one kernel (its emission,
+NEE and BSDF sample, with the BSDF factors split by lobe), then the continuation ray from x1 runs
+the usual path loop with throughput 1 in a second kernel, and a third kernel combines them, so
+the first-hit factors never sit in registers across the loop.  With L_b the lamp spectrum at the
+path's wavelengths, for band b:
+
+    n_b = nd_b + ns_b    NEE at x1: f·cos·(MIS weight)/pdf of the light sample, by lobe
+    g_b = gd_b + gs_b    BSDF sample at x1: f·cos/pdf, by lobe
+    e0                   x1 is the emitter (camera sees the light), e1: the continuation's first
+                         hit is the emitter (MIS weight vs NEE), acc_b: all later vertices
+
+    emission  = e0·L_b                      the directly seen luminaire
+    diffuse   = (nd_b + gd_b·e1)·L_b        direct light through x1's diffuse part
+    specular  = (ns_b + gs_b·e1)·L_b        direct light through x1's angular lobes
+    indirect  = g_b·acc_b·L_b               light that reached x1 after ≥ 1 other bounce
+    radiance  = emission + diffuse + specular + indirect   (by construction, per path)
+
+Lobes: "diffuse" is the angle-independent part of the BRDF, kd_b/π − c (the fit model's constant
+−c goes with it); "specular" is the rest: the GGX microfacet lobe ks_b·F·D·G/(4 cos cos) and the
+truth materials' backscatter lobe kb_b·B(ωi·ωo).  Direct light found by BSDF sampling (the
+continuation ray hitting the emitter) is direct light: it goes to diffuse/specular, not indirect.
+
+Wilkie & Weidlich 2009 §3.1, at the first hit only (x1), with avg = the mean over the bands
+(equal-energy "neutral" spectrum of the same band mean, i.e. the same brightness in W/nm):
+
+    incoming light at x1:  NEE: L_b (per unit n_b), continuation: inc_b = (e1 + acc_b)·L_b
+    CWNI_b = avg(L)·n_b + g_b·avg(inc)        incident light neutralised, BRDF sample kept
+    NWCI_b = avg(n)·L_b + avg(g)·inc_b        BRDF sample neutralised (same albedo), light kept
+
+Directly viewed luminaires are omitted (zero) in both, as in the paper's Fig. 4.  Under a neutral
+light on neutral materials both equal radiance − emission (up to float rounding).
+
+`depth_m`, `normal`, `slot_id` come from one ray through each pixel centre (not jittered, so a
+known plane gives exact values): the distance along that ray to the first hit (+inf where it
+misses), the world-space face normal turned towards the camera ((0, 0, 0) where it misses), and
+the material slot hit (index into `slot_names`, −1 for a miss).
+
+Public API: CameraTracer(scene, bsdf_slots, emitter, camera, ...).render(...) -> SpectralImage
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.images.camera import AUX_IMAGES, LAYERS, PinholeCamera, SpectralImage
+from normbox_lab.predict.fastrender import BandGrid, BandPathTracer, RectEmitter, mono_variant
+
+
+class CameraTracer(BandPathTracer):
+    """`BandPathTracer` with a pinhole camera: spectral image, layers, CWNI/NWCI, depth, normal.
+
+    `scene`, `bsdf_slots`, `emitter` (a down-facing `RectEmitter`), `variant`, `emitter_slot` as
+    for `BandPathTracer` (any mono Mitsuba scene of meshes).  The camera, the image size, spp and
+    the seed are run-time data (opaque to the JIT), as are the emitter's placement and the path
+    depths, so one set of compiled kernels serves every camera and every scene with the same
+    material features (backscatter lobe, dispersion).  Deterministic for a given seed: each
+    path's random stream depends only on (seed, pixel, sample), not on the chunking.
+    """
+
+    def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]], emitter: RectEmitter,
+                 camera: PinholeCamera, *, variant: str | None = None,
+                 emitter_slot: str = "panel", grid: BandGrid | None = None,
+                 max_depth: int = 12, rr_depth: int = 6, chunk_paths: int = 1 << 16) -> None:
+        if int(max_depth) < 2:
+            raise ValueError("the camera needs max_depth ≥ 2 (a first hit and its light)")
+        if int(rr_depth) < 1:
+            raise ValueError("rr_depth must be ≥ 1 (no roulette at the first hit)")
+        super().__init__(scene, bsdf_slots, None, emitter, variant=mono_variant(variant),
+                         emitter_slot=emitter_slot, grid=grid, max_depth=max_depth,
+                         rr_depth=rr_depth, chunk_paths=chunk_paths, symbolic=True)
+        self.camera = camera
+        self._ybar: np.ndarray | None = None
+
+    # ---- run-time constants (opaque: changing them never recompiles) ----------------------
+    def _consts(self, camera: PinholeCamera, spp: int) -> SimpleNamespace:
+        dr, m = self.dr, self.m
+        e = self.emitter
+        ny, nx = self._map_shape
+
+        def f(v: float) -> Any:
+            return dr.opaque(m.Float, float(v))
+
+        def u(v: int) -> Any:
+            return dr.opaque(m.UInt32, int(v))
+
+        def vec(v: Any) -> Any:
+            return m.Vector3f(*(f(x) for x in v))
+
+        fwd, right, up = camera.frame()
+        tx, ty = camera.tan_half_fov
+        return SimpleNamespace(
+            origin=m.Point3f(*(f(x) for x in camera.origin_m)), fwd=vec(fwd), right=vec(right),
+            up=vec(up), tan_x=f(tx), tan_y=f(ty), inv_w=f(1.0 / int(camera.width_px)),
+            inv_h=f(1.0 / int(camera.height_px)), width=u(int(camera.width_px)),
+            spp=u(int(spp)), em_slot=u(self.emitter_slot), max_depth=u(self.max_depth),
+            rr_depth=u(self.rr_depth),
+            em_x0=f(e.centre_m[0] - e.half_x_m), em_y0=f(e.centre_m[1] - e.half_y_m),
+            em_sx=f(2.0 * e.half_x_m), em_sy=f(2.0 * e.half_y_m), em_z=f(e.centre_m[2]),
+            em_area=f(e.area_m2), map_nx=u(nx), map_nxf=f(nx), map_nyf=f(ny))
+
+    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any) -> Any:
+        """The emitter's spatial factor at a point of its plane (as `_emitter_factor`)."""
+        dr, m = self.dr, self.m
+        i = m.UInt32(dr.clip(dr.floor((x - c.em_x0) / c.em_sx * c.map_nxf), 0.0, c.map_nxf - 1.0))
+        j = m.UInt32(dr.clip(dr.floor((y - c.em_y0) / c.em_sy * c.map_nyf), 0.0, c.map_nyf - 1.0))
+        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i)
+
+    def _lookup(self, tab: Mapping[str, Any], delta: Any) -> Any:
+        """Band spectra at λ_b + δ (as `BandPathTracer._trace`'s lookup)."""
+        dr, m = self.dr, self.m
+        step = self.grid.step_nm
+        pos = delta + step
+        k = m.UInt32(dr.floor(pos))
+        frac = pos - dr.floor(pos)
+        offsets = [b * step for b in range(self.grid.n_bands)]
+        n_fine = tab["n_fine"]
+
+        def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
+            base = slot * n_fine + k
+            arr = m.Array4f if width == 4 else m.Array2f
+            out: list[list[Any]] = [[] for _ in range(width // 2)]
+            for off in offsets:
+                v = dr.gather(arr, table, base + off, active)
+                for t in range(width // 2):
+                    out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
+            return out
+
+        return lookup
+
+    def _camera_ray(self, c: SimpleNamespace, col: Any, row: Any, jx: Any, jy: Any) -> Any:
+        dr, m = self.dr, self.m
+        x = (2.0 * (m.Float(col) + jx) * c.inv_w - 1.0) * c.tan_x
+        y = (1.0 - 2.0 * (m.Float(row) + jy) * c.inv_h) * c.tan_y
+        return m.Ray3f(c.origin, dr.normalize(c.fwd + c.right * x + c.up * y))
+
+    # ---- one path vertex, in pieces --------------------------------------------------------
+    def _intersect(self, c: SimpleNamespace, ray: Any, active: Any) -> SimpleNamespace:
+        dr, m = self.dr, self.m
+        pi = self.scene.ray_intersect_preliminary(ray, active=active)
+        valid = active & pi.is_valid()
+        reg = dr.reinterpret_array(m.UInt32, pi.shape)
+        slot = dr.gather(m.UInt32, self._shape_slot, reg, valid)
+        fidx = dr.gather(m.UInt32, self._shape_base, reg, valid) + pi.prim_index
+        ng = m.Vector3f(*(dr.gather(m.Float, comp, fidx, valid) for comp in self._normals))
+        p = ray.o + ray.d * pi.t
+        surf = valid & (slot > 0) & (slot != c.em_slot)
+        return SimpleNamespace(valid=valid, t=pi.t, slot=slot, ng=ng, p=p, surf=surf)
+
+    def _emission(self, c: SimpleNamespace, hit: SimpleNamespace, ray: Any,
+                  prev_pdf: Any) -> Any:
+        """The emitter's factor where the ray hits its front, MIS-weighted against NEE when the
+        ray was BSDF-sampled (prev_pdf > 0); weight 1 for camera rays."""
+        dr = self.dr
+        cos_l = ray.d.z                                   # the light faces −z
+        hit_em = hit.valid & (hit.slot == c.em_slot) & (cos_l > 0)
+        pdf_em = dr.square(hit.t) / (c.em_area * dr.fmax(cos_l, 1e-12))
+        w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
+                      / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
+        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
+
+    def _vertex(self, tab: Mapping[str, Any], lookup: Any, delta: Any, hit: SimpleNamespace,
+                ray: Any, active: Any) -> tuple[SimpleNamespace, Any, Any]:
+        """Material and local frame at a surface hit: (vx for `_band_factors`, frame, origin
+        of rays leaving it)."""
+        dr, m = self.dr, self.m
+        wi_w = -ray.d
+        nf = dr.select(dr.dot(wi_w, hit.ng) < 0, -hit.ng, hit.ng)
+        frame = m.Frame3f(nf)
+        slot = hit.slot
+        kd, ks = lookup(tab["kdks"], slot, active, 4)
+        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
+        vx = SimpleNamespace(
+            wi=frame.to_local(wi_w), alpha=dr.gather(m.Float, tab["alpha"], slot, active),
+            eta=dr.gather(m.Float, tab["eta"], slot, active),
+            c=dr.gather(m.Float, tab["c"], slot, active),
+            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks,
+            kb=lookup(tab["kb"], slot, active, 2)[0] if has_kb else None,
+            inv_s2=dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None,
+            deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
+            delta=delta)
+        return vx, frame, self._offset(hit.p, nf)
+
+    def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
+             active: Any) -> tuple[Any, Any, Any]:
+        """A uniform point of the emitter with a shadow ray: (local wo, weight without the
+        BRDF — factor·MIS·cos/pdf —, mask)."""
+        dr, m = self.dr, self.m
+        lx = c.em_x0 + rng.next_float32() * c.em_sx
+        ly = c.em_y0 + rng.next_float32() * c.em_sy
+        to_l = m.Vector3f(lx, ly, c.em_z) - o
+        dist2 = dr.squared_norm(to_l)
+        dist = dr.sqrt(dist2)
+        dl = to_l / dist
+        cos_e = dl.z
+        shadow = m.Ray3f(o, dl)
+        shadow.maxt = dist * (1.0 - 1e-4)
+        ok = active & (cos_e > 0)
+        ok = ok & ~self.scene.ray_test(shadow, ok)
+        pdf_l = dist2 / (c.em_area * dr.fmax(cos_e, 1e-12))
+        wo = frame.to_local(dl)
+        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
+        mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
+        return wo, self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30) * mis * wo.z, ok
+
+    def _lobes(self, vx: SimpleNamespace, wo: Any, weight: Any,
+               mask: Any) -> tuple[list[Any], list[Any]]:
+        """weight·f_b split into the diffuse part (kd_b/π − c) and the angular lobes (GGX and
+        backscatter), both through `_band_factors` (one BRDF definition)."""
+        m = self.m
+        zeros = [m.Float(0.0)] * self.grid.n_bands
+        diffuse = SimpleNamespace(**{**vars(vx), "ks": zeros, "kb": None, "inv_s2": None,
+                                     "deta": None})
+        angular = SimpleNamespace(**{**vars(vx), "kd": zeros, "c": m.Float(0.0)})
+        return (self._band_factors(diffuse, wo, weight, mask),
+                self._band_factors(angular, wo, weight, mask))
+
+    # ---- the three kernels of a chunk -------------------------------------------------------
+    def _first_hit(self, tab: Mapping[str, Any], c: SimpleNamespace, n: int, pix0: int,
+                   spp: int, seed_state: int) -> SimpleNamespace:
+        """The camera rays of pixels pix0… (spp each) to their first hit: emission, NEE and the
+        BSDF sample there, and the continuation ray.  Everything evaluated (one kernel)."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        step = self.grid.step_nm
+        idx = dr.arange(m.UInt32, n)
+        gidx = m.UInt64(idx) + dr.opaque(m.UInt64, int(pix0) * int(spp))
+        # seeded by the global path index (the constructor would add the chunk-local index)
+        rng = m.PCG32(size=n)
+        rng.seed(initstate=dr.opaque(m.UInt64, int(seed_state)) + gidx, initseq=gidx)
+        delta = step * (rng.next_float32() - rng.next_float32())
+        pix = dr.opaque(m.UInt32, int(pix0)) + idx // c.spp
+        row = pix // c.width
+        col = pix - row * c.width
+        jx = rng.next_float32()
+        jy = rng.next_float32()
+        ray = self._camera_ray(c, col, row, jx, jy)
+        lookup = self._lookup(tab, delta)
+        hit = self._intersect(c, ray, m.Bool(True))
+        e0 = self._emission(c, hit, ray, m.Float(0.0))
+        active = hit.surf
+        vx, frame, o = self._vertex(tab, lookup, delta, hit, ray, active)
+        wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+        nd, ns = self._lobes(vx, wl, wt, ok)
+        wo, bpdf, act = self._sample(vx, rng, active)
+        gd, gs = self._lobes(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), act)
+        # the roulette probe of the full path (as BandPathTracer: bands 0, 8, 16, …)
+        probe = dr.abs(gd[0] + gs[0])
+        for b in range(8, n_b, 8):
+            probe = dr.fmax(probe, dr.abs(gd[b] + gs[b]))
+        out = SimpleNamespace(nd=nd, ns=ns, gd=gd, gs=gs, e0=e0, delta=delta,
+                              ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
+                              active=act & (1 < c.max_depth), rng=rng, probe=probe)
+        dr.eval(out.nd, out.ns, out.gd, out.gs, out.e0, out.delta, out.ray.o, out.ray.d,
+                out.pdf, out.active, out.rng, out.probe)
+        return out
+
+    def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
+                  fh: SimpleNamespace) -> tuple[list[Any], Any]:
+        """The path loop from the continuation rays with throughput 1: (acc_b, e1), where e1 is
+        the emitter seen at the first vertex (MIS vs NEE) and acc_b everything after it."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        delta, probe_scale = fh.delta, fh.probe
+        lookup = self._lookup(tab, delta)
+
+        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
+                   acc: Any, e1: Any) -> tuple[Any, ...]:
+            thr, acc = list(thr), list(acc)
+            hit = self._intersect(c, ray, active)
+            e = self._emission(c, hit, ray, prev_pdf)
+            first = depth == 1
+            e1 = e1 + dr.select(first, e, 0.0)
+            e_later = dr.select(first, 0.0, e)
+            for b in range(n_b):
+                acc[b] = dr.fma(thr[b], e_later, acc[b])
+            active = hit.surf & (depth + 1 < c.max_depth)
+            vx, frame, o = self._vertex(tab, lookup, delta, hit, ray, active)
+            wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+            fac = self._band_factors(vx, wl, wt, ok)
+            for b in range(n_b):
+                acc[b] = dr.fma(thr[b], fac[b], acc[b])
+            wo, bpdf, active = self._sample(vx, rng, active)
+            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), active)
+            for b in range(n_b):
+                thr[b] = thr[b] * fac[b]
+            probe = dr.abs(thr[0])
+            for b in range(8, n_b, 8):
+                probe = dr.fmax(probe, dr.abs(thr[b]))
+            q = dr.select(depth + 1 >= c.rr_depth, dr.minimum(probe * probe_scale, 0.95), 1.0)
+            active = active & (rng.next_float32() < q)
+            inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
+            for b in range(n_b):
+                thr[b] = thr[b] * inv_q
+            return depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1
+
+        state = (m.UInt32(1), fh.active, fh.ray, fh.pdf, fh.rng,
+                 [m.Float(1.0) for _ in range(n_b)], [m.Float(0.0) for _ in range(n_b)],
+                 m.Float(0.0))
+        state = dr.while_loop(state, lambda depth, active, *_: active & (depth < c.max_depth),
+                              bounce, label="camerapath")
+        acc, e1 = state[6], state[7]
+        dr.eval(acc, e1)
+        return acc, e1
+
+    def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: list[Any], e1: Any,
+                 spp: int) -> np.ndarray:
+        """Per-path layers, CWNI, NWCI, radiance² and luminance (and its square), summed over
+        each pixel's spp paths: (7·B + 2, n_pixels) float32."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        lookup = self._lookup(tab, fh.delta)
+        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
+        inv_b = 1.0 / n_b
+        g = [fh.gd[b] + fh.gs[b] for b in range(n_b)]
+        nee = [fh.nd[b] + fh.ns[b] for b in range(n_b)]
+        inc = [(e1 + acc[b]) * le[b] for b in range(n_b)]
+        avg_le = _sum(le) * inv_b
+        avg_inc = _sum(inc) * inv_b
+        avg_nee = _sum(nee) * inv_b
+        avg_g = _sum(g) * inv_b
+        ybar = self._luminance_weights()
+        emission, diffuse, specular, indirect, cwni, nwci, rad2 = ([] for _ in range(7))
+        y = m.Float(0.0)
+        for b in range(n_b):
+            em_b = fh.e0 * le[b]
+            di_b = dr.fma(fh.gd[b], e1, fh.nd[b]) * le[b]
+            sp_b = dr.fma(fh.gs[b], e1, fh.ns[b]) * le[b]
+            in_b = g[b] * acc[b] * le[b]
+            rad_b = em_b + di_b + sp_b + in_b
+            emission.append(em_b)
+            diffuse.append(di_b)
+            specular.append(sp_b)
+            indirect.append(in_b)
+            cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
+            nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
+            rad2.append(rad_b * rad_b)
+            y = dr.fma(float(ybar[b]), rad_b, y)
+        outputs = emission + diffuse + specular + indirect + cwni + nwci + rad2 + [y, y * y]
+        dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
+        sums = dr.block_sum(outputs, int(spp), mode="evaluated")
+        return np.stack([np.asarray(s, dtype=np.float32) for s in sums])
+
+    def _luminance_weights(self) -> np.ndarray:
+        """w_b with Y = Σ w_b·L_b in cd/m² (`images.color.spectral_to_XYZ` is linear)."""
+        if self._ybar is None:
+            from normbox_lab.images.color import spectral_to_XYZ
+
+            n_b = self.grid.n_bands
+            self._ybar = spectral_to_XYZ(self.grid.centres_nm, np.eye(n_b))[:, 1]
+        return self._ybar
+
+    def _geometry(self, c: SimpleNamespace, camera: PinholeCamera
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel-centre rays: depth (m, +inf on a miss), normal towards the camera, slot id."""
+        dr, m = self.dr, self.m
+        w, h = int(camera.width_px), int(camera.height_px)
+        idx = dr.arange(m.UInt32, w * h)
+        row = idx // c.width
+        col = idx - row * c.width
+        ray = self._camera_ray(c, col, row, m.Float(0.5), m.Float(0.5))
+        hit = self._intersect(c, ray, m.Bool(True))
+        n_cam = dr.select(dr.dot(ray.d, hit.ng) > 0, -hit.ng, hit.ng)
+        depth = dr.select(hit.valid, hit.t, dr.inf)
+        normal = [dr.select(hit.valid, n_cam[i], 0.0) for i in range(3)]
+        slot = dr.select(hit.valid, m.Int32(hit.slot), -1)
+        dr.eval(depth, normal, slot)
+        depth_np = np.asarray(depth, dtype=np.float32).reshape(h, w)
+        normal_np = np.stack([np.asarray(v, dtype=np.float32) for v in normal],
+                             axis=-1).reshape(h, w, 3)
+        return depth_np, normal_np, np.asarray(slot, dtype=np.int32).reshape(h, w)
+
+    # ---- public ------------------------------------------------------------------------
+    def render(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
+               emitter_radiance: Any, *, spp: int, seed: int = 0,
+               camera: PinholeCamera | None = None) -> SpectralImage:
+        """The spectral image of the scene with `materials` (slot name → `Material`) and the
+        emitter's spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹ on `emitter_wavelength_nm`), `spp` jittered
+        paths per pixel.  `camera` overrides the tracer's camera for this render."""
+        spp = int(spp)
+        if spp < 1:
+            raise ValueError(f"spp must be ≥ 1, got {spp}")
+        cam = camera if camera is not None else self.camera
+        t0 = time.perf_counter()
+        tab = self._tables(materials, emitter_wavelength_nm, emitter_radiance)
+        c = self._consts(cam, spp)
+        w, h = int(cam.width_px), int(cam.height_px)
+        n_pix = w * h
+        n_b = self.grid.n_bands
+        # per-pixel sums over the spp paths (float32 as Dr.Jit reduced them), then the means
+        # one (H, W, B) image at a time, to keep the peak memory low
+        sums = np.zeros((7 * n_b + 2, n_pix), dtype=np.float32)
+        seed_state = _seed_state(seed)
+        chunk_pix = max(1, self.chunk_paths // spp)
+        for p0 in range(0, n_pix, chunk_pix):
+            npx = min(chunk_pix, n_pix - p0)
+            fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state)
+            acc, e1 = self._continue(tab, c, fh)
+            sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp)
+            del fh, acc, e1
+        depth, normal, slot = self._geometry(c, cam)
+
+        def mean_image(k: int) -> np.ndarray:
+            return (sums[k * n_b:(k + 1) * n_b].T.astype(np.float64) / spp).reshape(h, w, n_b)
+
+        f32: dict[str, np.ndarray] = {}
+        radiance = np.zeros((h, w, n_b))
+        for k, name in enumerate(LAYERS + AUX_IMAGES):
+            f32[name] = mean_image(k).astype(np.float32)
+            if name in LAYERS:
+                radiance += f32[name]
+        std_error = luminance_se = None
+        if spp > 1:
+            rad_var = np.maximum(mean_image(6) - radiance ** 2, 0.0) * spp / (spp - 1)
+            std_error = np.sqrt(rad_var / spp).astype(np.float32)
+            del rad_var
+            y_mean = sums[7 * n_b].astype(np.float64) / spp
+            y2_mean = sums[7 * n_b + 1].astype(np.float64) / spp
+            y_se = np.sqrt(np.maximum(y2_mean - y_mean ** 2, 0.0) / (spp - 1)).reshape(h, w)
+            luminance_se = y_se.astype(np.float32)
+        image = SpectralImage(
+            wavelength_nm=self.grid.centres_nm.copy(), radiance=radiance.astype(np.float32),
+            std_error=std_error, luminance_se_cd_m2=luminance_se, depth_m=depth,
+            normal=normal, slot_id=slot, slot_names=list(self.slot_names), camera=cam, spp=spp,
+            time_s=time.perf_counter() - t0,
+            info={"variant": self.variant, "seed": int(seed), "max_depth": self.max_depth,
+                  "rr_depth": self.rr_depth, "n_paths": n_pix * spp}, **f32)
+        image.info["median_rel_se_luminance"] = _median_rel_se(image)
+        return image
+
+
+def _sum(values: Sequence[Any]) -> Any:
+    total = values[0]
+    for v in values[1:]:
+        total = total + v
+    return total
+
+
+def _seed_state(seed: int) -> int:
+    """PCG32 initial state from a user seed (one stream per path via initseq)."""
+    return (int(seed) * 0x9E3779B97F4A7C15 + 0x2545F4914F6CDD1D) & 0xFFFFFFFFFFFFFFFF
+
+
+def _median_rel_se(image: SpectralImage) -> float:
+    """Median over lit pixels (luminance > 1 % of the 99th percentile) of the luminance's
+    relative standard error; NaN without an error estimate."""
+    if image.luminance_se_cd_m2 is None:
+        return float("nan")
+    y = image.luminance_cd_m2()
+    lit = y > 0.01 * max(float(np.percentile(y, 99.0)), 1e-300)
+    if not np.any(lit):
+        return float("nan")
+    return float(np.median(image.luminance_se_cd_m2[lit] / y[lit]))
