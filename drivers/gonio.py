@@ -8,6 +8,10 @@ one arm shadows the other.  Those geometries stay in the set, flagged ``blocked`
 readings are taken and stored with ``blocked=True``, never silently dropped).
 
 Calibration (`calibrate`, once per mounted material):
+  0. the QE Pro's TEC must be at its set point (± `tec_tolerance_c`) and have stayed there for
+     `tec_stable_s`; a detector still cooling has a dark current that changes by a factor of two
+     every 6 °C, so darks and whites taken then do not match the readings that follow.  If the
+     TEC does not get there within `tec_timeout_s`, `NotReady` (the engine asks the operator);
   1. arms to the reference geometry (θi, θo) = (0°, 45°), white standard (Spectralon,
      reflectance ρ_w(λ), treated as Lambertian) into the sample plane;
   2. integration time t_w chosen so the white peak is ≈ 60 % of full scale; white counts C_w;
@@ -15,8 +19,11 @@ Calibration (`calibrate`, once per mounted material):
   4. white standard out.
 Measurement (`measure_brdf(θi, θo)`): arms to (θi, θo); integration time t_s auto-ranged
 (starting at t_w / max(cos θi, 0.1), divided by 4 while saturated, multiplied by 4 while the
-peak is below 5 % of full scale, within 8 ms … 64·t_w); a dark D_s at t_s (cached per t_s);
-counts C_s.  Then, per pixel λ:
+peak is below 5 % of full scale, within 8 ms … 64·t_w); counts C_s; a dark D_s at t_s.
+A dark frame is valid only for its integration time, for the TEC temperature it was taken at
+(± `dark_tec_tolerance_c`) and for `dark_max_age_s`; a stale one is taken again, never reused.
+Each reading records the TEC temperature and the ids of the dark and white references it used
+(``dark_id``, ``white_id`` in its metadata; the calibration artifact carries the same ids).  Then, per pixel λ:
 
     f_r(θi, θo; λ) = [(C_s − D_s)/t_s] / [(C_w − D_w)/t_w] · ρ_w(λ)/π · cos θi,ref / cos θi
 
@@ -34,7 +41,8 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -47,6 +55,49 @@ THETA_I_DEG = tuple(range(-80, 1, 10))
 THETA_O_DEG = tuple(range(-80, 81, 10))
 REFERENCE_GEOMETRY_DEG = (0.0, 45.0)
 WHITE_TARGET_FRACTION = 0.6
+
+#: calibration-validity defaults (overridable per lab: ``[instruments.spectrometer]`` options
+#: are the QE Pro's; these are the gonio's).  The QE Pro data sheet gives the TEC set point
+#: (−10 °C default, cseabreeze) but no settling figure; ±0.5 °C held for 30 s is the usual
+#: CCD practice, and dark current doubling every ~6 °C makes 0.2 °C ≈ 2 % of the dark current.
+TEC_TOLERANCE_C = 0.5
+TEC_STABLE_S = 30.0
+TEC_TIMEOUT_S = 600.0
+DARK_TEC_TOLERANCE_C = 0.2
+DARK_MAX_AGE_S = 600.0
+
+
+@runtime_checkable
+class TecCooled(Protocol):
+    """A spectrometer with a thermo-electric cooler it can report and wait for."""
+
+    has_tec: bool
+
+    def tec_temperature_c(self) -> float: ...
+
+    def wait_tec_stable(self, tolerance_c: float = 0.5, timeout_s: float = 600.0,
+                        poll_s: float = 5.0, stable_for_s: float = 30.0) -> float: ...
+
+
+@dataclass(frozen=True)
+class DarkFrame:
+    """One dark reference and the conditions it is valid for."""
+
+    dark_id: int
+    counts: np.ndarray
+    integration_time_s: float
+    tec_temperature_c: float
+    taken_s: float                  # clock.now_s() when taken
+
+    def valid_for(self, integration_time_s: float, tec_temperature_c: float, now_s: float,
+                  tec_tolerance_c: float, max_age_s: float) -> bool:
+        if round(self.integration_time_s, 6) != round(integration_time_s, 6):
+            return False
+        if now_s - self.taken_s > max_age_s:
+            return False
+        if math.isfinite(self.tec_temperature_c) and math.isfinite(tec_temperature_c):
+            return abs(self.tec_temperature_c - tec_temperature_c) <= tec_tolerance_c
+        return True
 
 
 class OperatorWhiteStandard:
@@ -77,7 +128,11 @@ class Gonioreflectometer:
                  instrument_id: str = "gonio", tilt_deg: float = 4.0,
                  arm_clearance_deg: float = 10.0, white_standard: Any = None,
                  shutter: Callable[[bool], None] | None = None,
-                 output_wavelength_nm: np.ndarray = RADIOMETER_WAVELENGTHS_NM) -> None:
+                 output_wavelength_nm: np.ndarray = RADIOMETER_WAVELENGTHS_NM,
+                 tec_tolerance_c: float = TEC_TOLERANCE_C, tec_stable_s: float = TEC_STABLE_S,
+                 tec_timeout_s: float = TEC_TIMEOUT_S,
+                 dark_tec_tolerance_c: float = DARK_TEC_TOLERANCE_C,
+                 dark_max_age_s: float = DARK_MAX_AGE_S) -> None:
         self.light_arm = light_arm
         self.detector_arm = detector_arm
         self.spectrometer = spectrometer
@@ -90,8 +145,15 @@ class Gonioreflectometer:
         self.white_standard = white_standard
         self.shutter = shutter or getattr(spectrometer, "set_lamp_enabled", None)
         self.output_wavelength_nm = np.asarray(output_wavelength_nm, dtype=float)
+        self.tec_tolerance_c = float(tec_tolerance_c)
+        self.tec_stable_s = float(tec_stable_s)
+        self.tec_timeout_s = float(tec_timeout_s)
+        self.dark_tec_tolerance_c = float(dark_tec_tolerance_c)
+        self.dark_max_age_s = float(dark_max_age_s)
         self._cal: dict[str, Any] | None = None
-        self._darks: dict[float, np.ndarray] = {}
+        self._darks: dict[float, DarkFrame] = {}
+        self._next_id = 1
+        self.darks_taken = 0
         self._geometry = (0.0, 0.0)
 
     @classmethod
@@ -143,15 +205,44 @@ class Gonioreflectometer:
         self.spectrometer.set_integration_time_s(integration_time_s)
         return self.spectrometer.acquire(correct_dark=True, correct_nonlinearity=True)
 
-    def _dark(self, integration_time_s: float) -> np.ndarray:
+    def _new_id(self) -> int:
+        n = self._next_id
+        self._next_id += 1
+        return n
+
+    def _tec_now_c(self) -> float:
+        sp = self.spectrometer
+        if isinstance(sp, TecCooled) and sp.has_tec:
+            return float(sp.tec_temperature_c())
+        return float("nan")
+
+    def _dark(self, integration_time_s: float, tec_temperature_c: float) -> DarkFrame:
+        """A valid dark frame for these conditions: the held one, or a new one (shutter)."""
         key = round(integration_time_s, 6)
-        if key not in self._darks:
-            self._lamp(False)
-            try:
-                self._darks[key] = self._acquire(integration_time_s).counts
-            finally:
-                self._lamp(True)
-        return self._darks[key]
+        held = self._darks.get(key)
+        if held is not None and held.valid_for(integration_time_s, tec_temperature_c,
+                                               self.clock.now_s(), self.dark_tec_tolerance_c,
+                                               self.dark_max_age_s):
+            return held
+        self._lamp(False)
+        try:
+            acq = self._acquire(integration_time_s)
+        finally:
+            self._lamp(True)
+        frame = DarkFrame(self._new_id(), acq.counts, float(integration_time_s),
+                          float(acq.tec_temperature_c), self.clock.now_s())
+        self._darks[key] = frame
+        self.darks_taken += 1
+        return frame
+
+    def wait_tec(self) -> float:
+        """The TEC at its set point and stable (NotReady after `tec_timeout_s`); NaN when the
+        spectrometer has no TEC control."""
+        sp = self.spectrometer
+        if not (isinstance(sp, TecCooled) and sp.has_tec):
+            return float("nan")
+        return float(sp.wait_tec_stable(self.tec_tolerance_c, self.tec_timeout_s,
+                                        poll_s=5.0, stable_for_s=self.tec_stable_s))
 
     @staticmethod
     def _clamp_t(t: float) -> float:
@@ -163,6 +254,7 @@ class Gonioreflectometer:
             raise NotReady("no white standard handler: pass white_standard=... "
                            "(e.g. OperatorWhiteStandard(prompt))", instrument=self.instrument_id)
         self._darks.clear()
+        self.wait_tec()
         ti, to = REFERENCE_GEOMETRY_DEG
         self._move_arms(ti, to)
         self._lamp(True)
@@ -184,13 +276,16 @@ class Gonioreflectometer:
                                   instrument=self.instrument_id)
         finally:
             self.white_standard.remove()
-        dark = self._dark(t)
+        dark = self._dark(t, white.tec_temperature_c)
         wl = self.spectrometer.wavelengths_nm()
         rho = np.asarray(self.white_standard.reflectance(wl), dtype=float)
         self._cal = {"wavelength_nm": wl, "white_counts": white.counts,
-                     "white_raw_counts": white.raw_counts, "dark_counts": dark,
+                     "white_raw_counts": white.raw_counts, "dark_counts": dark.counts,
                      "white_reflectance": rho, "integration_time_s": t,
                      "theta_i_ref_deg": ti, "tec_temperature_c": white.tec_temperature_c,
+                     "tec_setpoint_c": float(getattr(self.spectrometer, "tec_setpoint_c",
+                                                     float("nan"))),
+                     "white_id": self._new_id(), "dark_id": dark.dark_id,
                      "timestamp_s": self.clock.wall_time_s()}
         return self.references()
 
@@ -225,9 +320,9 @@ class Gonioreflectometer:
         if acq.saturated:
             raise DeviceError("SATURATED", f"saturated even at {t:g} s",
                               instrument=self.instrument_id)
-        dark = self._dark(t)
+        dark = self._dark(t, acq.tec_temperature_c)
         white_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w
-        sample_rate = (acq.counts - dark) / t
+        sample_rate = (acq.counts - dark.counts) / t
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(white_rate > 0, sample_rate / white_rate, 0.0)
         cos_ref = math.cos(math.radians(cal["theta_i_ref_deg"]))
@@ -241,7 +336,15 @@ class Gonioreflectometer:
             timestamp_s=self.clock.wall_time_s(), instrument_id=self.instrument_id,
             blocked=blocked,
             metadata={"white_integration_time_s": t_w,
-                      "tec_temperature_c": acq.tec_temperature_c})
+                      "tec_temperature_c": acq.tec_temperature_c,
+                      "tec_setpoint_c": cal["tec_setpoint_c"],
+                      "white_id": cal["white_id"], "white_dark_id": cal["dark_id"],
+                      "white_tec_temperature_c": cal["tec_temperature_c"],
+                      "dark_id": dark.dark_id,
+                      "dark_tec_temperature_c": dark.tec_temperature_c,
+                      "dark_age_s": self.clock.now_s() - dark.taken_s,
+                      "peak_counts": float(np.max(acq.raw_counts)),
+                      "full_scale_counts": float(full)})
 
     # --- timing -------------------------------------------------------------------------------
     def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float) -> float:
@@ -250,14 +353,14 @@ class Gonioreflectometer:
                    self.detector_arm.estimate_move_time_s(to0, theta_o_deg))
         t_w = self._cal["integration_time_s"] if self._cal else 0.1
         t = self._clamp_t(t_w / max(math.cos(math.radians(theta_i_deg)), 0.1))
-        return move + t + (t if round(t, 6) not in self._darks else 0.0)
+        return move + t + (t if round(t, 6) not in self._darks else 0.0)  # darks may age
 
     def estimate_calibrate_time_s(self) -> float:
         ti, to = REFERENCE_GEOMETRY_DEG
         ti0, to0 = self._geometry
         move = max(self.light_arm.estimate_move_time_s(ti0, ti),
                    self.detector_arm.estimate_move_time_s(to0, to))
-        return move + 3 * 0.1
+        return move + 3 * 0.1 + (self.tec_stable_s if self._cal is None else 0.0)
 
     def stop(self) -> None:
         """Stop both arms (abort)."""

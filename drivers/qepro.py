@@ -240,15 +240,27 @@ class QEPro:
         return float(self._call(lambda: self._tec().read_temperature_degrees_celsius()))
 
     def wait_tec_stable(self, tolerance_c: float = 0.5, timeout_s: float = 600.0,
-                        poll_s: float = 5.0) -> float:
+                        poll_s: float = 5.0, stable_for_s: float = 30.0) -> float:
+        """Wait until the detector is within `tolerance_c` of its TEC set point *and* has
+        stayed there for `stable_for_s` (a cooling CCD passes through the band on its way
+        down).  Returns the temperature; `NotReady` after `timeout_s` (the engine then asks
+        the operator: retry, skip or abort)."""
         deadline = self.clock.now_s() + timeout_s
+        inside_since: float | None = None
         while True:
             t = self.tec_temperature_c()
+            now = self.clock.now_s()
             if abs(t - self.tec_setpoint_c) <= tolerance_c:
-                return t
-            if self.clock.now_s() >= deadline:
-                raise NotReady(f"TEC at {t:.1f} °C, set point {self.tec_setpoint_c:.1f} °C "
-                               f"after {timeout_s:g} s", instrument=self.instrument_id)
+                inside_since = now if inside_since is None else inside_since
+                if now - inside_since >= stable_for_s:
+                    return t
+            else:
+                inside_since = None
+            if now >= deadline:
+                raise NotReady(f"TEC at {t:.2f} °C, set point {self.tec_setpoint_c:.1f} °C "
+                               f"± {tolerance_c:g} °C not reached and held for "
+                               f"{stable_for_s:g} s within {timeout_s:g} s",
+                               instrument=self.instrument_id)
             self.clock.sleep(poll_s)
 
     def set_lamp_enabled(self, on: bool) -> None:
