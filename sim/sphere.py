@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.scene import panel_map as truth_panel_map
 from normbox_lab.sim import core
 
@@ -59,7 +60,7 @@ LEVEL_SETTLE_S = 30.0
 DRIFT_PER_H = -0.0005
 NOISE_RMS = 0.0002
 NOMINAL_LUMINANCE_CD_M2 = 2000.0
-WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
+WAVELENGTHS_NM = RADIOMETER_WAVELENGTHS_NM
 ERRORS = {-100: "Command error", -222: "Data out of range", -224: "Illegal parameter value",
           -350: "Queue overflow", 201: "Lamp failure"}
 

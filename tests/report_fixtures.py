@@ -25,12 +25,13 @@ def synthetic_report_data(step_nm: float = 10.0, seed: int = 0, do_fit: bool = F
 
     from normbox_lab.analyze.compare import compare, error_model
     from normbox_lab.analyze.fit import fit_material
+    from normbox_lab.core.spectral import COLORCHECKER_DATASET, spectral_shape, wavelengths_nm
     from normbox_lab.predict.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
 
     rng = np.random.default_rng(seed)
-    wl = np.arange(380.0, 781.0, step_nm)
-    shape = colour.SpectralShape(380.0, 780.0, step_nm)
-    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    wl = wavelengths_nm(step_nm)
+    shape = spectral_shape(step_nm)
+    sds = colour.SDS_COLOURCHECKERS[COLORCHECKER_DATASET]
     refl = [np.asarray(sd.copy().interpolate(shape).values) for sd in sds.values()]
     names = [f"patch{k + 1:02d}" for k in range(24)] + ["wall"]
     refl.append(np.full(wl.size, 0.34))

@@ -33,9 +33,10 @@ from normbox_lab.analyze.fit import (
     FitProblem,
     fit_material,
 )
+from normbox_lab.core.spectral import COLORCHECKER_DATASET, RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.brdf_model import ct_ggx_brdf, gonio_geometry, inplane_directions
 
-WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
+WAVELENGTHS_NM = RADIOMETER_WAVELENGTHS_NM
 NOISE_REL = 0.01
 SEED = 20261122
 
@@ -46,7 +47,7 @@ def synthetic_materials(wavelength_nm: np.ndarray = WAVELENGTHS_NM, *, seed: int
     import colour
 
     rng = np.random.default_rng(seed)
-    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    sds = colour.SDS_COLOURCHECKERS[COLORCHECKER_DATASET]
     shape = colour.SpectralShape(float(wavelength_nm[0]), float(wavelength_nm[-1]),
                                  float(wavelength_nm[1] - wavelength_nm[0]))
     refl = [sd.copy().interpolate(shape).values for sd in sds.values()]

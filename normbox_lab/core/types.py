@@ -10,8 +10,7 @@ from typing import Any
 
 import numpy as np
 
-#: The spectroradiometers' output grid: 380–780 nm at 1 nm (401 values).
-RADIOMETER_WAVELENGTHS_NM = np.arange(380.0, 781.0, 1.0)
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM  # noqa: F401  (re-exported)
 
 
 def _as_1d_float(name: str, value: Any) -> np.ndarray:

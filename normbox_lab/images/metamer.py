@@ -45,6 +45,7 @@ from typing import Any, Literal
 import numpy as np
 
 from normbox_lab.core.errors import NormboxError
+from normbox_lab.core.spectral import wavelengths_nm
 
 Method = Literal["blend", "nearest"]
 
@@ -441,7 +442,7 @@ class MetamerDatabase:
 def _default_database(step_nm: int) -> MetamerDatabase:
     if step_nm not in (1, 5):
         raise ValueError(f"step_nm must be 1 or 5, got {step_nm}")
-    wavelength_nm = np.arange(380.0, 780.0 + 0.5 * step_nm, float(step_nm))
+    wavelength_nm = wavelengths_nm(step_nm)
     path = _cache_dir() / f"metamer_db_v{DATABASE_VERSION}_380_780_{step_nm}nm.npz"
     arrays: dict[str, np.ndarray] | None = None
     try:

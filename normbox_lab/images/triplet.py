@@ -53,8 +53,10 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM
+
 #: default bands: those of the stock spectral renderer (380…780 nm step 5, 5 nm hats)
-DEFAULT_WAVELENGTHS_NM = np.arange(380.0, 781.0, 5.0)
+DEFAULT_WAVELENGTHS_NM = BAND_WAVELENGTHS_NM
 DEFAULT_BAND_WIDTH_NM = 5.0
 
 

@@ -36,15 +36,10 @@ from typing import Any
 
 import numpy as np
 
-#: the common grid the materials are tabulated on (the ColorChecker N Ohta data: 5 nm)
-MATERIAL_WAVELENGTHS_NM = np.arange(380.0, 781.0, 5.0)
+from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM, COLORCHECKER_DATASET, PATCH_NAMES
 
-PATCH_NAMES = (
-    "dark skin", "light skin", "blue sky", "foliage", "blue flower", "bluish green",
-    "orange", "purplish blue", "moderate red", "purple", "yellow green", "orange yellow",
-    "blue", "green", "red", "yellow", "magenta", "cyan",
-    "white 9.5", "neutral 8", "neutral 6.5", "neutral 5", "neutral 3.5", "black 2",
-)
+#: the common grid the materials are tabulated on (the ColorChecker N Ohta data: 5 nm)
+MATERIAL_WAVELENGTHS_NM = BAND_WAVELENGTHS_NM
 
 WALL_LIGHTNESS_L = 65.0
 HOLDER_REFLECTANCE = 0.04
@@ -179,7 +174,7 @@ def colorchecker_reflectances() -> np.ndarray:
         pass
     import colour
 
-    sds = colour.SDS_COLOURCHECKERS["ColorChecker N Ohta"]
+    sds = colour.SDS_COLOURCHECKERS[COLORCHECKER_DATASET]
     data = np.array([np.interp(MATERIAL_WAVELENGTHS_NM, sd.wavelengths, sd.values)
                      for sd in sds.values()])
     try:

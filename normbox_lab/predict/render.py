@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM, RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.materials import Material, holder_material
 from normbox_lab.predict.scene import (
     MOVING_SHAPES,
@@ -46,7 +47,7 @@ from normbox_lab.predict.scene import (
 
 #: bump when the scene code changes what a render returns (invalidates every cache entry)
 RENDER_VERSION = 3
-BAND_CENTRES_NM = np.arange(380.0, 781.0, 5.0)
+BAND_CENTRES_NM = BAND_WAVELENGTHS_NM
 BAND_WIDTH_NM = 5.0
 LAMP_GRID_NM = np.arange(360.0, 831.0, 5.0)
 KM_LM_W = 683.002
@@ -145,7 +146,7 @@ class RenderResult:
         return self.std_error / np.maximum(np.abs(self.radiance), 1e-300)
 
     def to_1nm(self, wavelength_nm: Any = None) -> tuple[np.ndarray, np.ndarray]:
-        wl = np.arange(380.0, 781.0) if wavelength_nm is None else np.asarray(wavelength_nm)
+        wl = RADIOMETER_WAVELENGTHS_NM.copy() if wavelength_nm is None else np.asarray(wavelength_nm)
         return wl, np.interp(wl, self.wavelength_nm, self.radiance)
 
     def scaled(self, factor: float) -> RenderResult:
