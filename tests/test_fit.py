@@ -11,10 +11,10 @@ from normbox_lab.analyze.fit import (
     fit_cost,
     fit_error_pct,
     fit_material,
-    fit_store_run,
     polar_plot,
     relative_error,
 )
+from normbox_lab.analyze.pipeline import fit_run
 from normbox_lab.core.types import BrdfReading
 from normbox_lab.predict.brdf_model import (
     MaterialFit,
@@ -129,8 +129,8 @@ def test_fit_store_run_writes_artifacts(tmp_path):
         for g in range(TI.size):
             st.add_brdf(run.id, f"wall/{g}", BrdfReading(TI[g], TO[g], 4.0, wl, y[g],
                                                          blocked=(g == 3)))
-        fits = fit_store_run(st, run.id, w=2.0)
+        fits = fit_run(st, run.id, w=2.0)
         back = MaterialFit.from_artifact(st.latest_artifact("fit", "wall"))
-    assert list(fits.fits) == ["wall"]
+    assert list(fits) == ["wall"]
     assert back.alpha == pytest.approx(0.3, rel=1e-5)
     assert back.w == 2.0 and back.fit_error_pct < 1e-4

@@ -22,7 +22,7 @@ from normbox_lab.predict.materials import (
     truth_patch,
     truth_wall,
 )
-from normbox_lab.predict.scene import SceneGeometry, as_geometry, panel_map, panel_map_at
+from normbox_lab.predict.scene import as_geometry, panel_map, panel_map_at
 
 WL = np.array([380.0, 452.5, 550.0, 633.0, 780.0])
 
@@ -101,16 +101,16 @@ def test_material_names():
 
 # --- geometry --------------------------------------------------------------------------------------
 def test_geometry_from_config_objects():
-    from normbox_lab.acquire.config import GeometryConfig
+    from normbox_lab.core.geometry import NormboxGeometry
 
-    g = as_geometry(GeometryConfig(sample_height_mm=250.0))
+    g = as_geometry(NormboxGeometry(sample_height_mm=250.0))
     assert g.sample_height_mm == 250.0 and g.box_inner_mm == 600.0
 
     class Lab:
-        geometry = GeometryConfig(radiometer_distance_mm=900.0)
+        geometry = NormboxGeometry(radiometer_distance_mm=900.0)
 
     assert as_geometry(Lab()).radiometer_distance_mm == 900.0
-    assert as_geometry(None) == SceneGeometry()
+    assert as_geometry(None) == NormboxGeometry()
 
 
 def test_panel_map_is_plus_minus_homogeneity():

@@ -129,9 +129,9 @@ def test_brdf_truth_of_the_mounted_material(world, cache_dir):
 def test_constructed_from_a_lab_config(cache_dir):
     from types import SimpleNamespace
 
-    from normbox_lab.acquire.config import GeometryConfig
+    from normbox_lab.core.geometry import NormboxGeometry
 
-    cfg = SimpleNamespace(geometry=GeometryConfig(sample_height_mm=220.0),
+    cfg = SimpleNamespace(geometry=NormboxGeometry(sample_height_mm=220.0),
                           render={"quality": "quick", "truth": "model", "cache_dir": cache_dir})
     w = VirtualNormbox(config=cfg)
     assert w.geometry.sample_height_mm == 220.0

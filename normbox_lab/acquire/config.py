@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from normbox_lab.core.errors import ConfigError
+from normbox_lab.core.geometry import NormboxGeometry
 
 #: instrument roles and the drivers that can fill them
 ROLE_DRIVERS: dict[str, tuple[str, ...]] = {
@@ -58,24 +59,6 @@ class InstrumentConfig:
 
 
 @dataclass(frozen=True)
-class GeometryConfig:
-    """Normbox geometry (DESIGN §1).  Lengths in mm, angles in degrees."""
-
-    box_inner_mm: float = 600.0
-    wall_thickness_mm: float = 15.0
-    ceiling_thickness_mm: float = 19.0
-    aperture_x_mm: float = 220.0
-    aperture_y_mm: float = 200.0
-    patch_size_mm: float = 50.0
-    holder_size_mm: float = 80.0
-    sample_height_mm: float = 200.0          # sample centre above the floor
-    radiometer_distance_mm: float = 1000.0   # sample centre to radiometer front lens
-    radiometer_view_deg: float = 1.0
-    wall_lightness_L: float = 65.0
-    panel_homogeneity_percent: float = 3.0
-
-
-@dataclass(frozen=True)
 class LabConfig:
     path: str
     name: str
@@ -83,7 +66,7 @@ class LabConfig:
     time_scale: float | None        # None: real clock
     seed: int
     instruments: dict[str, InstrumentConfig]
-    geometry: GeometryConfig
+    geometry: NormboxGeometry
     protocols: dict[str, dict[str, Any]]
     render: dict[str, Any]
     text: str = ""                  # the source, snapshotted into every run
@@ -227,11 +210,11 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
                               "missing; every lab needs a radiometer, a rotator and a sphere")
 
     geo_tab = table(data.get("geometry"), "geometry")
-    geo_fields = {f.name: f.default for f in fields(GeometryConfig)}
+    geo_fields = {f.name: f.default for f in fields(NormboxGeometry)}
     for k in geo_tab:
         if k not in geo_fields:
             raise err("geometry", k, f"unknown field; known: {', '.join(geo_fields)}")
-    geometry = GeometryConfig(**{k: number("geometry", geo_tab, k, d, minimum=0.0)
+    geometry = NormboxGeometry(**{k: number("geometry", geo_tab, k, d, minimum=0.0)
                                  for k, d in geo_fields.items()})
     if geometry.aperture_x_mm >= geometry.box_inner_mm or \
             geometry.aperture_y_mm >= geometry.box_inner_mm:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import time
 import warnings
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -354,35 +354,12 @@ def fit_error_pct(fit: MaterialFit, data: BrdfData, mask: np.ndarray | None = No
     return float(100.0 * np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
 
 
-@dataclass
-class FitSet:
-    """Fits of several materials, e.g. a whole gonio run."""
-
-    fits: dict[str, MaterialFit] = field(default_factory=dict)
-    data: dict[str, BrdfData] = field(default_factory=dict)
-
-
 def data_from_store_run(store: Any, run_ref: int | str) -> dict[str, BrdfData]:
     """Group a gonio run's BRDF readings by material (the key's first path component)."""
     groups: dict[str, list[Any]] = {}
     for r in store.readings(run_ref, kind="brdf"):
         groups.setdefault(r.key.split("/")[0], []).append(store.as_brdf(r))
     return {name: BrdfData.from_readings(name, rs) for name, rs in groups.items()}
-
-
-def fit_store_run(store: Any, run_ref: int | str, w: float = 2.0,
-                  materials: Iterable[str] | None = None) -> FitSet:
-    """Fit every material of a stored gonio run and write each fit as a "fit" artifact."""
-    data = data_from_store_run(store, run_ref)
-    names = list(materials) if materials is not None else sorted(data)
-    out = FitSet()
-    for name in names:
-        if name not in data:
-            raise DataError(str(store.path), f"run {run_ref}", f"no BRDF readings for {name}")
-        fit = fit_material(data[name], w)
-        fit.store(store, run_ref=run_ref)
-        out.fits[name], out.data[name] = fit, data[name]
-    return out
 
 
 def polar_plot(data: BrdfData | None, fits: MaterialFit | dict[str, MaterialFit],

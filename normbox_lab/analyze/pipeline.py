@@ -77,13 +77,21 @@ def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
 # --- fit -----------------------------------------------------------------------------------------
 
 def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
-            progress: ProgressFn = _noop) -> dict[str, Any]:
-    """Fit every material of a gonio run; each fit is stored as a ``fit`` artifact."""
+            progress: ProgressFn = _noop,
+            materials: Iterable[str] | None = None) -> dict[str, Any]:
+    """Fit every material of a gonio run (or only `materials`); each fit is stored as a ``fit``
+    artifact."""
     from normbox_lab.analyze.fit import data_from_store_run, fit_material
 
     data = data_from_store_run(store, brdf_run)
     if not data:
         raise DataError(str(store.path), f"run {brdf_run}", "no BRDF readings to fit")
+    if materials is not None:
+        missing = [m for m in materials if m not in data]
+        if missing:
+            raise DataError(str(store.path), f"run {brdf_run}",
+                            f"no BRDF readings for {', '.join(missing)}")
+        data = {m: data[m] for m in materials}
     fits = {}
     for k, name in enumerate(sorted(data)):
         progress("fit", k, len(data))

@@ -19,17 +19,18 @@ Coordinates (metres; the config is in mm):
   field of view, 10 × 10 px, every pixel a full spectrum (`specfilm`), averaged.  At s the
   radiometer sees the sample at 90° − s from its normal (paper: 60…0° for s = 30…90°).
 
-`SceneGeometry` has the defaults of `normbox_lab.acquire.config.GeometryConfig`; every function here
+`NormboxGeometry` (`normbox_lab.core.geometry`, also the lab config's `[geometry]`); every function here
 accepts any object with those attribute names.
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+
+from normbox_lab.core.geometry import GEOMETRY_FIELDS, NormboxGeometry
 
 #: a 5×5 map of the opal panel's relative radiance (rows: y from −, columns: x from −), the
 #: pattern of an integrating-sphere port: brightest near the centre, darker corners; `panel_map`
@@ -42,38 +43,19 @@ _MAP_PATTERN = np.array([[-1.00, -0.55, -0.30, -0.45, -0.85],
                          [-0.95, -0.60, -0.25, -0.40, -0.80]])
 
 
-@dataclass(frozen=True)
-class SceneGeometry:
-    """Normbox geometry (mm, degrees); the same fields as `normbox_lab.acquire.config.GeometryConfig`."""
-
-    box_inner_mm: float = 600.0
-    wall_thickness_mm: float = 15.0
-    ceiling_thickness_mm: float = 19.0
-    aperture_x_mm: float = 220.0
-    aperture_y_mm: float = 200.0
-    patch_size_mm: float = 50.0
-    holder_size_mm: float = 80.0
-    sample_height_mm: float = 200.0
-    radiometer_distance_mm: float = 1000.0
-    radiometer_view_deg: float = 1.0
-    wall_lightness_L: float = 65.0
-    panel_homogeneity_percent: float = 3.0
 
 
-GEOMETRY_FIELDS = tuple(SceneGeometry.__dataclass_fields__)
-
-
-def as_geometry(obj: Any = None) -> SceneGeometry:
-    """A `SceneGeometry` from any object with (some of) its attribute names; None: defaults."""
+def as_geometry(obj: Any = None) -> NormboxGeometry:
+    """A `NormboxGeometry` from any object with (some of) its attribute names; None: defaults."""
     if obj is None:
-        return SceneGeometry()
-    if isinstance(obj, SceneGeometry):
+        return NormboxGeometry()
+    if isinstance(obj, NormboxGeometry):
         return obj
     geo = getattr(obj, "geometry", None)       # a LabConfig
     if geo is not None and not isinstance(obj, (int, float)):
         obj = geo
-    base = SceneGeometry()
-    return SceneGeometry(**{f: float(getattr(obj, f, getattr(base, f))) for f in GEOMETRY_FIELDS})
+    base = NormboxGeometry()
+    return NormboxGeometry(**{f: float(getattr(obj, f, getattr(base, f))) for f in GEOMETRY_FIELDS})
 
 
 def panel_map(homogeneity_percent: float = 3.0) -> np.ndarray:
