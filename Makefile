@@ -24,6 +24,7 @@ $(STAMP): pyproject.toml setup.py
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip
 	$(PY) -m pip install -q -e '.[dev]'
+	$(PY) -m pip install -q --no-deps --pre 'colour-specio==0.4.0a0'
 	$(PY) -m normbox_lab.predict.mitsuba_setup
 	@touch $(STAMP)
 

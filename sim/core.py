@@ -205,6 +205,10 @@ class Emulator:
         self.on_disconnect()
 
     # --- hooks ---------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Load what the first command would otherwise load (tables, libraries), so a served
+        emulator answers its first command on its timing model (default: nothing)."""
+
     def on_bytes(self, data: bytes) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
 

@@ -97,6 +97,9 @@ class CS1000AEmulator(core.LineEmulator):
         self.commands: list[bytes] = []        # every line received, for tests
         self._power_on()
 
+    def prepare(self) -> None:
+        self.optics.prepare()
+
     def _power_on(self) -> None:
         self.remote = False
         self.phase = "idle"                    # idle | pre | measuring

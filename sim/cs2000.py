@@ -123,6 +123,9 @@ class CS2000AEmulator(core.Emulator):
         self.button_enabled = False
         self._power_on()
 
+    def prepare(self) -> None:
+        self.optics.prepare()
+
     def _power_on(self) -> None:
         self.remote = 0
         self.phase = "idle"                   # idle | pre | measuring

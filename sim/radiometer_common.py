@@ -150,6 +150,13 @@ class RadiometerOptics:
             return self.world.radiance_in_view()
         return default_spectrum()
 
+    def prepare(self) -> None:
+        """Import colour-science and build its tables now (the first `observe()` would
+        otherwise spend seconds on it): colorimetry of the default light, 2° and 10°."""
+        _, spd = default_spectrum()
+        colorimetry(spd, 2)
+        colorimetry(spd, 10)
+
     def observe(self) -> tuple[np.ndarray, dict[str, float]]:
         """One measurement: (reported spectrum, its 2° colorimetry) with the instrument's
         errors.  Call `colorimetry(spectrum, 10)` for the 10° block."""

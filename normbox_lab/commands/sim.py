@@ -6,20 +6,32 @@ import argparse
 import signal
 import sys
 
+SERVE_EPILOG = """\
+The emulator is loaded completely (colour-science included) before the endpoint line is
+printed, and it keeps running while no client is connected. A new TCP connection starts from a
+clean line. Linux ptys cannot carry RTS/DTR: clients that set or pulse modem lines (Thorlabs APT
+clients, colour-specio's rtscts) should use --tcp and pyserial's socket://HOST:PORT URL.
+IPv6 loopback: --tcp ::1:0 (printed as tcp: [::1]:PORT)."""
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("sim", help="serve simulated instruments to outside programs")
     simsub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
     s = simsub.add_parser(
         "serve", help="serve one emulator on a pty or a loopback TCP port",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Serve one wire-level emulator until SIGTERM/SIGINT. The first line on "
-                    "stdout names the endpoint: 'pty: /dev/pts/N' or 'tcp: 127.0.0.1:PORT'.")
+                    "stdout names the endpoint: 'pty: /dev/pts/N' or 'tcp: 127.0.0.1:PORT'.",
+        epilog=SERVE_EPILOG)
     s.add_argument("device", metavar="DEVICE",
                    help="cs1000a, cs2000a, rotator-apt, rotator-zaber, sphere")
     where = s.add_mutually_exclusive_group(required=True)
-    where.add_argument("--pty", action="store_true", help="create a pseudo-terminal")
+    where.add_argument("--pty", action="store_true",
+                       help="create a pseudo-terminal (no RTS/DTR: use --tcp for clients "
+                            "that set modem lines)")
     where.add_argument("--tcp", metavar="127.0.0.1:PORT",
-                       help="listen on a loopback TCP port (PORT 0 picks a free one)")
+                       help="listen on a loopback TCP port: 127.0.0.1, localhost or ::1 "
+                            "(PORT 0 picks a free one); reach it with socket://HOST:PORT")
     s.add_argument("--faults", default="", metavar="SPEC",
                    help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7'")
     s.add_argument("--seed", type=int, default=0, help="seed of the emulator's randomness")
@@ -30,36 +42,49 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
+def _fail(message: str) -> int:
+    print(f"normbox-lab: {message}", file=sys.stderr)
+    return 2
+
+
 def _serve(args: argparse.Namespace) -> int:
-    from normbox_lab.sim import core, transport
+    from normbox_lab.core.clock import RealClock
+    from normbox_lab.sim import core, serve
 
     if args.device not in core.known_devices():
-        print(f"normbox-lab: unknown device {args.device!r}; known: "
-              f"{', '.join(core.known_devices()) or '(none yet)'}", file=sys.stderr)
-        return 2
-
-    def _stop(signum, frame):
-        raise SystemExit(0)
-
+        return _fail(f"unknown device {args.device!r}; known: "
+                     f"{', '.join(core.known_devices()) or '(none yet)'}")
     options = {}
     for item in args.option:
         key, sep, value = item.partition("=")
         if not sep or not key:
-            print(f"normbox-lab: --option wants K=V, got {item!r}", file=sys.stderr)
-            return 2
+            return _fail(f"--option wants K=V, got {item!r}")
         options[key] = value
-    signal.signal(signal.SIGTERM, _stop)
+    endpoint = None
+    if args.tcp is not None:
+        try:
+            endpoint = serve.parse_tcp_endpoint(args.tcp)
+        except serve.EndpointError as exc:
+            return _fail(str(exc))
     try:
-        if args.pty:
-            transport.serve_pty(args.device, faults=args.faults, seed=args.seed,
-                                options=options)
-        else:
-            host, _, port = args.tcp.rpartition(":")
-            transport.serve_tcp(args.device, host, int(port), faults=args.faults,
-                                seed=args.seed, options=options)
+        emulator = core.create(args.device, clock=RealClock(), faults=args.faults,
+                               seed=args.seed, **options)
+    except (TypeError, ValueError) as exc:   # a bad --option or --faults, refused
+        return _fail(f"cannot serve {args.device}: {exc}")
+    emulator.prepare()
+    try:
+        server = serve.PtyServer(emulator) if endpoint is None else \
+            serve.TcpServer(emulator, *endpoint)
+    except serve.EndpointError as exc:
+        return _fail(str(exc))
+
+    def _stop(signum, frame):
+        raise SystemExit(0)
+
+    signal.signal(signal.SIGTERM, _stop)
+    print(server.endpoint, flush=True)
+    try:
+        server.serve()
     except KeyboardInterrupt:
         pass
-    except (TypeError, ValueError) as exc:   # a bad --option, refused by the emulator
-        print(f"normbox-lab: cannot serve {args.device}: {exc}", file=sys.stderr)
-        return 2
     return 0

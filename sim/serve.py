@@ -1,0 +1,153 @@
+"""Serving one emulator to outside programs: a pseudo-terminal or a loopback TCP port.
+
+The emulator runs on the real clock and is serviced continuously, whether or not a client is
+attached: its motions finish, its measurements end, and what it says while nobody listens is
+lost (as on a serial cable with no computer at the other end).  A new TCP connection starts
+from a clean line: nothing said before it connected reaches it, as with a freshly opened
+serial port.  One TCP client at a time; a second connection is closed at once.
+
+Linux ptys cannot carry modem lines (RTS/DTR ioctls fail on them), so clients that set or
+pulse RTS/DTR (Thorlabs APT clients do) should use the TCP endpoint through pyserial's
+``socket://HOST:PORT`` URL.
+
+    server = TcpServer(emulator, "127.0.0.1", 0)      # or PtyServer(emulator)
+    print(server.endpoint)                            # "tcp: 127.0.0.1:40123"
+    server.serve(stop_event)                          # until stop_event is set
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import socket
+import threading
+import tty
+
+from normbox_lab.sim import core
+
+LOOPBACK_FAMILIES = {"127.0.0.1": socket.AF_INET, "localhost": socket.AF_INET,
+                     "::1": socket.AF_INET6}
+POLL_S = 0.02
+
+
+class EndpointError(ValueError):
+    """A --tcp endpoint that cannot be served (malformed, not loopback, port out of range)."""
+
+
+def parse_tcp_endpoint(text: str) -> tuple[str, int]:
+    """``127.0.0.1:PORT``, ``localhost:PORT``, ``::1:PORT`` or ``[::1]:PORT`` → (host, port)."""
+    host, sep, port_text = text.strip().rpartition(":")
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
+    if not sep or not host:
+        raise EndpointError(f"--tcp wants HOST:PORT, got {text!r}")
+    if host not in LOOPBACK_FAMILIES:
+        raise EndpointError(f"sim serve listens on loopback only (127.0.0.1, localhost, ::1), "
+                            f"not {host!r}")
+    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+        raise EndpointError(f"--tcp port must be 0..65535, got {port_text!r}")
+    return host, int(port_text)
+
+
+def _timeout_s(emulator: core.Emulator) -> float:
+    nxt = emulator.next_event_s()
+    if nxt is None:
+        return POLL_S
+    return max(0.0, min(POLL_S, nxt - emulator.clock.now_s()))
+
+
+class TcpServer:
+    def __init__(self, emulator: core.Emulator, host: str, port: int) -> None:
+        self.emulator = emulator
+        family = LOOPBACK_FAMILIES.get(host)
+        if family is None:
+            raise EndpointError(f"sim serve listens on loopback only, not {host!r}")
+        try:
+            self.listener = socket.create_server((host, port), family=family)
+        except OSError as exc:
+            raise EndpointError(f"cannot listen on {host}:{port}: {exc.strerror or exc}") \
+                from exc
+        bound_port = self.listener.getsockname()[1]
+        shown = f"[{host}]" if family == socket.AF_INET6 else host
+        self.url = f"socket://{shown}:{bound_port}"
+        self.endpoint = f"tcp: {shown}:{bound_port}"
+        self.client: socket.socket | None = None
+
+    def _drop_client(self) -> None:
+        if self.client is not None:
+            self.client.close()
+            self.client = None
+
+    def serve(self, stop: threading.Event | None = None) -> None:
+        stop = stop or threading.Event()
+        try:
+            while not stop.is_set():
+                self.step()
+        finally:
+            self._drop_client()
+            self.listener.close()
+
+    def step(self) -> None:
+        """Wait for bytes or the emulator's next event (at most POLL_S), then move bytes."""
+        emu = self.emulator
+        fds = [self.listener] + ([self.client] if self.client is not None else [])
+        ready, _, _ = select.select(fds, [], [], _timeout_s(emu))
+        if self.client is not None and self.client in ready:
+            try:
+                data = self.client.recv(4096)
+            except OSError:
+                data = b""
+            if data:
+                emu.feed(data)
+            else:
+                self._drop_client()
+        if self.listener in ready:
+            conn, _ = self.listener.accept()
+            if self.client is None:
+                emu.take_output()            # said before this client came: lost
+                self.client = conn
+            else:
+                conn.close()                 # one client at a time
+        out = emu.take_output()
+        if out and self.client is not None:
+            try:
+                self.client.sendall(out)
+            except OSError:
+                self._drop_client()
+
+
+class PtyServer:
+    def __init__(self, emulator: core.Emulator) -> None:
+        self.emulator = emulator
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        os.set_blocking(self.master, False)
+        self.path = os.ttyname(self.slave)
+        self.url = self.path
+        self.endpoint = f"pty: {self.path}"
+
+    def serve(self, stop: threading.Event | None = None) -> None:
+        stop = stop or threading.Event()
+        try:
+            while not stop.is_set():
+                self.step()
+        finally:
+            os.close(self.master)
+            os.close(self.slave)
+
+    def step(self) -> None:
+        emu = self.emulator
+        ready, _, _ = select.select([self.master], [], [], _timeout_s(emu))
+        if self.master in ready:
+            try:
+                data = os.read(self.master, 4096)
+            except OSError:           # EIO while no client has the slave open
+                data = b""
+            if data:
+                emu.feed(data)
+        out = emu.take_output()
+        if out:
+            try:
+                os.write(self.master, out)
+            except BlockingIOError:   # nobody reads the pty and its buffer is full: lost
+                pass

@@ -1,0 +1,33 @@
+"""An emulator served on a pty or a loopback TCP port from a thread of the test process, on the
+real clock (what `normbox-lab sim serve` does in its own process), for outside clients."""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+from collections.abc import Iterator
+
+from normbox_lab.core.clock import RealClock
+from normbox_lab.sim import core, serve
+
+
+@contextlib.contextmanager
+def served(device: str, transport: str, **options: str) -> Iterator[serve.TcpServer |
+                                                                  serve.PtyServer]:
+    """Yield the running server (`.url` for pyserial, `.path` for a pty, `.emulator`)."""
+    emulator = core.create(device, clock=RealClock(), **options)
+    emulator.prepare()
+    server = serve.PtyServer(emulator) if transport == "pty" else \
+        serve.TcpServer(emulator, "127.0.0.1", 0)
+    stop = threading.Event()
+    thread = threading.Thread(target=server.serve, args=(stop,), daemon=True)
+    thread.start()
+    try:
+        yield server
+    finally:
+        stop.set()
+        thread.join(timeout=5)
+
+
+def tcp_port(server: serve.TcpServer) -> int:
+    return int(server.endpoint.rsplit(":", 1)[1])

@@ -1,0 +1,104 @@
+"""`sim serve`: endpoints (IPv6 loopback, bad ones refused with one line and exit 2), a TCP
+emulator that is serviced while nobody is connected, and a clean line for each new client."""
+
+from __future__ import annotations
+
+import socket
+
+import pytest
+
+from normbox_lab.cli import main
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.sim import serve
+from normbox_lab.sim.rotator_zaber import ZaberRotatorEmulator
+
+
+@pytest.mark.parametrize("endpoint, message", [
+    ("127.0.0.1:99999", "port must be 0..65535"),
+    ("garbage", "wants HOST:PORT"),
+    ("127.0.0.1:http", "port must be 0..65535"),
+    ("10.1.2.3:5000", "loopback only"),
+])
+def test_bad_endpoints_are_refused_with_one_line_and_exit_2(endpoint, message, capsys):
+    assert main(["sim", "serve", "rotator-zaber", "--tcp", endpoint]) == 2
+    out, err = capsys.readouterr()
+    assert out == ""
+    assert err.count("\n") == 1 and message in err and "Traceback" not in err
+
+
+def test_port_in_use_is_one_line_too(capsys):
+    with socket.create_server(("127.0.0.1", 0)) as busy:
+        port = busy.getsockname()[1]
+        assert main(["sim", "serve", "rotator-zaber", "--tcp", f"127.0.0.1:{port}"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"cannot listen on 127.0.0.1:{port}" in err
+
+
+def test_endpoint_parsing():
+    assert serve.parse_tcp_endpoint("::1:0") == ("::1", 0)
+    assert serve.parse_tcp_endpoint("[::1]:4001") == ("::1", 4001)
+    assert serve.parse_tcp_endpoint("localhost:65535") == ("localhost", 65535)
+
+
+def _pump_until(server: serve.TcpServer, conn: socket.socket, want: bytes) -> bytes:
+    got = b""
+    for _ in range(200):
+        server.step()
+        try:
+            got += conn.recv(4096)
+        except BlockingIOError:
+            pass
+        if got.endswith(want):
+            return got
+    return got
+
+
+@pytest.mark.skipif(not socket.has_ipv6, reason="this host has no IPv6 stack")
+def test_ipv6_loopback_serves():
+    emu = ZaberRotatorEmulator(VirtualClock())
+    server = serve.TcpServer(emu, "::1", 0)
+    assert server.endpoint.startswith("tcp: [::1]:") and server.url.startswith("socket://[::1]:")
+    port = int(server.endpoint.rsplit(":", 1)[1])
+    with socket.create_connection(("::1", port), timeout=5) as conn:
+        conn.setblocking(False)
+        server.step()                                   # accept
+        conn.sendall(b"/1 1 get pos\n")
+        assert _pump_until(server, conn, b"\r\n") == b"@01 1 OK IDLE WR 0\r\n"
+    server.listener.close()
+
+
+def test_serviced_without_a_client_and_each_client_starts_clean():
+    clock = VirtualClock()
+    emu = ZaberRotatorEmulator(clock)
+    server = serve.TcpServer(emu, "127.0.0.1", 0)
+    port = int(server.endpoint.rsplit(":", 1)[1])
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as first:
+        server.step()
+        # a velocity run (an alert will end it), and leave without reading anything
+        first.sendall(b"/1 set comm.alert 1\n/1 1 move vel 5000\n/1 1 get pos\n")
+        server.step()
+    for _ in range(3):
+        server.step()                                   # notices the hang-up
+    assert server.client is None
+    clock.advance(300.0)                                # 0.7 °/s: ends at the limit switch
+    server.step()                                       # nobody listens: the alert is lost
+    assert emu.angle_deg() == pytest.approx(170.0)
+    assert not emu.axis.moving
+    with socket.create_connection(("127.0.0.1", port), timeout=5) as second:
+        second.setblocking(False)
+        server.step()
+        second.sendall(b"/1 1 tools echo fresh\n")
+        assert _pump_until(server, second, b"\r\n") == b"@01 1 OK IDLE WL fresh\r\n"
+        # one client at a time: a second connection is closed at once
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as third:
+            server.step()
+            assert third.recv(16) == b""
+    server.listener.close()
+
+
+def test_serve_help_says_ptys_cannot_carry_modem_lines(capsys):
+    with pytest.raises(SystemExit):
+        main(["sim", "serve", "--help"])
+    out = " ".join(capsys.readouterr().out.split())
+    assert "ptys cannot carry RTS/DTR" in out and "socket://HOST:PORT" in out
+    assert "--tcp ::1:0" in out
