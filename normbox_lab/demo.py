@@ -60,18 +60,27 @@ class DemoResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def _lab_config_text(opts: DemoOptions, quality: str, cache_dir: Path) -> str:
-    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE
+def _with_query(port: str, **params: str) -> str:
+    sep = "&" if "?" in port else "?"
+    return port + sep + "&".join(f"{k}={v}" for k, v in params.items())
 
-    text = SIM_CONFIG_TEMPLATE.replace('quality = "default"     # quick | default | high',
-                                       f'quality = "{quality}"\ntruth = "{opts.truth}"\n'
-                                       f'cache_dir = "{cache_dir}"')
-    text = text.replace("seed = 1", f"seed = {opts.seed}")
+
+def demo_config(opts: DemoOptions, quality: str, cache_dir: Path) -> Any:
+    """The demo's lab: the simulated lab of `normbox-lab init --sim` with the demo's seed,
+    render quality, truth and cache, and (with ``--noise off``) noiseless emulators."""
+    from dataclasses import replace
+
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+
+    base = parse_config(SIM_CONFIG_TEMPLATE)
+    instruments = dict(base.instruments)
     if not opts.noise:
-        text = text.replace('port = "sim://cs1000a"', 'port = "sim://cs1000a?noise=off"')
-        text = text.replace('port = "sim://qepro"', 'port = "sim://qepro?noise=off"')
-        text = text.replace('port = "sim://sphere"', 'port = "sim://sphere?noise=off"')
-    return text
+        for role in ("radiometer", "spectrometer", "sphere"):
+            inst = instruments[role]
+            instruments[role] = replace(inst, port=_with_query(inst.port, noise="off"))
+    render = {**base.render, "quality": quality, "truth": opts.truth,
+              "cache_dir": str(cache_dir)}
+    return replace(base, seed=opts.seed, instruments=instruments, render=render)
 
 
 class _FastRenderWorld:
@@ -149,7 +158,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
              log: Callable[[str], None] = print) -> DemoResult:
     import numpy as np
 
-    from normbox_lab.acquire.config import parse_config
+    from normbox_lab.acquire.config import format_config, parse_config
     from normbox_lab.acquire.lab import build_lab
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze.pipeline import (
@@ -167,7 +176,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     store_path = Path(opts.store) if opts.store else out / "normbox-demo.sqlite"
     quality = "quick" if opts.quick else "default"
     config_path = out / "lab.toml"
-    config_path.write_text(_lab_config_text(opts, quality, out / "render-cache"))
+    config_path.write_text(format_config(demo_config(opts, quality, out / "render-cache")))
     config = parse_config(config_path.read_text(), str(config_path))
     patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
     angles = QUICK_ANGLES if opts.quick else FULL_ANGLES

@@ -105,3 +105,31 @@ def test_arbitrary_text_gives_only_config_errors(text):
         parse_config(text, "junk.toml")
     except ConfigError as err:
         assert err.file == "junk.toml"
+
+
+def test_format_config_round_trips_the_dataclasses():
+    """A config changed with dataclasses.replace and written by format_config reads back equal."""
+    from dataclasses import replace
+
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, format_config, parse_config
+
+    base = parse_config(SIM_CONFIG_TEMPLATE)
+    radiometer = replace(base.instruments["radiometer"], port='sim://cs1000a?noise=off')
+    changed = replace(base, seed=7, name='Lab "B"',
+                      instruments={**base.instruments, "radiometer": radiometer},
+                      render={**base.render, "quality": "quick", "cache_dir": "C:\\cache"})
+    back = parse_config(format_config(changed))
+    for f in ("name", "simulated", "time_scale", "seed", "instruments", "geometry",
+              "protocols", "render"):
+        assert getattr(back, f) == getattr(changed, f), f
+
+
+def test_demo_config_is_built_from_the_dataclasses(tmp_path):
+    from normbox_lab.acquire.config import format_config, parse_config
+    from normbox_lab.demo import DemoOptions, demo_config
+
+    cfg = demo_config(DemoOptions(noise=False, seed=3), "quick", tmp_path)
+    back = parse_config(format_config(cfg))
+    assert back.seed == 3 and back.render["quality"] == "quick"
+    assert back.instruments["radiometer"].port == "sim://cs1000a?noise=off"
+    assert back.instruments["gonio_light_arm"].port == "sim://rotator-zaber?key=gonio-light"

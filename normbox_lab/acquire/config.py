@@ -307,6 +307,45 @@ threshold_percent = 1.0
 """
 
 
+def _toml_value(value: Any) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, float)):
+        return repr(value)
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+def _toml_table(name: str, values: dict[str, Any]) -> list[str]:
+    lines = [f"[{name}]"]
+    lines += [f"{key} = {_toml_value(v)}" for key, v in values.items() if v is not None]
+    return lines + [""]
+
+
+def format_config(config: LabConfig) -> str:
+    """The TOML text of a `LabConfig` (what `parse_config` reads back to an equal config).
+
+    Programs that need a variant of a config (the demo, tests) change the dataclasses with
+    `dataclasses.replace` and write them with this, rather than editing TOML text.
+    """
+    lab = {"name": config.name, "simulated": config.simulated,
+           "time_scale": config.time_scale, "seed": config.seed}
+    lines = ["# normbox-lab lab config (written by normbox-lab)", ""]
+    lines += _toml_table("lab", lab)
+    for role, inst in config.instruments.items():
+        lines += _toml_table(f"instruments.{role}",
+                             {"driver": inst.driver, "port": inst.port, **inst.options})
+    lines += _toml_table("geometry", {f.name: getattr(config.geometry, f.name)
+                                      for f in fields(config.geometry)})
+    lines += _toml_table("render", config.render)
+    for name, values in config.protocols.items():
+        lines += _toml_table(f"protocols.{name}", values)
+    return "\n".join(lines)
+
+
 def write_sim_config(path: str | Path, *, overwrite: bool = False) -> Path:
     path = Path(path)
     if path.exists() and not overwrite:
