@@ -52,7 +52,8 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 from normbox_lab.drivers.radiometer_common import (
-    SerialRadiometer,
+    KonicaMinoltaRadiometer,
+    Transfer,
     check_spectrum,
     colorimetry_from,
 )
@@ -96,8 +97,12 @@ def pre_measurement_s(luminance_cd_m2: float) -> float:
     return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
 
 
-class CS1000A(SerialRadiometer):
+class CS1000A(KonicaMinoltaRadiometer):
     model = "CS-1000A"
+    ok_head = "OK"
+    errors = ERRORS
+    remote_prefix = "RMT,"
+    cancel_command = "MES,0"
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
                  baud: int = 9600, data_format: str = "ascii", observer_deg: int = 2,
@@ -135,41 +140,6 @@ class CS1000A(SerialRadiometer):
                    command_timeout_s=command_timeout_s, attempts=attempts,
                    reconnect_timeout_s=reconnect_timeout_s)
 
-    # --- replies --------------------------------------------------------------------------------
-    def parse_reply(self, raw: bytes) -> list[str]:
-        """``OK[,f1,…]`` → [f1, …]; ``ERnn`` → `DeviceError`; anything else → `ProtocolError`."""
-        try:
-            text = raw.decode("ascii")
-        except UnicodeDecodeError:
-            raise self._protocol("reply is not ASCII", raw) from None
-        head, *fields = text.split(",")
-        if head == "OK":
-            return fields
-        if len(head) == 4 and head.startswith("ER") and head[2:].isdigit() and not fields:
-            raise DeviceError(head, ERRORS.get(head, "unknown error code"),
-                              instrument=self.instrument_id)
-        raise self._protocol("unexpected reply", raw)
-
-    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
-        """Send `cmd`, return the fields after ``OK``; bounded retries of transport faults and
-        of ER02 (busy).  An ER00 to a command other than RMT re-enters remote mode once (the
-        instrument drops to local mode after a power blip) and repeats the command."""
-        def once() -> list[str]:
-            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
-
-        try:
-            return self.with_retries(once, retry_device=("ER02",))
-        except DeviceError as exc:
-            if exc.code != "ER00" or cmd.startswith("RMT,"):
-                raise
-            self._enter_remote()
-            return self.with_retries(once, retry_device=("ER02",))
-
-    def _expect_ok(self, cmd: str, fields: list[str], raw_hint: str = "") -> None:
-        if fields:
-            raise self._protocol(f"{cmd}: unexpected fields after OK", ",".join(
-                ["OK", *fields]).encode())
-
     # --- the Spectroradiometer role ---------------------------------------------------------------
     def identify(self) -> InstrumentIdentity:
         url = str(getattr(self.port, "port", "") or getattr(self.port, "portstr", "") or "")
@@ -183,7 +153,7 @@ class CS1000A(SerialRadiometer):
         self.remote = True
 
     def set_remote(self, on: bool) -> None:
-        self._expect_ok("RMT", self.command("RMT,1" if on else "RMT,0"))
+        self._no_fields("RMT", self.command("RMT,1" if on else "RMT,0"))
         self.remote = bool(on)
 
     def set_speed(self, mode: str) -> None:
@@ -191,7 +161,7 @@ class CS1000A(SerialRadiometer):
         if mode not in SPEEDS:
             raise ConfigError("<driver call>", 0, "speed", f"must be one of {', '.join(SPEEDS)}")
         self._ensure_remote()
-        self._expect_ok("SPS", self.command(f"SPS,{SPEEDS[mode]}"))
+        self._no_fields("SPS", self.command(f"SPS,{SPEEDS[mode]}"))
         self.speed = mode
 
     def read_speed(self) -> str:
@@ -217,7 +187,7 @@ class CS1000A(SerialRadiometer):
         else:
             arg = ""
         self._ensure_remote()
-        self._expect_ok("MMS", self.command(f"MMS,{TIME_MODES[mode]},{arg}"))
+        self._no_fields("MMS", self.command(f"MMS,{TIME_MODES[mode]},{arg}"))
         self.time_mode = mode
         if time_s is not None:
             self.time_s = float(time_s)
@@ -245,71 +215,7 @@ class CS1000A(SerialRadiometer):
         return pre_measurement_s(luminance_cd_m2) + 2 * t + n_bytes * 10.0 / self.baud \
             + exchanges * 0.02
 
-    def abort(self) -> None:
-        """Cancel a running measurement (from any thread); idle → MES,0 anyway (harmless)."""
-        if self.request_abort():
-            return
-        with self._lock:
-            try:
-                self.command("MES,0")
-            except DeviceError:
-                pass
-
-    def close(self) -> None:
-        try:
-            if self.remote:
-                self.set_remote(False)
-        except InstrumentError:
-            pass
-        finally:
-            try:
-                self.port.close()
-            except (SerialException, OSError):
-                pass
-
-    def recover(self) -> None:
-        """Engine hook after a fault: flush, cancel whatever runs, re-enter remote mode."""
-        with self._lock:
-            self._cancel_quietly()
-            self.remote = False
-            self.set_remote(True)
-
-    def _ensure_remote(self) -> None:
-        if not self.remote:
-            self.set_remote(True)
-
-    def _cancel_quietly(self) -> None:
-        try:
-            self._resync()
-            self.exchange(b"MES,0", timeout_s=3.0)
-        except (InstrumentError, SerialException, OSError):
-            pass
-        self._resync()
-
     # --- measuring ---------------------------------------------------------------------------------
-    def measure(self) -> SpectralReading:
-        """MES,1 → OK,<t> → OK, then colorimetry and spectrum.  Transport faults are retried
-        (whole measurement, bounded); a device error, an abort or a persistent fault raises."""
-        with self._lock:
-            self._measuring = True
-            self._abort.clear()
-            try:
-                self._ensure_remote()
-                return self.remeasure_on_lost_data(self._measure_once)
-            finally:
-                self._measuring = False
-
-    def _measure_once(self) -> SpectralReading:
-        t_s = self.with_retries(self._run_measurement, retry_device=("ER02",))
-        colour_block = self._transfer(self._read_colorimetry)
-        spectrum = self._transfer(self._read_spectrum)
-        c = colorimetry_from(colour_block)
-        return SpectralReading(RADIOMETER_WAVELENGTHS_NM.copy(), spectrum, c, t_s,
-                               self.clock.wall_time_s(), self.instrument_id,
-                               {"model": self.model, "speed": self.speed,
-                                "time_mode": self.time_mode, "observer_deg": self.observer_deg,
-                                "data_format": self.data_format})
-
     def _run_measurement(self) -> float:
         try:
             self._write(b"MES,1")
@@ -339,9 +245,21 @@ class CS1000A(SerialRadiometer):
                     from exc
             raise
 
-    def _transfer(self, read: Any) -> Any:
-        """A data transfer (BDR + & blocks) as one unit, retried whole: `&` is not idempotent."""
-        return self.with_retries(read, retry_device=("ER02",))
+    def _read_data(self) -> Transfer:
+        """BDR + & blocks: the colorimetry, then the spectrum; `&` is not idempotent, so each
+        selection is retried whole (and the base class retries the whole transfer)."""
+        colour_block, raw_colour = self.with_retries(self._read_colorimetry,
+                                                     retry_device=("ER02",))
+        spectrum, raw_spectrum = self.with_retries(self._read_spectrum, retry_device=("ER02",))
+        return Transfer(spectrum, colour_block, raw=raw_colour + b"\n" + raw_spectrum)
+
+    def _reading(self, trigger: float, data: Transfer) -> SpectralReading:
+        return SpectralReading(RADIOMETER_WAVELENGTHS_NM.copy(), data.spectrum,
+                               colorimetry_from(data.colorimetry_values), trigger,
+                               self.clock.wall_time_s(), self.instrument_id,
+                               {"model": self.model, "speed": self.speed,
+                                "time_mode": self.time_mode, "observer_deg": self.observer_deg,
+                                "data_format": self.data_format})
 
     def _select(self, kind: int, binary: bool) -> None:
         obs = 1 if self.observer_deg == 10 else 0
@@ -363,12 +281,11 @@ class CS1000A(SerialRadiometer):
             raise self._protocol(f"data block has {len(parts)} values, expected {expected}", raw)
         return [self.parse_number(p, raw) for p in parts], raw
 
-    def _read_colorimetry(self) -> list[float]:
+    def _read_colorimetry(self) -> tuple[list[float], bytes]:
         self._select(1, False)
-        values, _ = self._data_line(11)
-        return values
+        return self._data_line(11)
 
-    def _read_spectrum(self) -> np.ndarray:
+    def _read_spectrum(self) -> tuple[np.ndarray, bytes]:
         if self.data_format == "binary":
             self._select(0, True)
             values: list[float] = []
@@ -378,7 +295,7 @@ class CS1000A(SerialRadiometer):
                 raw = self._read_exact(4 * n, self.command_timeout_s)
                 raw_all += raw
                 values += struct.unpack(f"<{n}f", raw)
-            return check_spectrum(values, raw_all, self.instrument_id)
+            return check_spectrum(values, raw_all, self.instrument_id), raw_all
         self._select(0, False)
         values = []
         raws = b""
@@ -387,7 +304,7 @@ class CS1000A(SerialRadiometer):
             block, raw = self._data_line(n)
             values += block
             raws += raw + b"\n"
-        return check_spectrum(values, raws, self.instrument_id)
+        return check_spectrum(values, raws, self.instrument_id), raws
 
 
 CS1000 = CS1000A

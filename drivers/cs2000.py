@@ -43,7 +43,8 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 from normbox_lab.drivers.radiometer_common import (
-    SerialRadiometer,
+    KonicaMinoltaRadiometer,
+    Transfer,
     check_spectrum,
     colorimetry_from,
 )
@@ -92,8 +93,12 @@ def pre_measurement_s(luminance_cd_m2: float) -> float:
     return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
 
 
-class CS2000A(SerialRadiometer):
+class CS2000A(KonicaMinoltaRadiometer):
     model = "CS-2000A"
+    ok_head = "OK00"
+    errors = ERRORS
+    remote_prefix = "RMTS,"
+    cancel_command = "MEAS,0"
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
                  data_format: str = "ascii", delimiter: str = "\n", baud: int = 115200,
@@ -131,40 +136,6 @@ class CS2000A(SerialRadiometer):
                    command_timeout_s=command_timeout_s, attempts=attempts,
                    reconnect_timeout_s=reconnect_timeout_s)
 
-    # --- replies ----------------------------------------------------------------------------------
-    def parse_reply(self, raw: bytes) -> list[str]:
-        """``OK00[,f…]`` → [f…]; ``ERnn`` → `DeviceError`; anything else → `ProtocolError`."""
-        try:
-            text = raw.decode("ascii")
-        except UnicodeDecodeError:
-            raise self._protocol("reply is not ASCII", raw) from None
-        head, *fields = text.split(",")
-        if head == "OK00":
-            return fields
-        if len(head) == 4 and head.startswith("ER") and head[2:].isdigit() and not fields:
-            raise DeviceError(head, ERRORS.get(head, "unknown error code"),
-                              instrument=self.instrument_id)
-        raise self._protocol("unexpected reply", raw)
-
-    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
-        """Send `cmd`, return the fields after ``OK00``.  Transport faults and ER02 are
-        retried (bounded); ER00 to a command other than RMTS re-enters remote mode once."""
-        def once() -> list[str]:
-            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
-
-        try:
-            return self.with_retries(once, retry_device=("ER02",))
-        except DeviceError as exc:
-            if exc.code != "ER00" or cmd.startswith("RMTS,"):
-                raise
-            self._enter_remote()
-            return self.with_retries(once, retry_device=("ER02",))
-
-    def _no_fields(self, cmd: str, fields: list[str]) -> None:
-        if fields:
-            raise self._protocol(f"{cmd}: unexpected fields after OK00",
-                                 ",".join(["OK00", *fields]).encode())
-
     # --- remote mode ---------------------------------------------------------------------------------
     def _enter_remote(self) -> None:
         """RMTS,2 (no flash writes, fw ≥ 3.00.9301); ER17/ER00 from older firmware → RMTS,1.
@@ -190,10 +161,6 @@ class CS2000A(SerialRadiometer):
             self._no_fields("RMTS", self.command("RMTS,0"))
             self.remote = False
             self.remote_level = 0
-
-    def _ensure_remote(self) -> None:
-        if not self.remote:
-            self.set_remote(True)
 
     # --- the Spectroradiometer role ---------------------------------------------------------------
     def identify(self) -> InstrumentIdentity:
@@ -272,33 +239,6 @@ class CS2000A(SerialRadiometer):
         n_bytes = 7 + 9 + 5 + 4 * (11 + 5 + 100 * 10) + 11 + 5 + 24 * 10 + 11 + 40
         return pre_measurement_s(luminance_cd_m2) + ttt + n_bytes * 10.0 / self.baud + 7 * 0.02
 
-    def abort(self) -> None:
-        if self.request_abort():
-            return
-        with self._lock:
-            try:
-                self.command("MEAS,0")
-            except DeviceError:
-                pass                              # ER17: nothing was running
-
-    def recover(self) -> None:
-        with self._lock:
-            self._cancel_quietly()
-            self.remote = False
-            self.set_remote(True)
-
-    def close(self) -> None:
-        try:
-            if self.remote:
-                self.set_remote(False)
-        except InstrumentError:
-            pass
-        finally:
-            try:
-                self.port.close()
-            except (SerialException, OSError):
-                pass
-
     def _cancel_quietly(self) -> None:
         """MEAS,0 whatever the state.  During the pre-measurement the instrument ignores
         commands; the OK00,ttt that ends it then arrives instead, and MEAS,0 is sent again."""
@@ -312,38 +252,32 @@ class CS2000A(SerialRadiometer):
         self._resync()
 
     # --- measuring -------------------------------------------------------------------------------------
-    def measure(self) -> SpectralReading:
-        """MEAS,1 → OK00,ttt → OK00, then MEDR spectral blocks 1–4, colorimetry and conditions.
-        Transport faults are retried (bounded); a lost buffer (ER20 after a reconnect) measures
-        again; other device errors, an abort or a persistent fault raise."""
-        with self._lock:
-            self._measuring = True
-            self._abort.clear()
-            try:
-                self._ensure_remote()
-                return self.remeasure_on_lost_data(self._measure_once)
-            finally:
-                self._measuring = False
-
-    def _measure_once(self) -> SpectralReading:
-        ttt = self.with_retries(self._run_measurement, retry_device=("ER02",))
+    def _read_data(self) -> Transfer:
+        """MEDR spectral blocks 1–4, colorimetry and conditions (idempotent reads of the
+        buffer; the base class retries the whole transfer)."""
         f = 1 if self.data_format == "hex" else 0
         values: list[float] = []
         raws = b""
         for block, n in SPECTRAL_BLOCK_SIZES.items():
-            vals, raw = self.with_retries(lambda b=block, n=n: self._data(f"MEDR,1,{f},{b}", n),
-                                          retry_device=("ER02",))
+            vals, raw = self._data(f"MEDR,1,{f},{block}", n)
             values += vals
             raws += raw + b"\n"
         spectrum = check_spectrum(values, raws, self.instrument_id)
-        colour_vals, _ = self.with_retries(lambda: self._data(f"MEDR,2,{f},00", 24),
-                                           retry_device=("ER02",))
-        conditions = self.with_retries(self.measurement_conditions_once, retry_device=("ER02",))
+        colour_vals, raw = self._data(f"MEDR,2,{f},00", 24)
+        conditions = self.measurement_conditions_once()
+        return Transfer(spectrum, colour_vals[:11],
+                        {"conditions": conditions, "colour_values": colour_vals},
+                        raw=raws + raw)
+
+    def _reading(self, trigger: int, data: Transfer) -> SpectralReading:
+        conditions = data.extra["conditions"]
+        colour_vals = data.extra["colour_values"]
         return SpectralReading(
-            RADIOMETER_WAVELENGTHS_NM.copy(), spectrum, colorimetry_from(colour_vals[:11]),
+            RADIOMETER_WAVELENGTHS_NM.copy(), data.spectrum,
+            colorimetry_from(data.colorimetry_values),
             conditions["integration_time_us"] / 1e6, self.clock.wall_time_s(),
             self.instrument_id,
-            {"model": self.model, "measurement_time_s": ttt, "speed": self.speed,
+            {"model": self.model, "measurement_time_s": trigger, "speed": self.speed,
              "data_format": self.data_format, "conditions": conditions,
              "colorimetry_10deg": dict(zip(("X10", "Y10", "Z10", "x10", "y10", "u10", "v10",
                                             "T10", "duv10"), colour_vals[13:22], strict=True))})

@@ -1,5 +1,7 @@
 """What the CS-1000A and CS-2000A drivers share: line I/O with deadlines, link-loss
-recovery, number parsing, the colorimetric block, and the abort handshake.
+recovery, resynchronisation after a lost reply, number parsing, the colorimetric block, the
+abort handshake, plausibility checks of what the wire delivered, and (`KonicaMinoltaRadiometer`)
+the reply grammar, command retries and the measure skeleton of both models.
 
 Every read has a deadline on the injected clock, so nothing hangs: a reply that does not
 complete in time is an `InstrumentTimeout` (nothing came) or a `ProtocolError` (a line began
@@ -9,6 +11,16 @@ but never ended — a truncated reply).  Long waits are read in slices of `poll_
 Recovery (bounded): before each command stale input is flushed; a lost link (the port raises
 `SerialException`/`OSError`) is waited for up to `reconnect_timeout_s`, the port reopened, and
 remote mode entered again before the command is repeated.
+
+Late replies: neither model numbers its replies, so a reply that arrives after its deadline
+would be taken as the answer to a later command.  After a garbled reply the line is drained until quiet;
+after a timeout (or a lost link) it is also *suspect*: for `stale_horizon_s` afterwards every
+measurement's data are read twice and kept only when two consecutive transfers agree byte for
+byte (the instrument's buffer does not change between reads; a stray late line does).  Every
+transfer is also checked for plausibility (the wire has no checksum): value counts, the range
+for the instrument, no isolated band far off its neighbours, and Lv equal to 683·Σ L·ȳ of the
+spectrum itself (CIE 1931 2° from colour-science).  An implausible transfer is read again; one
+that stays implausible raises `ProtocolError` — never a silently wrong reading.
 """
 
 from __future__ import annotations
@@ -16,7 +28,8 @@ from __future__ import annotations
 import math
 import threading
 from collections.abc import Callable
-from typing import Any, TypeVar
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, TypeVar
 
 import numpy as np
 from serial import SerialException
@@ -29,7 +42,7 @@ from normbox_lab.core.errors import (
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.core.types import Colorimetry
+from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, Colorimetry, SpectralReading
 
 T = TypeVar("T")
 
@@ -49,6 +62,13 @@ class SerialRadiometer:
     terminator = b"\n"
     #: seconds per read slice while waiting long (abort is checked between slices)
     poll_s = 1.0
+    #: after a lost or garbled reply: the line counts as drained after this long without a byte
+    resync_quiet_s = 0.5
+    #: ... and the drain stops after this long even if bytes keep coming
+    resync_max_s = 5.0
+    #: a reply later than this after its command is not expected: the line is suspect (data
+    #: read twice and compared) for this long after each fault
+    stale_horizon_s = 120.0
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
                  command_timeout_s: float = 10.0, attempts: int = 3,
@@ -65,6 +85,9 @@ class SerialRadiometer:
         self._lock = threading.RLock()
         #: (command, reply) of every exchange, newest last (bounded), for status and logs
         self.history: list[tuple[bytes, bytes]] = []
+        #: line faults seen (timeouts, garbled replies, lost links) since opening
+        self.line_faults = 0
+        self._suspect_until_s = -math.inf
 
     # --- errors -------------------------------------------------------------------------------
     def _protocol(self, msg: str, raw: bytes) -> ProtocolError:
@@ -130,6 +153,7 @@ class SerialRadiometer:
     # --- recovery -------------------------------------------------------------------------------
     def _reconnect(self) -> None:
         """Wait for the link to come back (bounded), reopen the port, re-enter remote mode."""
+        self._mark_suspect()
         deadline = self.clock.now_s() + self.reconnect_timeout_s
         self.remote = False
         while True:
@@ -161,7 +185,10 @@ class SerialRadiometer:
             except LinkLost as exc:
                 last = exc
                 self._reconnect()
-            except (InstrumentTimeout, ProtocolError) as exc:
+            except InstrumentTimeout as exc:
+                last = exc
+                self._resync(suspect=True)       # its reply may still come, late
+            except ProtocolError as exc:
                 last = exc
                 self._resync()
             except DeviceError as exc:
@@ -185,11 +212,27 @@ class SerialRadiometer:
                     raise
         raise AssertionError("unreachable")
 
-    def _resync(self) -> None:
-        """After a lost or garbled reply: let stray bytes arrive, then drop them."""
+    def _mark_suspect(self) -> None:
+        self.line_faults += 1
+        self._suspect_until_s = max(self._suspect_until_s,
+                                    self.clock.now_s() + self.stale_horizon_s)
+
+    def line_suspect(self) -> bool:
+        """True while a reply to an earlier, timed-out command may still arrive."""
+        return self.clock.now_s() < self._suspect_until_s
+
+    def _resync(self, *, suspect: bool = False) -> None:
+        """After a lost or garbled reply: drain the line until it has been quiet for
+        `resync_quiet_s` (at most `resync_max_s`).  `suspect`: nothing came in time, so the
+        reply may still arrive later than any drain: mark the line suspect."""
+        if suspect:
+            self._mark_suspect()
+        deadline = self.clock.now_s() + self.resync_max_s
         try:
-            self.port.timeout = 0.2
-            self.port.read(65536)
+            while self.clock.now_s() < deadline:
+                self.port.timeout = self.resync_quiet_s
+                if not self.port.read(65536):
+                    break
             self.port.reset_input_buffer()
         except (SerialException, OSError):
             pass
@@ -237,3 +280,222 @@ def check_spectrum(values: list[float], raw: bytes, instrument_id: str) -> np.nd
         raise ProtocolError("spectrum holds non-finite values", raw=raw, instrument=instrument_id)
     undefined = np.isclose(arr[:, None], np.asarray(SENTINELS)[None, :], rtol=1e-6).any(axis=1)
     return np.where(undefined, np.nan, arr)
+
+
+# --- plausibility (the wire has no checksum) -------------------------------------------------------
+
+#: radiance above this (W·sr⁻¹·m⁻²·nm⁻¹) is beyond either model's range (CS-2000A: 5 000 000
+#: cd/m² at 1° with the ND filter ≈ 30 W·sr⁻¹·m⁻²·nm⁻¹ for a flat white spectrum)
+MAX_RADIANCE_W_SR_M2_NM = 100.0
+#: an isolated band further than this fraction of the spectrum's peak from both neighbours'
+#: mean is a corrupted value (the instruments' 5 nm bandwidth keeps 1 nm neighbours within a
+#: few per cent of the peak even on the sharpest lamp line)
+SPIKE_FRACTION_OF_PEAK = 0.2
+#: Lv reported vs 683·Σ L·ȳ of the reported spectrum (5 significant digits on the wire)
+LV_RELATIVE_TOLERANCE = 0.02
+LV_ABSOLUTE_TOLERANCE_CD_M2 = 1e-3
+_YBAR: np.ndarray | None = None
+
+
+def ybar_1nm() -> np.ndarray:
+    """CIE 1931 2° ȳ at 380–780 nm, 1 nm, from colour-science (lazy import)."""
+    global _YBAR
+    if _YBAR is None:
+        import colour
+
+        cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
+        _YBAR = np.interp(RADIOMETER_WAVELENGTHS_NM, np.asarray(cmfs.wavelengths, float),
+                          np.asarray(cmfs.values, float)[:, 1])
+    return _YBAR
+
+
+def implausibility(spectrum: np.ndarray, luminance_cd_m2: float) -> str:
+    """Why this 380–780 nm radiance spectrum (and the Lv reported with it) cannot be a
+    measurement, or "" when it can."""
+    finite = spectrum[np.isfinite(spectrum)]
+    if finite.size < spectrum.size // 2:
+        return "more than half of the spectrum is undefined"
+    peak = float(np.max(np.abs(finite))) if finite.size else 0.0
+    if peak > MAX_RADIANCE_W_SR_M2_NM:
+        return f"radiance {peak:.3g} W/sr/m²/nm is beyond the instrument's range"
+    if float(np.min(finite)) < -0.05 * peak - 1e-6:
+        return f"negative radiance {float(np.min(finite)):.3g} W/sr/m²/nm"
+    x = np.nan_to_num(spectrum)
+    deviation = np.abs(x[1:-1] - 0.5 * (x[:-2] + x[2:]))
+    worst = int(np.argmax(deviation))
+    if peak > 0 and deviation[worst] > SPIKE_FRACTION_OF_PEAK * peak:
+        return (f"band {RADIOMETER_WAVELENGTHS_NM[worst + 1]:.0f} nm is "
+                f"{x[worst + 1]:.4g}, its neighbours {x[worst]:.4g} and {x[worst + 2]:.4g}")
+    if math.isfinite(luminance_cd_m2):
+        lv_spectrum = 683.0 * float(np.sum(x * ybar_1nm()))
+        if abs(lv_spectrum - luminance_cd_m2) > max(
+                LV_RELATIVE_TOLERANCE * abs(luminance_cd_m2), LV_ABSOLUTE_TOLERANCE_CD_M2):
+            return (f"Lv {luminance_cd_m2:.5g} cd/m² disagrees with the spectrum's own "
+                    f"{lv_spectrum:.5g} cd/m²")
+    return ""
+
+
+@dataclass
+class Transfer:
+    """What one data transfer delivered: the spectrum, the 11-value colorimetric block and
+    model-specific extras; `raw` keeps the bytes for error messages."""
+
+    spectrum: np.ndarray
+    colorimetry_values: list[float]
+    extra: dict[str, Any] = field(default_factory=dict)
+    raw: bytes = b""
+
+    def same_as(self, other: Transfer) -> bool:
+        return (np.array_equal(self.spectrum, other.spectrum, equal_nan=True)
+                and np.array_equal(np.asarray(self.colorimetry_values),
+                                   np.asarray(other.colorimetry_values), equal_nan=True)
+                and self.extra == other.extra)
+
+
+class KonicaMinoltaRadiometer(SerialRadiometer):
+    """The reply grammar, command retries, remote mode, abort and the measure skeleton that
+    the CS-1000A and the CS-2000A share.  A model supplies `ok_head`, `errors`,
+    `remote_prefix`, `cancel_command`, `_enter_remote`, `_run_measurement` (the trigger, returns
+    what the reading needs from it), `_read_data` (one whole transfer, no retries) and
+    `_reading` (trigger + transfer → `SpectralReading`)."""
+
+    ok_head = "OK"
+    errors: ClassVar[dict[str, str]] = {}
+    remote_prefix = "RMT,"
+    cancel_command = "MES,0"
+
+    # --- replies --------------------------------------------------------------------------------
+    def parse_reply(self, raw: bytes) -> list[str]:
+        """``<ok_head>[,f1,…]`` → [f1, …]; ``ERnn`` → `DeviceError`; else `ProtocolError`."""
+        try:
+            text = raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise self._protocol("reply is not ASCII", raw) from None
+        head, *fields = text.split(",")
+        if head == self.ok_head:
+            return fields
+        if len(head) == 4 and head.startswith("ER") and head[2:].isdigit() and not fields:
+            raise DeviceError(head, self.errors.get(head, "unknown error code"),
+                              instrument=self.instrument_id)
+        raise self._protocol("unexpected reply", raw)
+
+    def _no_fields(self, cmd: str, fields: list[str]) -> None:
+        if fields:
+            raise self._protocol(f"{cmd}: unexpected fields after {self.ok_head}",
+                                 ",".join([self.ok_head, *fields]).encode())
+
+    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
+        """Send `cmd`, return the fields after the OK head.  Transport faults and ER02 (busy)
+        are retried (bounded); ER00 to a command other than the remote command re-enters
+        remote mode once (the instrument drops to local mode after a power blip) and repeats."""
+        def once() -> list[str]:
+            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
+
+        try:
+            return self.with_retries(once, retry_device=("ER02",))
+        except DeviceError as exc:
+            if exc.code != "ER00" or cmd.startswith(self.remote_prefix):
+                raise
+            self._enter_remote()
+            return self.with_retries(once, retry_device=("ER02",))
+
+    # --- remote mode, abort, recovery, close -----------------------------------------------------
+    def set_remote(self, on: bool) -> None:  # pragma: no cover - per model
+        raise NotImplementedError
+
+    def _ensure_remote(self) -> None:
+        if not self.remote:
+            self.set_remote(True)
+
+    def abort(self) -> None:
+        """Cancel a running measurement (from any thread); idle → cancel anyway (harmless)."""
+        if self.request_abort():
+            return
+        with self._lock:
+            try:
+                self.command(self.cancel_command)
+            except DeviceError:
+                pass                              # nothing was running
+
+    def _cancel_quietly(self) -> None:
+        try:
+            self._resync()
+            self.exchange(self.cancel_command.encode("ascii"), timeout_s=3.0)
+        except (InstrumentError, SerialException, OSError):
+            pass
+        self._resync()
+
+    def recover(self) -> None:
+        """Engine hook after a fault: drain, cancel whatever runs, re-enter remote mode."""
+        with self._lock:
+            self._cancel_quietly()
+            self.remote = False
+            self.set_remote(True)
+
+    def close(self) -> None:
+        try:
+            if self.remote:
+                self.set_remote(False)
+        except InstrumentError:
+            pass
+        finally:
+            try:
+                self.port.close()
+            except (SerialException, OSError):
+                pass
+
+    # --- measuring ---------------------------------------------------------------------------------
+    def measure(self) -> SpectralReading:
+        """Trigger, then transfer the data.  Transport faults are retried (bounded); a lost
+        buffer (ER20) measures again; after a line fault the data are read until two
+        consecutive transfers agree; an implausible transfer is read again, then refused."""
+        with self._lock:
+            self._measuring = True
+            self._abort.clear()
+            try:
+                self._ensure_remote()
+                return self.remeasure_on_lost_data(self._measure_once)
+            finally:
+                self._measuring = False
+
+    def _measure_once(self) -> SpectralReading:
+        faults_before = self.line_faults
+        trigger = self.with_retries(self._run_measurement, retry_device=("ER02",))
+        data = self._transfer()
+        if self.line_faults != faults_before or self.line_suspect():
+            data = self._confirmed(data)
+        return self._reading(trigger, data)
+
+    def _transfer(self) -> Transfer:
+        """One whole data transfer, retried whole (bounded) on transport faults and on
+        implausible contents."""
+        return self.with_retries(self._checked_transfer, retry_device=("ER02",))
+
+    def _checked_transfer(self) -> Transfer:
+        data = self._read_data()
+        why = implausibility(data.spectrum, undefined_to_nan(data.colorimetry_values[1]))
+        if why:
+            raise self._protocol(f"implausible data: {why}", data.raw[:200])
+        return data
+
+    def _confirmed(self, first: Transfer) -> Transfer:
+        """Read the buffer again until two consecutive transfers agree (bounded): a late reply
+        that slipped into one of them makes it differ."""
+        previous = first
+        for _ in range(self.attempts):
+            again = self._transfer()
+            if again.same_as(previous):
+                return again
+            self._mark_suspect()
+            previous = again
+        raise self._protocol(f"{self.attempts + 1} data transfers of one measurement disagree "
+                             "(late or stray replies on the line)", previous.raw[:200])
+
+    def _run_measurement(self) -> Any:  # pragma: no cover - per model
+        raise NotImplementedError
+
+    def _read_data(self) -> Transfer:  # pragma: no cover - per model
+        raise NotImplementedError
+
+    def _reading(self, trigger: Any, data: Transfer) -> SpectralReading:  # pragma: no cover
+        raise NotImplementedError

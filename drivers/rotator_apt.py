@@ -35,6 +35,7 @@ makes moves raise `NotReady` until it is homed again.
 
 from __future__ import annotations
 
+import struct
 from typing import Any
 
 import thorlabs_apt_protocol as apt
@@ -75,7 +76,8 @@ class AptRotationStage(RotationStageBase):
                  acceleration_deg_s2: float = 10.0, home_velocity_deg_s: float = 5.0,
                  position_tolerance_deg: float = 0.05, update_messages: bool = False,
                  auto_home: bool = False, command_timeout_s: float = 1.0,
-                 reconnect_timeout_s: float = 10.0, connect: bool = True) -> None:
+                 reconnect_timeout_s: float = 10.0, connect: bool = True,
+                 attempts: int = 3) -> None:
         super().__init__(port, clock, instrument_id=instrument_id, min_angle_deg=min_angle_deg,
                          max_angle_deg=max_angle_deg, max_velocity_deg_s=max_velocity_deg_s,
                          acceleration_deg_s2=acceleration_deg_s2,
@@ -85,6 +87,9 @@ class AptRotationStage(RotationStageBase):
         self.update_messages = bool(update_messages)
         self.command_timeout_s = float(command_timeout_s)
         self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self.attempts = max(1, int(attempts))
+        #: undecodable frames seen since opening (each followed by a drain)
+        self.line_faults = 0
         self._unpacker = apt.Unpacker()
         self._status: dict[str, Any] = {}
         self._last_ack_s = -1e9
@@ -94,7 +99,7 @@ class AptRotationStage(RotationStageBase):
         self._lost = False
         self._updates_started = False
         if connect:
-            self.connect()
+            self._connect_with_retries()
 
     @classmethod
     def open(cls, url: str, clock: Clock, **options: Any) -> AptRotationStage:
@@ -119,9 +124,12 @@ class AptRotationStage(RotationStageBase):
                 return next(self._unpacker)
             except StopIteration:
                 pass
-            except (KeyError, ValueError, AssertionError, TypeError) as exc:
-                raise ProtocolError(f"undecodable APT frame: {exc}",
-                                    raw=self._unpacker.buf, instrument=self.instrument_id)
+            except (KeyError, ValueError, AssertionError, TypeError, struct.error,
+                    IndexError, OverflowError) as exc:
+                raw = bytes(getattr(self._unpacker, "buf", b""))
+                self._resync()
+                raise ProtocolError(f"undecodable APT frame: {exc}", raw=raw[:64],
+                                    instrument=self.instrument_id) from None
             now = self.clock.now_s()
             if now >= deadline_s:
                 return None
@@ -139,6 +147,39 @@ class AptRotationStage(RotationStageBase):
                 self._unpacker.feed(chunk)
             elif self.clock.now_s() == now:
                 self.clock.sleep(min(0.01, max(0.0, deadline_s - now)))
+
+    def _resync(self) -> None:
+        """After an undecodable frame: drop the unpacker's buffer and whatever is on the line
+        (frames carry their message id, so later replies are matched by id, not position)."""
+        self.line_faults += 1
+        self._unpacker = apt.Unpacker()
+        try:
+            self.port.reset_input_buffer()
+        except (SerialException, OSError):
+            pass
+
+    def _connect_with_retries(self) -> None:
+        """`connect`, retried on transport faults (lost, late or undecodable replies, a link
+        that blips while connecting) up to `attempts` times."""
+        deadline = self.clock.now_s() + self.reconnect_timeout_s
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                if attempt > 1:
+                    self._resync()
+                    if hasattr(self.port, "is_open") and not self.port.is_open:
+                        self.port.open()
+                self.connect()
+                self._lost = False
+                return
+            except (InstrumentTimeout, ProtocolError, SerialException, OSError):
+                if attempt >= self.attempts:
+                    raise
+            except InstrumentError:            # the link is down: wait for it (bounded)
+                if not self._lost or self.clock.now_s() >= deadline:
+                    raise
+            self.clock.sleep(0.5)
 
     def _handle(self, msg: Any) -> None:
         """Book-keeping for every frame that arrives (pushed status, end-of-move)."""

@@ -43,7 +43,9 @@ X_RSW60A_STEPS_PER_DEG = 1.0 / 0.000234375
 SPEED_NATIVE_PER_STEP_S = 1.6384
 ACCEL_NATIVE_PER_STEP_S2 = 1.6384 / 10000.0
 
-REPLY = re.compile(rb"^@(\d{2}) (\d+) (OK|RJ) (IDLE|BUSY) (\S\S) ?(.*)$")
+REPLY = re.compile(rb"^@(\d{2}) (\d{1,3}) (OK|RJ) (IDLE|BUSY) ([A-Z-]{2}) ?([ -~]*)$")
+#: a position or setting beyond this many microsteps is not a number the device can hold
+MAX_NATIVE = 2**40
 
 REJECTIONS = {
     "BADCOMMAND": "the command is not recognised",
@@ -79,7 +81,8 @@ class ZaberRotationStage(RotationStageBase):
                  max_velocity_deg_s: float = 10.0, acceleration_deg_s2: float = 20.0,
                  home_velocity_deg_s: float | None = None, position_tolerance_deg: float = 0.05,
                  auto_home: bool = False, command_timeout_s: float = 1.0, poll_s: float = 0.1,
-                 reconnect_timeout_s: float = 10.0, connect: bool = True) -> None:
+                 reconnect_timeout_s: float = 10.0, connect: bool = True, attempts: int = 3,
+                 resync_quiet_s: float = 0.5) -> None:
         super().__init__(port, clock, instrument_id=instrument_id, min_angle_deg=min_angle_deg,
                          max_angle_deg=max_angle_deg, max_velocity_deg_s=max_velocity_deg_s,
                          acceleration_deg_s2=acceleration_deg_s2,
@@ -91,13 +94,17 @@ class ZaberRotationStage(RotationStageBase):
         self.command_timeout_s = float(command_timeout_s)
         self.poll_s = float(poll_s)
         self.reconnect_timeout_s = float(reconnect_timeout_s)
+        self.attempts = max(1, int(attempts))
+        self.resync_quiet_s = float(resync_quiet_s)
+        #: timeouts seen since opening (each followed by a drain and a re-handshake)
+        self.line_faults = 0
         self._ident: dict[str, str] = {}
         self._lost = False
         self._expected_end_s = 0.0
         self._last_flag = "--"
         self._homing = False
         if connect:
-            self.connect()
+            self._connect_with_retries()
 
     @classmethod
     def open(cls, url: str, clock: Clock, **options: Any) -> ZaberRotationStage:
@@ -109,22 +116,56 @@ class ZaberRotationStage(RotationStageBase):
 
     # --- lines --------------------------------------------------------------------------------
     def _command(self, text: str, *, axis: bool = True, check: bool = True) -> ZaberReply:
+        """Send one command and return its reply.  A timeout drains the line and
+        re-handshakes (``get deviceid``) before the command is repeated (every command the
+        driver sends is idempotent: absolute moves, gets, sets, home, stop), bounded."""
         self._ensure_link()
         prefix = f"/{self.device} {self.axis}" if axis else f"/{self.device}"
         line = f"{prefix} {text}".rstrip() + "\n"
-        try:
-            self.port.write(line.encode("ascii"))
-            reply = self._read_reply()
-        except (SerialException, OSError) as exc:
-            self._lost = True
-            raise InstrumentError(f"link lost: {exc}", instrument=self.instrument_id) from exc
+        last: InstrumentTimeout | None = None
+        for _ in range(self.attempts):
+            try:
+                self.port.reset_input_buffer()
+                self.port.write(line.encode("ascii"))
+                reply = self._read_reply(self.axis if axis else 0)
+                break
+            except (SerialException, OSError) as exc:
+                self._lost = True
+                raise InstrumentError(f"link lost: {exc}", instrument=self.instrument_id) from exc
+            except InstrumentTimeout as exc:
+                last = exc
+                self.line_faults += 1
+                self._resync()
+        else:
+            assert last is not None
+            raise last
         self._last_flag = reply.flag
         if check and not reply.ok:
             raise DeviceError(reply.data, REJECTIONS.get(reply.data, "command rejected") +
                               f" ({text!r})", instrument=self.instrument_id)
         return reply
 
-    def _read_reply(self) -> ZaberReply:
+    def _resync(self) -> None:
+        """Drain until quiet, then ``get deviceid`` until its reply comes back; replies to
+        earlier commands that arrive before it are dropped."""
+        try:
+            while True:
+                self.port.timeout = self.resync_quiet_s
+                if not self.port.read(65536):
+                    break
+            self.port.timeout = 0.05
+            self.port.reset_input_buffer()
+            self.port.write(f"/{self.device} get deviceid\n".encode("ascii"))
+            for _ in range(8):
+                reply = self._read_reply(0)
+                if not self._ident or reply.data == self._ident.get("deviceid"):
+                    return
+        except (InstrumentError, SerialException, OSError):
+            return          # the repeated command finds out whether the line is back
+
+    def _read_reply(self, axis: int) -> ZaberReply:
+        """The next reply from this device and `axis` (0: device scope); info and alert
+        lines, and replies of another scope (late replies to earlier commands), are skipped."""
         deadline = self.clock.now_s() + self.command_timeout_s
         buf = bytearray()
         while True:
@@ -146,10 +187,10 @@ class ZaberRotationStage(RotationStageBase):
             if m is None:
                 raise ProtocolError("not a Zaber reply", raw=line, instrument=self.instrument_id)
             dev, ax, flag_ok, status, flag, data = m.groups()
-            if int(dev) != self.device:
+            if int(dev) != self.device or int(ax) != axis:
                 continue
             return ZaberReply(int(dev), int(ax), flag_ok == b"OK", status == b"BUSY",
-                              flag.decode(), data.decode("ascii", "replace").strip())
+                              flag.decode("ascii"), data.decode("ascii").strip())
 
     def _ensure_link(self) -> None:
         if not self._lost:
@@ -172,13 +213,32 @@ class ZaberRotationStage(RotationStageBase):
                               instrument=self.instrument_id)
 
     def _int(self, reply: ZaberReply) -> int:
-        try:
-            return int(reply.data.split()[0])
-        except (ValueError, IndexError):
-            raise ProtocolError("expected a number", raw=reply.data.encode(),
-                                instrument=self.instrument_id) from None
+        text = reply.data.split()[0] if reply.data.split() else ""
+        if not text.lstrip("+-").isdigit() or len(text) > 16 or abs(int(text)) > MAX_NATIVE:
+            raise ProtocolError("expected a number of microsteps", raw=reply.data.encode(),
+                                instrument=self.instrument_id)
+        return int(text)
 
     # --- connection ---------------------------------------------------------------------------
+    def _connect_with_retries(self) -> None:
+        """`connect`, retried on transport faults (a lost, late or garbled reply, a link that
+        blips while connecting) up to `attempts` times; device refusals raise at once."""
+        deadline = self.clock.now_s() + self.reconnect_timeout_s
+        attempt = 0
+        while True:
+            attempt += 1
+            try:
+                self.connect()
+                return
+            except (InstrumentTimeout, ProtocolError, SerialException, OSError):
+                if attempt >= self.attempts:
+                    raise
+                self._resync()
+            except InstrumentError:            # the link is down: wait for it (bounded)
+                if not self._lost or self.clock.now_s() >= deadline:
+                    raise
+                self.clock.sleep(0.5)
+
     def connect(self) -> None:
         self._ident = {
             "deviceid": self._command("get deviceid", axis=False).data,

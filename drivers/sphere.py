@@ -8,6 +8,13 @@ another class with the same public methods; nothing above this module changes.
 
 Line: ASCII, LF-terminated commands, one reply line per command (``OK``, a value, or
 ``ERR <code>``, after which the driver drains ``SYST:ERR?`` and raises `DeviceError`).
+A lamp in its ``ERROR`` state (STAT?) is `DeviceError("LAMP")`, never an ``ERR`` reply.
+
+Resynchronisation: the line has no message numbers, so after a timeout the driver drains the
+line until it is quiet, then re-handshakes (``*IDN?``, discarding every line until the
+identification comes back) before it trusts the line again; every command is idempotent, so
+it is then repeated (bounded by `attempts`).  Replies are validated (ASCII, finite numbers,
+value counts, increasing wavelengths); anything else is `ProtocolError` with the bytes.
 
     identify()                 *IDN?
     set_output(on)             OUTP ON | OUTP OFF
@@ -25,6 +32,8 @@ Line: ASCII, LF-terminated commands, one reply line per command (``OK``, a value
 
 from __future__ import annotations
 
+import math
+import re
 from typing import Any
 
 import numpy as np
@@ -43,17 +52,30 @@ from normbox_lab.core.interfaces import InstrumentIdentity
 STATES = ("off", "settling", "stable", "error")
 
 
+class _LinkDown(InstrumentError):
+    """The port went away; internal: the query reopens it and repeats."""
+
+
+ERR_REPLY = re.compile(rb"^ERR[ \t]+([+-]?\d{1,6})$")
+
+
 class SphereLightSource:
     model = "LE7-4x (placeholder protocol)"
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "sphere",
-                 command_timeout_s: float = 2.0, poll_s: float = 5.0) -> None:
+                 command_timeout_s: float = 2.0, poll_s: float = 5.0, attempts: int = 3,
+                 resync_quiet_s: float = 0.5, reconnect_wait_s: float = 2.0) -> None:
         self.port = port
         self.clock = clock
         self.instrument_id = instrument_id
         self.command_timeout_s = float(command_timeout_s)
         self.poll_s = float(poll_s)
+        self.attempts = max(1, int(attempts))
+        self.resync_quiet_s = float(resync_quiet_s)
+        self.reconnect_wait_s = float(reconnect_wait_s)
         self._idn = ""
+        #: timeouts seen since opening (each followed by a drain and a re-handshake)
+        self.line_faults = 0
 
     @classmethod
     def open(cls, url: str, clock: Clock, **options: Any) -> SphereLightSource:
@@ -79,21 +101,76 @@ class SphereLightSource:
                 self.clock.sleep(min(0.01, deadline - now))
 
     def query(self, command: str, lines: int = 1) -> list[str]:
-        """Send one command, return its reply line(s); ``ERR <code>`` → DeviceError."""
+        """Send one command, return its reply line(s); ``ERR <code>`` → DeviceError.  A
+        timeout drains the line, re-handshakes and repeats the command (bounded)."""
+        last: InstrumentError | None = None
+        for _ in range(self.attempts):
+            try:
+                return self._query_once(command, lines)
+            except InstrumentTimeout as exc:
+                last = exc
+                self.line_faults += 1
+                self._resync()
+            except _LinkDown as exc:
+                last = exc
+                self.line_faults += 1
+                self._reopen()
+        assert last is not None
+        raise last
+
+    def _reopen(self) -> None:
+        """The link dropped (USB blip): wait, reopen the port (bounded by the attempts)."""
+        self.clock.sleep(self.reconnect_wait_s)
         try:
+            if hasattr(self.port, "close") and hasattr(self.port, "open"):
+                self.port.close()
+                self.port.open()
+        except (SerialException, OSError):
+            pass
+
+    def _decode(self, raw: bytes) -> str:
+        try:
+            return raw.decode("ascii")
+        except UnicodeDecodeError:
+            raise ProtocolError("reply is not ASCII", raw=raw,
+                                instrument=self.instrument_id) from None
+
+    def _query_once(self, command: str, lines: int) -> list[str]:
+        try:
+            self.port.reset_input_buffer()
             self.port.write(command.encode("ascii") + b"\n")
             first = self._readline()
-            if first.startswith(b"ERR"):
-                code = first[3:].strip().decode("ascii", "replace")
+            m = ERR_REPLY.match(first)
+            if m is not None:
+                code = m.group(1).decode("ascii")
                 meanings = self._drain_errors()
                 raise DeviceError(code, "; ".join(meanings) or "command refused",
                                   instrument=self.instrument_id)
-            out = [first.decode("ascii", "replace")]
+            out = [self._decode(first)]
             for _ in range(lines - 1):
-                out.append(self._readline().decode("ascii", "replace"))
+                out.append(self._decode(self._readline()))
             return out
         except (SerialException, OSError) as exc:
-            raise InstrumentError(f"link lost: {exc}", instrument=self.instrument_id) from exc
+            raise _LinkDown(f"link lost: {exc}", instrument=self.instrument_id) from exc
+
+    def _resync(self) -> None:
+        """Drain until quiet, then ``*IDN?`` until the identification comes back (lines
+        before it are late replies to earlier commands)."""
+        try:
+            while True:
+                self.port.timeout = self.resync_quiet_s
+                if not self.port.read(65536):
+                    break
+            self.port.reset_input_buffer()
+            self.port.write(b"*IDN?\n")
+            for _ in range(8):
+                line = self._readline()
+                if line.startswith(b"ERR") or (self._idn and line.decode("ascii", "replace")
+                                               != self._idn):
+                    continue
+                return
+        except (InstrumentError, SerialException, OSError):
+            return          # the repeated command finds out whether the line is back
 
     def _ask(self, command: str) -> str:
         return self.query(command)[0]
@@ -105,18 +182,23 @@ class SphereLightSource:
                                 instrument=self.instrument_id)
 
     def _number(self, command: str) -> float:
-        reply = self._ask(command)
+        return self._finite(self._ask(command), f"expected a number to {command!r}")
+
+    def _finite(self, text: str, what: str) -> float:
         try:
-            return float(reply)
+            value = float(text)
         except ValueError:
-            raise ProtocolError(f"expected a number to {command!r}", raw=reply.encode(),
-                                instrument=self.instrument_id) from None
+            raise ProtocolError(what, raw=text.encode(), instrument=self.instrument_id) from None
+        if not math.isfinite(value):
+            raise ProtocolError(f"{what} (not finite)", raw=text.encode(),
+                                instrument=self.instrument_id)
+        return value
 
     def _drain_errors(self) -> list[str]:
         out = []
         for _ in range(12):
             self.port.write(b"SYST:ERR?\n")
-            line = self._readline().decode("ascii", "replace")
+            line = self._decode(self._readline())
             code, _, text = line.partition(",")
             if code.strip() in ("0", "+0"):
                 break
@@ -184,15 +266,16 @@ class SphereLightSource:
 
     def internal_spectrum(self) -> tuple[np.ndarray, np.ndarray]:
         header, values = self.query("MEAS:SPEC?", lines=2)
-        try:
-            start, step, count = (float(x) for x in header.split(",")[:3])
-            rel = np.array([float(v) for v in values.split(",")])
-        except ValueError:
-            raise ProtocolError("bad spectrum block", raw=(header + values).encode(),
-                                instrument=self.instrument_id) from None
-        if rel.size != int(count):
-            raise ProtocolError(f"spectrum has {rel.size} values, header says {int(count)}",
-                                raw=header.encode(), instrument=self.instrument_id)
+        raw = (header + "\n" + values).encode()
+        head = header.split(",")
+        if len(head) < 3:
+            raise ProtocolError("bad spectrum header", raw=raw, instrument=self.instrument_id)
+        start, step, count = (self._finite(x, "bad spectrum header") for x in head[:3])
+        rel = np.array([self._finite(v, "bad spectrum value") for v in values.split(",")])
+        if not step > 0 or count != int(count) or rel.size != int(count):
+            raise ProtocolError(f"spectrum has {rel.size} values, header says {count:g} "
+                                f"(step {step:g} nm must be positive)", raw=raw,
+                                instrument=self.instrument_id)
         return start + step * np.arange(rel.size), rel
 
     def luminance_cd_m2(self) -> float:
@@ -200,11 +283,7 @@ class SphereLightSource:
 
     def panel_map(self) -> np.ndarray:
         reply = self._ask("PANEL:MAP?")
-        try:
-            values = np.array([float(v) for v in reply.split(",")])
-        except ValueError:
-            raise ProtocolError("bad panel map", raw=reply.encode(),
-                                instrument=self.instrument_id) from None
+        values = np.array([self._finite(v, "bad panel map") for v in reply.split(",")])
         if values.size != 25:
             raise ProtocolError(f"panel map has {values.size} points, not 25",
                                 raw=reply.encode(), instrument=self.instrument_id)

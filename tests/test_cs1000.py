@@ -23,12 +23,16 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.interfaces import Spectroradiometer
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs1000 import CS1000A
+from normbox_lab.drivers.radiometer_common import ybar_1nm
 from normbox_lab.sim import core
 from normbox_lab.sim.cs1000 import CS1000AEmulator
 from normbox_lab.sim.transport import open_port
 
 WL = RADIOMETER_WAVELENGTHS_NM
-SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)          # a known ramp, W·sr⁻¹·m⁻²·nm⁻¹
+#: a known ramp (W·sr⁻¹·m⁻²·nm⁻¹) scaled so that 683·Σ L·ȳ = 100 cd/m², the Lv in the
+#: colorimetric block below (the drivers check that the two agree)
+SPECTRUM = (1.0 + (WL - 380.0) / 400.0) * 100.0 / (683.0 * float(np.sum(
+    (1.0 + (WL - 380.0) / 400.0) * ybar_1nm())))
 COLOUR_LINE = b"6.4182e-1,1.0000e2,1.0984e2,1.0000e2,3.5595e1,0.4475,0.4074,0.2559,0.5243,2856,+0.0012\n"
 
 
@@ -185,11 +189,14 @@ def test_silence_is_a_bounded_timeout():
 
 
 def test_short_spectral_block_is_rejected_never_partial():
-    """A block with 27 values instead of 28: the transfer is repeated; persistently → error."""
+    """A block with 27 values instead of 28: the whole transfer (colorimetry and spectrum) is
+    repeated; persistently → error."""
     bad = spectral_lines(SPECTRUM)
     bad[3] = bad[3].rsplit(b",", 1)[0] + b"\n"
-    transfer = [Exchange(b"BDR,0,0,0\n", b"OK\n")] + [Exchange(b"&\n", x) for x in bad[:4]]
-    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *measure_script()[:3], *transfer * 3])
+    transfer = ([Exchange(b"BDR,1,0,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE),
+                 Exchange(b"BDR,0,0,0\n", b"OK\n")] + [Exchange(b"&\n", x) for x in bad[:4]])
+    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *measure_script()[:1],
+                        *(transfer[:2] + transfer[2:] * 3) * 3])
     with pytest.raises(ProtocolError) as e:
         d.measure()
     assert b"," in e.value.raw

@@ -21,12 +21,16 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.interfaces import Spectroradiometer
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
+from normbox_lab.drivers.radiometer_common import ybar_1nm
 from normbox_lab.sim import core
 from normbox_lab.sim.cs2000 import CS2000AEmulator, fmt_hex, fmt_lv
 from normbox_lab.sim.transport import open_port
 
 WL = RADIOMETER_WAVELENGTHS_NM
-SPECTRUM = 1e-3 * (1.0 + (WL - 380.0) / 400.0)
+#: a known ramp (W·sr⁻¹·m⁻²·nm⁻¹) scaled so that 683·Σ L·ȳ = 100 cd/m², the Lv in the
+#: colorimetric block below (the drivers check that the two agree)
+SPECTRUM = (1.0 + (WL - 380.0) / 400.0) * 100.0 / (683.0 * float(np.sum(
+    (1.0 + (WL - 380.0) / 400.0) * ybar_1nm())))
 COLOUR_24 = ("6.4182e-1,100.000,1.0984e2,1.0000e2,3.5595e1,0.4475,0.4074,0.2559,0.5243,2856,"
              "+0.0012,-9.9e9,-9.9e9,1.1721e2,1.0547e2,3.7138e1,0.4511,0.4059,0.2589,0.5242,2789,"
              "-0.0010,-9.9e9,-9.9e9")

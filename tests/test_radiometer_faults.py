@@ -104,16 +104,18 @@ def test_truncated_reply_is_never_a_partial_spectrum(model, which):
 
 @models
 def test_random_truncation_complete_or_typed(model):
+    # 15 % of the 21 replies of a CS-1000A measurement cut short: a whole transfer survives
+    # about one time in ten, so several measurements are needed for one complete reading
     d, _ = open_driver(model, "truncate=0.15")
     ok = 0
-    for _ in range(4):
+    for _ in range(8):
         try:
             assert_truth(d.measure())
             ok += 1
         except InstrumentError:
             pass
     assert ok >= 1
-    assert elapsed() < 4 * 600
+    assert elapsed() < 8 * 600
 
 
 @models

@@ -169,6 +169,7 @@ def test_lamp_failure_is_a_typed_error_and_recovers_with_power_cycle():
     emu.faults.add("lamp-fail", at_count=emu.faults._counters.get("lamp-fail", 0) + 1)
     with pytest.raises(DeviceError) as err:
         lamp.wait_stable(3600.0)
+    assert err.value.code == "LAMP"                 # the ERROR state, not an "ERR OR" reply
     assert "Lamp failure" in err.value.meaning and emu.relative_output() == 0.0
     lamp.set_output(False)
     lamp.set_output(True)
@@ -184,9 +185,8 @@ def test_wait_stable_on_an_off_lamp_is_not_ready_not_a_hang():
 def test_disconnect_and_no_reply():
     lamp, emu = sim_lamp("sph-disc", faults="no-reply@2")
     lamp.identify()
-    with pytest.raises(InstrumentError):
-        lamp.state()                                                     # reply 2 lost: timeout
-    assert lamp.state() == "off"
+    assert lamp.state() == "off"            # reply 2 lost: drain, re-handshake, asked again
+    assert lamp.line_faults == 1
     emu.disconnect(5.0)
     with pytest.raises(InstrumentError):
         lamp.state()
@@ -246,3 +246,41 @@ def test_status_reset_abort_lines_and_role():
     assert lamp.luminance_cd_m2() == 1998.5
     lamp.abort()
     port.assert_done()
+
+
+def test_error_state_reply_is_the_lamp_not_an_err_code():
+    d, port = scripted([Exchange(b"STAT?\n", b"ERROR\n"), Exchange(b"SYST:ERR?\n",
+                                                                    b'201,"Lamp failure"\n'),
+                        Exchange(b"SYST:ERR?\n", b'0,"No error"\n')])
+    with pytest.raises(DeviceError) as err:
+        d.state()
+    assert err.value.code == "LAMP" and "201 Lamp failure" in err.value.meaning
+    port.assert_done()
+
+
+@pytest.mark.parametrize("delay_s", [3.0, 30.0])
+def test_late_reply_is_drained_and_never_answers_a_later_query(delay_s):
+    """The level reply arrives after the 2 s timeout: the driver drains, re-handshakes with
+    *IDN?, asks again, and no later query is answered with the stale value."""
+    lamp, emu = sim_lamp(f"sph-late{delay_s:g}")
+    lamp.identify()
+    lamp.set_output(True)
+    lamp.set_level_percent(50.0)
+    emu.faults.add("late-reply", at_count=emu.faults._counters.get("late-reply", 0) + 1,
+                   parameter=delay_s)
+    assert lamp.level_percent() == 50.0
+    assert lamp.line_faults == 1
+    for _ in range(20):
+        lamp.clock.sleep(2.0)                  # the stale reply comes out somewhere in here
+        assert lamp.state() in ("settling", "stable")
+        assert lamp.output() is True
+
+
+def test_garbage_replies_are_protocol_errors():
+    for reply in (b"nan\n", b"1e999\n", b"\xff\xfe\n", b"12,abc\n"):
+        d, _ = scripted([Exchange(b"INT?\n", reply)])
+        with pytest.raises(ProtocolError):
+            d.level_percent()
+    d, _ = scripted([Exchange(b"MEAS:SPEC?\n", [(0.0, b"380,-1,3,rel\n"), (0.0, b"1,2,3\n")])])
+    with pytest.raises(ProtocolError, match="step"):
+        d.internal_spectrum()
