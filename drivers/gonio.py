@@ -347,8 +347,10 @@ class Gonioreflectometer:
                       "full_scale_counts": float(full)})
 
     # --- timing -------------------------------------------------------------------------------
-    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float) -> float:
-        ti0, to0 = self._geometry
+    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float, *,
+                                from_geometry_deg: tuple[float, float] | None = None) -> float:
+        """Arm moves (from `from_geometry_deg`, default where the arms are) + integration."""
+        ti0, to0 = self._geometry if from_geometry_deg is None else from_geometry_deg
         move = max(self.light_arm.estimate_move_time_s(ti0, theta_i_deg),
                    self.detector_arm.estimate_move_time_s(to0, theta_o_deg))
         t_w = self._cal["integration_time_s"] if self._cal else 0.1

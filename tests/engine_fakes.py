@@ -13,9 +13,9 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentTimeout
-from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 
 
@@ -203,6 +203,9 @@ class FakeLab:
         return self.world.luminance_cd_m2(step.params.get("patch"),
                                           float(step.params.get("angle_deg", 0.0)))
 
+    def provenance(self) -> dict[str, Any]:
+        return {"lab_config": "", "seeds": {"lab": 0}}
+
     def record_identities(self, store: Any, run_id: int, segment: int = 1) -> None:
         for role, inst in self.instruments.items():
             ident = inst.identify()
@@ -233,7 +236,8 @@ class FakeGonio:
     def estimate_calibrate_time_s(self) -> float:
         return self.calibrate_s
 
-    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float) -> float:
+    def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float, *,
+                                from_geometry_deg: tuple[float, float] | None = None) -> float:
         return self.measure_s
 
     def calibrate(self) -> dict[str, np.ndarray]:

@@ -22,6 +22,7 @@ from collections.abc import Mapping
 from typing import Any
 
 from normbox_lab.acquire.config import LabConfig
+from normbox_lab.core.capabilities import Closable, Identifiable
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
 
@@ -162,7 +163,7 @@ class Lab:
 
     def ask_operator(self, key: str, message: str, **data: Any) -> str:
         """A prompt from inside an instrument (e.g. the gonio's white standard)."""
-        from normbox_lab.acquire.engine import PromptRequest
+        from normbox_lab.acquire.events import PromptRequest
 
         return self.operator(PromptRequest(0, key, "operator", message, ("ok",), data))
 
@@ -195,12 +196,15 @@ class Lab:
                 panel_homogeneity_percent=self.config.geometry.panel_homogeneity_percent)
         return self._est
 
+    def provenance(self) -> dict[str, Any]:
+        """What a new run records about the lab."""
+        return {"lab_config": self.config.text, "seeds": {"lab": self.config.seed}}
+
     def identities(self) -> dict[str, dict[str, Any]]:
         out = {}
         for role, inst in self._open.items():
-            ident = inst.identify() if hasattr(inst, "identify") else None
-            d = dataclasses.asdict(ident) if dataclasses.is_dataclass(ident) else \
-                {"identity": repr(ident)}
+            d = dataclasses.asdict(inst.identify()) if isinstance(inst, Identifiable) else \
+                {"identity": repr(inst)}
             cfg = self.config.instruments.get(role)
             if cfg is not None:
                 d.update(driver=cfg.driver, port=cfg.port)
@@ -213,10 +217,9 @@ class Lab:
 
     def close(self) -> None:
         for inst in self._open.values():
-            close = getattr(inst, "close", None)
-            if close is not None:
+            if isinstance(inst, Closable):
                 try:
-                    close()
+                    inst.close()
                 except (NormboxError, OSError):
                     pass
         self._open.clear()

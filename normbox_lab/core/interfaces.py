@@ -1,109 +1,22 @@
-"""Typed instrument roles (DESIGN §4), in the style of bluesky's `protocols.py`.
+"""The old import path of the instrument roles: they live in `normbox_lab.core.capabilities`
+(one contract: capabilities, and the roles as named bundles of them)."""
 
-Protocols and the engine only talk to these roles; every concrete driver (real port or
-emulator behind it) implements one.  All quantities carry their unit in the name.
-"""
-
-from __future__ import annotations
-
-from dataclasses import dataclass, field
-from typing import Protocol, runtime_checkable
-
-import numpy as np
-
-from normbox_lab.core.types import BrdfReading, SpectralReading
-
-
-@dataclass(frozen=True)
-class InstrumentIdentity:
-    kind: str                    # "spectroradiometer", "rotation-stage", ...
-    model: str                   # "CS-1000A", "K10CR1", ...
-    serial_number: str = ""
-    firmware: str = ""
-    simulated: bool = False
-    extra: dict[str, str] = field(default_factory=dict)
-
-
-@runtime_checkable
-class Instrument(Protocol):
-    def identify(self) -> InstrumentIdentity: ...
-    def close(self) -> None: ...
-
-
-@runtime_checkable
-class Spectroradiometer(Instrument, Protocol):
-    def set_remote(self, on: bool) -> None: ...
-    def set_speed(self, mode: str) -> None:
-        """Measurement speed / mode; accepted values are the model's (e.g. "normal", "fast")."""
-        ...
-    def measure(self) -> SpectralReading:
-        """Measure and return 380–780 nm at 1 nm with the colorimetric block."""
-        ...
-    def abort(self) -> None: ...
-    def status(self) -> dict[str, object]: ...
-    def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
-        """Timing model used for ETAs."""
-        ...
-
-
-@runtime_checkable
-class RotationStage(Instrument, Protocol):
-    def home(self, wait: bool = True) -> None: ...
-    def is_homed(self) -> bool: ...
-    def move_to(self, angle_deg: float, wait: bool = True) -> None: ...
-    def move_by(self, delta_deg: float, wait: bool = True) -> None: ...
-    def position_deg(self) -> float: ...
-    def is_moving(self) -> bool: ...
-    def wait_idle(self, timeout_s: float) -> None: ...
-    def stop(self) -> None: ...
-    def status(self) -> dict[str, object]: ...
-    def estimate_move_time_s(self, from_deg: float, to_deg: float) -> float: ...
-
-
-@runtime_checkable
-class LightSource(Instrument, Protocol):
-    def set_output(self, on: bool) -> None: ...
-    def set_level_percent(self, level_percent: float) -> None: ...
-    def state(self) -> str:
-        """"off", "settling" or "stable"."""
-        ...
-    def is_stable(self) -> bool: ...
-    def internal_spectrum(self) -> tuple[np.ndarray, np.ndarray]:
-        """(wavelength_nm, relative spectral power) from the internal spectrometer."""
-        ...
-    def errors(self) -> list[str]: ...
-    def status(self) -> dict[str, object]: ...
-
-
-@runtime_checkable
-class Spectrometer(Instrument, Protocol):
-    def wavelengths_nm(self) -> np.ndarray: ...
-    def set_integration_time_s(self, integration_time_s: float) -> None: ...
-    def intensities_counts(self, correct_dark: bool = True,
-                           correct_nonlinearity: bool = True) -> np.ndarray: ...
-    def set_tec_setpoint_c(self, temperature_c: float) -> None: ...
-    def tec_temperature_c(self) -> float: ...
-
-
-@runtime_checkable
-class Gonioreflectometer(Instrument, Protocol):
-    def calibrate(self) -> None:
-        """Dark and white-standard references."""
-        ...
-    def measure_brdf(self, theta_i_deg: float, theta_o_deg: float) -> BrdfReading: ...
-    def geometries(self) -> list[tuple[float, float, bool]]:
-        """The in-plane set as (θi, θo, blocked)."""
-        ...
-
+from normbox_lab.core.capabilities import (
+    Gonioreflectometer,
+    Instrument,
+    InstrumentIdentity,
+    LightSource,
+    RotationStage,
+    Spectrometer,
+    Spectroradiometer,
+)
 
 __all__ = [
-    "BrdfReading",
     "Gonioreflectometer",
     "Instrument",
     "InstrumentIdentity",
     "LightSource",
     "RotationStage",
-    "SpectralReading",
     "Spectrometer",
     "Spectroradiometer",
 ]

@@ -306,6 +306,8 @@ class Session:
     def poll_instruments(self) -> list[dict[str, Any]]:
         """Connection, identity and state of every configured instrument (only while no run is
         active: the engine owns the ports during a run).  One dict per role."""
+        from normbox_lab.core.capabilities import Identifiable
+
         lab = self.ensure_lab()
         rows: list[dict[str, Any]] = []
         for role in lab.roles():
@@ -320,7 +322,7 @@ class Session:
                 continue
             try:
                 inst = lab.instrument(role)
-                ident = inst.identify() if hasattr(inst, "identify") else None
+                ident = inst.identify() if isinstance(inst, Identifiable) else None
                 if ident is not None:
                     row["identity"] = " ".join(str(x) for x in (
                         ident.model, ident.serial_number, ident.firmware) if x)
@@ -331,17 +333,25 @@ class Session:
         return rows
 
     def _state_of(self, role: str, inst: Any) -> str:
+        from normbox_lab.core.capabilities import (
+            Homeable,
+            Movable,
+            Settling,
+            Switchable,
+            TemperatureReadable,
+        )
+
         live = self.live
-        if hasattr(inst, "position_deg"):
+        if isinstance(inst, Movable):
             pos = float(inst.position_deg())
             if role == "rotator":
                 live.angle_deg = pos
-            return f"{pos:.2f}°" + ("" if not hasattr(inst, "is_homed") or inst.is_homed()
-                                    else " unhomed")
-        if hasattr(inst, "is_stable") and hasattr(inst, "state"):
+            homed = not isinstance(inst, Homeable) or inst.is_homed()
+            return f"{pos:.2f}°" + ("" if homed else " unhomed")
+        if isinstance(inst, Switchable) and isinstance(inst, Settling):
             live.lamp, live.lamp_stable = str(inst.state()), bool(inst.is_stable())
             return live.lamp
-        if hasattr(inst, "tec_temperature_c"):
+        if isinstance(inst, TemperatureReadable):
             live.temperature_c = float(inst.tec_temperature_c())
             return f"{live.temperature_c:.1f} °C"
         return "connected"

@@ -1,0 +1,176 @@
+"""Plans: a protocol's declared, validated list of keyed steps, and loading protocols.
+
+`Plan.pending_state_steps` is the lazy executor's bookkeeping: before a measurement, the state
+steps (in plan order) whose variables are not known to hold.  In a fresh run this is exactly
+the declared order; after a crash (physical state unknown) it replays precisely the moves and
+prompts the first missing reading needs.  `build_plan` turns a protocol (a shipped name or a
+`.py` file defining PARAMETERS and steps(params, lab)) into a Plan.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import json
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from pathlib import Path
+from types import ModuleType
+from typing import Any
+
+from normbox_lab.acquire.steps import KINDS, STEP_KINDS, PlanError, Step, iter_roles
+
+
+class Plan:
+    """An ordered, validated list of steps with the bookkeeping the lazy executor needs."""
+
+    def __init__(self, protocol: str, parameters: Mapping[str, Any], steps: Iterable[Step],
+                 on_reading: Callable[[Step, Any, dict[str, Any]], Sequence[str] | None]
+                 | None = None):
+        self.protocol = protocol
+        #: optional protocol hook after each committed reading → warnings to flag in the run
+        self.on_reading = on_reading
+        self.parameters = dict(parameters)
+        self.steps: list[Step] = list(steps)
+        seen: set[str] = set()
+        last_setter: dict[str, int] = {}
+        #: setter_before[i][var] = index of the latest step before i that sets var
+        self.setter_before: list[dict[str, int]] = []
+        for i, s in enumerate(self.steps):
+            if s.kind not in KINDS:
+                raise PlanError(f"step {s.key!r}: unknown kind {s.kind!r}; known: "
+                                f"{', '.join(STEP_KINDS)}")
+            if not s.key or s.key in seen:
+                raise PlanError(f"step key {s.key!r} is empty or not unique in the plan")
+            seen.add(s.key)
+            self.setter_before.append(dict(last_setter))
+            for var, val in s.requires.items():
+                j = last_setter.get(var)
+                if j is None or self.steps[j].sets[var] != val:
+                    raise PlanError(f"step {s.key!r} requires {var}={val!r} but the latest "
+                                    f"earlier step setting {var} is "
+                                    f"{self.steps[j].key + ' → ' + repr(self.steps[j].sets[var]) if j is not None else 'none'}")
+            for var in s.sets:
+                last_setter[var] = i
+        self.commit_keys: list[str] = [s.key for s in self.steps if s.commits]
+        self.roles: list[str] = list(iter_roles(self.steps))
+        #: index of the last reading; state steps after it (e.g. return home) run at the end
+        self.last_commit_index: int = max(
+            (i for i, s in enumerate(self.steps) if s.commits), default=-1)
+
+    def __len__(self) -> int:
+        return len(self.steps)
+
+    @property
+    def planned(self) -> int:
+        return len(self.commit_keys)
+
+    def fingerprint(self) -> str:
+        """Hash of the plan (keys, kinds, parameters, state): a resumed run must match it."""
+        h = hashlib.sha256()
+        for s in self.steps:
+            h.update(json.dumps([s.key, s.kind, dict(s.params), dict(s.sets), dict(s.requires)],
+                                sort_keys=True, default=str).encode())
+        return h.hexdigest()[:16]
+
+    def pending_state_steps(self, i: int, known: Mapping[str, Any]) -> list[int]:
+        """State steps (in plan order) to run so that step i's requirements hold."""
+        out: set[int] = set()
+
+        def need(idx: int, state: dict[str, Any]) -> None:
+            step = self.steps[idx]
+            for var, val in step.requires.items():
+                if state.get(var) == val:
+                    continue
+                j = self.setter_before[idx][var]
+                if j not in out:
+                    need(j, state)
+                    out.add(j)
+        need(i, dict(known))
+        return sorted(out)
+
+
+# --- protocols ---------------------------------------------------------------------------------
+
+PROTOCOL_NAMES = {
+    "reference-sweep": "normbox_lab.protocols.reference_sweep",
+    "brdf-inplane": "normbox_lab.protocols.brdf_inplane",
+    "light-map": "normbox_lab.protocols.light_map",
+    "repeatability": "normbox_lab.protocols.repeatability",
+}
+
+
+def load_protocol(name_or_path: str) -> ModuleType:
+    """A shipped protocol by name (`reference-sweep`) or any protocol file (`my_sweep.py`)."""
+    if name_or_path in PROTOCOL_NAMES:
+        return importlib.import_module(PROTOCOL_NAMES[name_or_path])
+    path = Path(name_or_path)
+    if path.suffix != ".py":
+        raise PlanError(f"unknown protocol {name_or_path!r}; known: "
+                        f"{', '.join(PROTOCOL_NAMES)} or a path to a .py file")
+    if not path.is_file():
+        raise PlanError(f"protocol file {path} does not exist")
+    mod_name = "normbox_lab_user_protocol_" + hashlib.sha1(str(path.resolve()).encode()).hexdigest()[:8]
+    spec = importlib.util.spec_from_file_location(mod_name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    for attr in ("PARAMETERS", "steps"):
+        if attr not in vars(module):
+            raise PlanError(f"protocol file {path} defines no {attr}")
+    return module
+
+
+def coerce_param(default: Any, text: str) -> Any:
+    """`--param K=V`: parse V like the default (JSON for lists, numbers, booleans)."""
+    if isinstance(default, str):
+        return text
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError:
+        if isinstance(default, list):
+            value = [json.loads(v) if v.strip().lstrip("-").replace(".", "", 1).isdigit() else v
+                     for v in text.split(",")]
+        else:
+            value = text
+    if isinstance(default, bool) and not isinstance(value, bool):
+        raise PlanError(f"expected true/false, got {text!r}")
+    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
+        value = float(value)
+    return value
+
+
+def resolve_parameters(module: ModuleType, lab_defaults: Mapping[str, Any] | None = None,
+                       overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """Protocol defaults ← lab config `[protocols.NAME]` ← command-line overrides."""
+    params = dict(module.PARAMETERS)
+    for source in (lab_defaults or {}, overrides or {}):
+        for k, v in source.items():
+            if k not in params:
+                raise PlanError(f"unknown parameter {k!r}; known: {', '.join(params)}")
+            params[k] = v
+    return params
+
+
+def build_plan(protocol: str, params: Mapping[str, Any] | None = None, lab: Any = None,
+               *, module: ModuleType | None = None) -> Plan:
+    module = module or load_protocol(protocol)
+    full = resolve_parameters(module, None, params) if params is not None \
+        else dict(module.PARAMETERS)
+    hook = vars(module).get("on_reading")
+    on_reading = None
+    if hook is not None:
+        def on_reading(step: Step, reading: Any, context: dict[str, Any]) -> Any:
+            return hook(full, step, reading, context)
+    return Plan(protocol, full, module.steps(full, lab), on_reading)
+
+
+__all__ = [
+    "PROTOCOL_NAMES",
+    "Plan",
+    "PlanError",
+    "build_plan",
+    "coerce_param",
+    "load_protocol",
+    "resolve_parameters",
+]
