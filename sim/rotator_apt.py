@@ -4,34 +4,61 @@ Written from Thorlabs' *APT Communications Protocol* ([APT] in docs/references.m
 small frame codec (struct), independently of the driver (which uses thorlabs-apt-protocol).
 
 Frames: 6-byte header ``<H id><B p1><B p2><B dest><B src>`` (short) or
-``<H id><H len><B dest|0x80><B src>`` + data (long); little-endian.  The controller is 0x50,
-the host 0x01.  Messages understood:
+``<H id><H len><B dest|0x80><B src>`` + data (long); little-endian.  The controller answers as
+0x50 (generic USB device) to requests addressed to 0x50, 0x11 (rack) or 0x21 (bay 0); the host
+is 0x01.  Channel 1.  Messages (request → reply; "set" messages have no reply):
 
-    0x0223 MOD_IDENTIFY            LED flash (no reply)
-    0x0005 HW_REQ_INFO             → 0x0006 HW_GET_INFO (84 data bytes)
-    0x0210 MOD_SET_CHANENABLESTATE enable (0x01) / disable (0x02) channel 1 (no reply)
-    0x0211 MOD_REQ_CHANENABLESTATE → 0x0212
-    0x0413 MOT_SET_VELPARAMS       (chan, min v, acc, max v) in APT units (no reply)
-    0x0414 MOT_REQ_VELPARAMS       → 0x0415
-    0x0480 MOT_REQ_STATUSUPDATE    → 0x0481 (chan, position, encoder, status bits)
-    0x0443 MOT_MOVE_HOME           → 0x0444 MOT_MOVE_HOMED when the home switch is reached
-    0x0453 MOT_MOVE_ABSOLUTE       → 0x0464 MOT_MOVE_COMPLETED (+ status block) at the end,
-                                     or 0x0466 MOT_MOVE_STOPPED when a limit switch stops it
-    0x0448 MOT_MOVE_RELATIVE       likewise
-    0x0465 MOT_MOVE_STOP           → 0x0466 MOT_MOVE_STOPPED (stops at once; the profiled
-                                     deceleration is not modelled)
-    0x0011 / 0x0012 HW_START/STOP_UPDATEMSGS: push 0x0481 every 100 ms; the pushes stop when
-                                     no 0x0492 MOT_ACK_DCSTATUSUPDATE came for 5 s (*assumed*)
-    0x0492 MOT_ACK_DCSTATUSUPDATE  keep-alive
-    0x0002 HW_DISCONNECT           stops the pushes
-Anything else is ignored (as the controller does); a disabled channel ignores moves.
+    0x0223 MOD_IDENTIFY                   LED flash
+    0x0005 HW_REQ_INFO                    → 0x0006 HW_GET_INFO (84 data bytes)
+    0x0210 / 0x0211 CHANENABLESTATE       set / → 0x0212 (short: chan, 0x01 on / 0x02 off)
+    0x0011 / 0x0012 HW_START/STOP_UPDATEMSGS  push 0x0481 every 100 ms while 0x0492
+                                          MOT_ACK_DCSTATUSUPDATE keep-alives come (stop 5 s
+                                          after the last one, *assumed*)
+    0x0002 HW_DISCONNECT                  stops the pushes
+    0x0410 / 0x0411 POSCOUNTER            set (redefines the counter) / → 0x0412 (chan, pos)
+    0x0409 / 0x040A ENCCOUNTER            set / → 0x040B (chan, encoder count)
+    0x0413 / 0x0414 VELPARAMS             (chan, min v, acc, max v) / → 0x0415
+    0x0416 / 0x0417 JOGPARAMS             (chan, mode, step, min v, acc, max v, stop mode)
+                                          / → 0x0418
+    0x0426 / 0x0427 POWERPARAMS           (chan, rest %, move %) / → 0x0428
+    0x043A / 0x043B GENMOVEPARAMS         (chan, backlash) / → 0x043C
+    0x0440 / 0x0441 HOMEPARAMS            (chan, dir, limit switch, velocity, offset) / → 0x0442
+    0x0423 / 0x0424 LIMSWITCHPARAMS       (chan, cw hard, ccw hard, cw soft, ccw soft, mode)
+                                          / → 0x0425
+    0x0445 / 0x0446 MOVERELPARAMS         (chan, distance) / → 0x0447
+    0x0450 / 0x0451 MOVEABSPARAMS         (chan, position) / → 0x0452
+    0x0429 MOT_REQ_STATUSBITS             → 0x042A (chan, status bits)
+    0x0480 MOT_REQ_STATUSUPDATE           → 0x0481 (chan, position, encoder, status bits)
+    0x0490 MOT_REQ_DCSTATUSUPDATE         → 0x0491 (chan, position, velocity, 0, status bits)
+    0x0443 MOT_MOVE_HOME                  → 0x0444 MOT_MOVE_HOMED at the home switch
+    0x0453 MOT_MOVE_ABSOLUTE              long form (chan, position), or short form: the
+                                          stored MOVEABSPARAMS position
+    0x0448 MOT_MOVE_RELATIVE              long form (chan, distance), or short form: the stored
+                                          MOVERELPARAMS distance
+    0x0457 MOT_MOVE_VELOCITY              short (chan, 0x01 forward / 0x02 reverse): runs at the
+                                          VELPARAMS maximum until MOVE_STOP or a limit switch
+    0x046A MOT_MOVE_JOG                   short (chan, direction): one jog step (JOGPARAMS mode
+                                          2) or a continuous jog (mode 1) at the jog velocity
+    moves end with 0x0464 MOT_MOVE_COMPLETED, or 0x0466 MOT_MOVE_STOPPED at a limit switch
+    0x0465 MOT_MOVE_STOP                  → 0x0466 MOT_MOVE_STOPPED (immediate and profiled
+                                          stop both immediate: deceleration not modelled)
+    0x04B9 MOT_SET_EEPROMPARAMS           accepted (parameters are kept in memory only)
+Anything else is ignored, as the controller ignores messages it does not implement.
+
+MOVE_COMPLETED, MOVE_STOPPED and GET_DCSTATUSUPDATE carry the 14-byte status structure the
+protocol defines for them: ``<H chan><l position><h velocity><H reserved><L status bits>``
+(velocity 0 once a move has ended; while moving, counts/s ÷ 2048, *assumed* scale).
+GET_STATUSUPDATE carries ``<H chan><l position><l encoder count><L status bits>``.
+
+Power-up: the channel is **enabled** (a K10CR1 energises its motor at power-up, as the Kinesis
+software shows); not homed, counter 0 wherever the rotor is (`power_up_angle_deg`).  A channel
+disabled with 0x0210 ignores motion commands, as the controller does.
 
 Mechanics (`sim.motion.Axis`): K10CR1 409600/3 µsteps/°, default 10 °/s and 10 °/s²
 (velocity APT units = µsteps/s × 53.68, acceleration = µsteps/s² / 90.9), homing at 5 °/s to
 the home switch at 0°; hardware limit switches at ±170° (the Normbox holder's cable wrap,
-*assumed*).  Power-up: not homed, counter 0 wherever the rotor is (`power_up_angle_deg`).
-The stepper is open loop: after a stall the position counter still reaches the target while
-the encoder tells the truth.
+*assumed*).  The stepper is open loop: after a stall the position counter still reaches the
+target while the encoder tells the truth.
 
 Device faults: ``stall`` (the next move stalls half-way; parameter = fraction, default 0.5),
 ``power-blip`` (at the next command the controller resets: link down 1 s, reference lost).
@@ -40,23 +67,30 @@ Device faults: ``stall`` (the next move stalls half-way; parameter = fraction, d
 from __future__ import annotations
 
 import struct
-from typing import Any
+from typing import Any, ClassVar
 
 from normbox_lab.sim import core
 from normbox_lab.sim.motion import Axis, Trapezoid
 
 HOST = 0x01
 CONTROLLER = 0x50
+ADDRESSES = (CONTROLLER, 0x11, 0x21)
+CHANNEL = 1
 STEPS_PER_DEG = 409600.0 / 3.0
 VELOCITY_SCALE = 53.68
 ACCELERATION_SCALE = 1.0 / 90.9
+DC_VELOCITY_DIVISOR = 2048.0
 UPDATE_PERIOD_S = 0.1
 KEEPALIVE_TIMEOUT_S = 5.0
+#: an endless run (velocity move, continuous jog) aims this far; a limit switch stops it first
+RUN_DEG = 1.0e6
 
 BIT_FWD_LIMIT = 0x1
 BIT_REV_LIMIT = 0x2
 BIT_MOVING_FWD = 0x10
 BIT_MOVING_REV = 0x20
+BIT_JOGGING_FWD = 0x40
+BIT_JOGGING_REV = 0x80
 BIT_CONNECTED = 0x100
 BIT_HOMING = 0x200
 BIT_HOMED = 0x400
@@ -84,25 +118,53 @@ class AptRotatorEmulator(core.Emulator):
         super().__init__(clock, faults, seed)
         self.serial_number = int(serial_number)
         self.home_velocity_deg_s = float(home_velocity_deg_s)
-        self.axis = Axis(Trapezoid(float(max_velocity_deg_s), float(acceleration_deg_s2)),
+        self.move_trapezoid = Trapezoid(float(max_velocity_deg_s), float(acceleration_deg_s2))
+        self.axis = Axis(self.move_trapezoid,
                          home_trapezoid=Trapezoid(self.home_velocity_deg_s,
                                                   float(acceleration_deg_s2)),
                          limit_min_deg=float(limit_min_deg), limit_max_deg=float(limit_max_deg),
                          power_up_angle_deg=float(power_up_angle_deg),
                          stall_stops_controller=False)
-        self.enabled = False
         self.motion_error = False
         self.updates_on = False
         self.next_update_s: float | None = None
         self.last_ack_s = 0.0
         self.identify_count = 0
         self.blip_s = 1.0
+        self.motion_kind = ""                 # "move", "velocity", "jog" (status bits)
         self._inbuf = bytearray()
+        self._power_up_parameters()
+
+    def _power_up_parameters(self) -> None:
+        self.enabled = True
+        self.abs_position_steps = 0
+        self.rel_distance_steps = 0
+        self.backlash_steps = 0
+        self.rest_factor_pct, self.move_factor_pct = 50, 100        # *assumed* defaults
+        self.jog_mode, self.jog_stop_mode = 2, 2                     # single step, profiled
+        self.jog_step_steps = round(5.0 * STEPS_PER_DEG)
+        self.jog_trapezoid = self.move_trapezoid
+        self.home_dir, self.home_limit_switch, self.home_offset_steps = 2, 1, 0
+        self.limit_params = (2, 2, 0, 0, 1)   # hard limits make on contact; soft limits off
 
     # --- what the world reads ----------------------------------------------------------------
     def angle_deg(self) -> float:
         """The physical angle of the rotor now (the virtual Normbox reads the sample angle)."""
         return self.axis.physical_deg(self.clock.now_s())
+
+    # --- units -----------------------------------------------------------------------------------
+    @staticmethod
+    def _v_apt(trap: Trapezoid) -> int:
+        return round(trap.max_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE)
+
+    @staticmethod
+    def _a_apt(trap: Trapezoid) -> int:
+        return round(trap.acceleration_deg_s2 * STEPS_PER_DEG * ACCELERATION_SCALE)
+
+    @staticmethod
+    def _trapezoid(v_apt: int, a_apt: int) -> Trapezoid:
+        return Trapezoid(v_apt / (STEPS_PER_DEG * VELOCITY_SCALE),
+                         a_apt / (STEPS_PER_DEG * ACCELERATION_SCALE))
 
     # --- bytes in ------------------------------------------------------------------------------
     def on_bytes(self, data: bytes) -> None:
@@ -115,16 +177,22 @@ class AptRotatorEmulator(core.Emulator):
                 return
             frame = bytes(self._inbuf[: 6 + length])
             del self._inbuf[: 6 + length]
-            if (dest & 0x7F) not in (CONTROLLER, 0x11, 0x21):
+            if (dest & 0x7F) not in ADDRESSES:
                 continue                      # not for us
             p1, p2 = frame[2], frame[3]
-            self.on_frame(msg_id, p1, p2, frame[6:] if is_long else b"")
+            self.on_frame(msg_id, p1, p2, frame[6:] if is_long else None)
 
-    def on_frame(self, msg_id: int, p1: int, p2: int, data: bytes) -> None:
+    def on_frame(self, msg_id: int, p1: int, p2: int, data: bytes | None) -> None:
+        """One message; `data` is None for a short (header-only) frame."""
         now = self.clock.now_s()
         if self.faults.fires("power-blip"):
             self.power_blip()
             return
+        body = data or b""
+
+        def fields(fmt: str) -> tuple | None:
+            return struct.unpack_from(fmt, body) if len(body) >= struct.calcsize(fmt) else None
+
         if msg_id == 0x0223:
             self.identify_count += 1
         elif msg_id == 0x0005:
@@ -132,40 +200,7 @@ class AptRotatorEmulator(core.Emulator):
         elif msg_id == 0x0210:
             self.enabled = p2 == 0x01
         elif msg_id == 0x0211:
-            self.emit(short_frame(0x0212, 1, 0x01 if self.enabled else 0x02))
-        elif msg_id == 0x0413 and len(data) >= 14:
-            _chan, _vmin, acc, vmax = struct.unpack_from("<H3l", data)
-            if vmax > 0 and acc > 0:
-                trap = Trapezoid(vmax / (STEPS_PER_DEG * VELOCITY_SCALE),
-                                 acc / (STEPS_PER_DEG * ACCELERATION_SCALE))
-                self.axis.trapezoid = trap
-                self.axis.home_trapezoid = Trapezoid(self.home_velocity_deg_s,
-                                                     trap.acceleration_deg_s2)
-        elif msg_id == 0x0414:
-            t = self.axis.trapezoid
-            self.emit(long_frame(0x0415, struct.pack(
-                "<H3l", 1, 0, round(t.acceleration_deg_s2 * STEPS_PER_DEG * ACCELERATION_SCALE),
-                round(t.max_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE))))
-        elif msg_id == 0x0480:
-            self.emit(long_frame(0x0481, self._status_block(now)))
-        elif msg_id == 0x0443:
-            if self.enabled:
-                self.motion_error = False
-                self.axis.start_home(now)
-        elif msg_id in (0x0453, 0x0448) and len(data) >= 6:
-            _chan, steps = struct.unpack_from("<Hl", data)
-            if self.enabled:
-                counter = self.axis.counter_deg(now)
-                target = steps / STEPS_PER_DEG if msg_id == 0x0453 else \
-                    counter + steps / STEPS_PER_DEG
-                stall = None
-                if self.faults.fires("stall"):
-                    stall = self.faults.parameter("stall", 0.5)
-                    self.motion_error = False
-                self.axis.start_move(target, now, stall_fraction=stall)
-        elif msg_id == 0x0465:
-            self.axis.stop(now)
-            self.emit(long_frame(0x0466, self._status_block(now)))
+            self.emit(short_frame(0x0212, CHANNEL, 0x01 if self.enabled else 0x02))
         elif msg_id == 0x0011:
             self.updates_on = True
             self.last_ack_s = now
@@ -177,6 +212,99 @@ class AptRotatorEmulator(core.Emulator):
             self.last_ack_s = now
             if self.updates_on and self.next_update_s is None:
                 self.next_update_s = now + UPDATE_PERIOD_S
+        elif msg_id in self._REQUESTS:
+            reply_id, block = self._REQUESTS[msg_id](self, now)
+            self.emit(long_frame(reply_id, block))
+        elif msg_id in self._SETTERS:
+            fmt, apply = self._SETTERS[msg_id]
+            values = fields(fmt)
+            if values is not None:
+                apply(self, values[1:], now)
+        elif msg_id == 0x04B9:
+            pass                                   # save to EEPROM: kept in memory anyway
+        elif msg_id == 0x0443:
+            if self.enabled:
+                self.motion_error = False
+                self.motion_kind = "move"
+                self.axis.start_home(now)
+        elif msg_id in (0x0453, 0x0448):
+            self._move(msg_id, fields("<Hl"), now)
+        elif msg_id == 0x0457:
+            if self.enabled:
+                self._run(+1 if p2 == 0x01 else -1, self.move_trapezoid, "velocity", now)
+        elif msg_id == 0x046A:
+            if self.enabled:
+                sign = +1 if p2 == 0x01 else -1
+                if self.jog_mode == 1:
+                    self._run(sign, self.jog_trapezoid, "jog", now)
+                else:
+                    self.axis.trapezoid = self.jog_trapezoid
+                    self._start(self.axis.counter_deg(now)
+                                + sign * self.jog_step_steps / STEPS_PER_DEG, "jog", now)
+        elif msg_id == 0x0465:
+            self.axis.stop(now)
+            self.axis.trapezoid = self.move_trapezoid
+            self.emit(long_frame(0x0466, self._dc_status_block(now)))
+
+    def _move(self, msg_id: int, values: tuple | None, now: float) -> None:
+        if not self.enabled:
+            return
+        counter = self.axis.counter_deg(now)
+        if msg_id == 0x0453:
+            steps = values[1] if values is not None else self.abs_position_steps
+            target = steps / STEPS_PER_DEG
+        else:
+            steps = values[1] if values is not None else self.rel_distance_steps
+            target = counter + steps / STEPS_PER_DEG
+        self.axis.trapezoid = self.move_trapezoid
+        self._start(target, "move", now)
+
+    def _start(self, target_deg: float, kind: str, now: float) -> None:
+        stall = None
+        if self.faults.fires("stall"):
+            stall = self.faults.parameter("stall", 0.5)
+            self.motion_error = False
+        self.motion_kind = kind
+        self.axis.start_move(target_deg, now, stall_fraction=stall)
+
+    def _run(self, sign: int, trap: Trapezoid, kind: str, now: float) -> None:
+        self.axis.trapezoid = trap
+        self._start(self.axis.counter_deg(now) + sign * RUN_DEG, kind, now)
+
+    # --- parameter messages ----------------------------------------------------------------------
+    def _set_velparams(self, values: tuple, now: float) -> None:
+        _vmin, acc, vmax = values
+        if vmax > 0 and acc > 0:
+            self.move_trapezoid = self._trapezoid(vmax, acc)
+            self.axis.trapezoid = self.move_trapezoid
+            self.axis.home_trapezoid = Trapezoid(self.home_velocity_deg_s,
+                                                 self.move_trapezoid.acceleration_deg_s2)
+
+    def _set_jogparams(self, values: tuple, now: float) -> None:
+        mode, step, _vmin, acc, vmax, stop_mode = values
+        if mode in (1, 2) and vmax > 0 and acc > 0:
+            self.jog_mode, self.jog_step_steps, self.jog_stop_mode = mode, step, stop_mode
+            self.jog_trapezoid = self._trapezoid(vmax, acc)
+
+    def _set_homeparams(self, values: tuple, now: float) -> None:
+        self.home_dir, self.home_limit_switch, v_apt, self.home_offset_steps = values
+        if v_apt > 0:
+            self.home_velocity_deg_s = v_apt / (STEPS_PER_DEG * VELOCITY_SCALE)
+            self.axis.home_trapezoid = Trapezoid(self.home_velocity_deg_s,
+                                                 self.move_trapezoid.acceleration_deg_s2)
+
+    def _set_poscounter(self, values: tuple, now: float) -> None:
+        if not self.axis.moving:
+            self.axis.offset_deg = self.axis.physical_deg(now) - values[0] / STEPS_PER_DEG
+
+    def _set_enccounter(self, values: tuple, now: float) -> None:
+        if not self.axis.moving:
+            self.axis.encoder_zero_deg = self.axis.physical_deg(now) - values[0] / STEPS_PER_DEG
+
+    #: set messages: id → (data layout, apply(emulator, values after the channel, now))
+    _SETTERS: ClassVar[dict[int, tuple[str, Any]]] = {}
+    #: requests: id → handler(emulator, now) → (reply id, data)
+    _REQUESTS: ClassVar[dict[int, Any]] = {}
 
     # --- time ----------------------------------------------------------------------------------
     def on_time(self, now_s: float) -> None:
@@ -201,16 +329,17 @@ class AptRotatorEmulator(core.Emulator):
         end = self.axis.poll(when_s)
         if end is None:
             return
+        self.axis.trapezoid = self.move_trapezoid
         if end.kind == "home":
             if end.reason == "done":
-                self._emit_at(when_s, short_frame(0x0444, 1, 0))
+                self._emit_at(when_s, short_frame(0x0444, CHANNEL, 0))
             else:
-                self._emit_at(when_s, long_frame(0x0466, self._status_block(when_s)))
+                self._emit_at(when_s, long_frame(0x0466, self._dc_status_block(when_s)))
         elif end.reason in ("done", "stall"):
             # open loop: a stall goes unnoticed by the controller; only the encoder knows
-            self._emit_at(when_s, long_frame(0x0464, self._status_block(when_s)))
+            self._emit_at(when_s, long_frame(0x0464, self._dc_status_block(when_s)))
         else:
-            self._emit_at(when_s, long_frame(0x0466, self._status_block(when_s)))
+            self._emit_at(when_s, long_frame(0x0466, self._dc_status_block(when_s)))
 
     def next_state_s(self) -> float | None:
         times = [t for t in (self.axis.next_event_s(), self.next_update_s) if t is not None]
@@ -230,9 +359,9 @@ class AptRotatorEmulator(core.Emulator):
         self._powered_down = False
         self.updates_on = False
         self.next_update_s = None
-        self.enabled = False
         self.axis.stop(self.clock.now_s())
         self.axis.power_up()
+        self._power_up_parameters()
 
     # --- blocks --------------------------------------------------------------------------------
     def _info_block(self) -> bytes:
@@ -246,6 +375,8 @@ class AptRotatorEmulator(core.Emulator):
         if m is not None and now_s < m.end_s:
             if m.kind == "home":
                 bits |= BIT_HOMING
+            if self.motion_kind == "jog":
+                bits |= BIT_JOGGING_FWD if m.sign > 0 else BIT_JOGGING_REV
             bits |= BIT_MOVING_FWD if m.sign > 0 else BIT_MOVING_REV
         if self.axis.homed:
             bits |= BIT_HOMED
@@ -259,10 +390,71 @@ class AptRotatorEmulator(core.Emulator):
             bits |= BIT_ENABLED
         return bits
 
+    def _position(self, now_s: float) -> int:
+        return round(self.axis.counter_deg(now_s) * STEPS_PER_DEG)
+
+    def _encoder(self, now_s: float) -> int:
+        return round(self.axis.encoder_deg(now_s) * STEPS_PER_DEG)
+
     def _status_block(self, now_s: float) -> bytes:
-        pos = round(self.axis.counter_deg(now_s) * STEPS_PER_DEG)
-        enc = round(self.axis.encoder_deg(now_s) * STEPS_PER_DEG)
-        return struct.pack("<HllL", 1, pos, enc, self._status_bits(now_s))
+        """GET_STATUSUPDATE: chan, position, encoder count, status bits."""
+        return struct.pack("<HllL", CHANNEL, self._position(now_s), self._encoder(now_s),
+                           self._status_bits(now_s))
+
+    def _dc_status_block(self, now_s: float) -> bytes:
+        """MOVE_COMPLETED / MOVE_STOPPED / GET_DCSTATUSUPDATE: chan, position, velocity,
+        reserved, status bits."""
+        v = self.axis.velocity_deg_s(now_s) * STEPS_PER_DEG / DC_VELOCITY_DIVISOR
+        velocity = max(-32768, min(32767, round(v)))
+        return struct.pack("<HlhHL", CHANNEL, self._position(now_s), velocity, 0,
+                           self._status_bits(now_s))
+
+
+def _chan(fmt: str, *getters: Any) -> Any:
+    """A request handler that packs (channel, *values) with `fmt`."""
+    def reply(emu: AptRotatorEmulator, now: float) -> bytes:
+        return struct.pack(fmt, CHANNEL, *(g(emu, now) for g in getters))
+    return reply
+
+
+AptRotatorEmulator._REQUESTS = {
+    0x0411: lambda e, now: (0x0412, _chan("<Hl", AptRotatorEmulator._position)(e, now)),
+    0x040A: lambda e, now: (0x040B, _chan("<Hl", AptRotatorEmulator._encoder)(e, now)),
+    0x0414: lambda e, now: (0x0415, _chan(
+        "<H3l", lambda e, n: 0, lambda e, n: e._a_apt(e.move_trapezoid),
+        lambda e, n: e._v_apt(e.move_trapezoid))(e, now)),
+    0x0417: lambda e, now: (0x0418, _chan(
+        "<HH4lH", lambda e, n: e.jog_mode, lambda e, n: e.jog_step_steps, lambda e, n: 0,
+        lambda e, n: e._a_apt(e.jog_trapezoid), lambda e, n: e._v_apt(e.jog_trapezoid),
+        lambda e, n: e.jog_stop_mode)(e, now)),
+    0x0427: lambda e, now: (0x0428, _chan(
+        "<3H", lambda e, n: e.rest_factor_pct, lambda e, n: e.move_factor_pct)(e, now)),
+    0x043B: lambda e, now: (0x043C, _chan("<Hl", lambda e, n: e.backlash_steps)(e, now)),
+    0x0441: lambda e, now: (0x0442, _chan(
+        "<3Hll", lambda e, n: e.home_dir, lambda e, n: e.home_limit_switch,
+        lambda e, n: round(e.home_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE),
+        lambda e, n: e.home_offset_steps)(e, now)),
+    0x0424: lambda e, now: (0x0425, struct.pack("<3HLLH", CHANNEL, *e.limit_params)),
+    0x0446: lambda e, now: (0x0447, _chan("<Hl", lambda e, n: e.rel_distance_steps)(e, now)),
+    0x0451: lambda e, now: (0x0452, _chan("<Hl", lambda e, n: e.abs_position_steps)(e, now)),
+    0x0429: lambda e, now: (0x042A, _chan("<HL", AptRotatorEmulator._status_bits)(e, now)),
+    0x0480: lambda e, now: (0x0481, e._status_block(now)),
+    0x0490: lambda e, now: (0x0491, e._dc_status_block(now)),
+}
+
+AptRotatorEmulator._SETTERS = {
+    0x0410: ("<Hl", AptRotatorEmulator._set_poscounter),
+    0x0409: ("<Hl", AptRotatorEmulator._set_enccounter),
+    0x0413: ("<H3l", AptRotatorEmulator._set_velparams),
+    0x0416: ("<HH4lH", AptRotatorEmulator._set_jogparams),
+    0x0426: ("<3H", lambda e, v, now: setattr(e, "rest_factor_pct", v[0])
+             or setattr(e, "move_factor_pct", v[1])),
+    0x043A: ("<Hl", lambda e, v, now: setattr(e, "backlash_steps", v[0])),
+    0x0440: ("<3Hll", AptRotatorEmulator._set_homeparams),
+    0x0423: ("<3HLLH", lambda e, v, now: setattr(e, "limit_params", tuple(v))),
+    0x0445: ("<Hl", lambda e, v, now: setattr(e, "rel_distance_steps", v[0])),
+    0x0450: ("<Hl", lambda e, v, now: setattr(e, "abs_position_steps", v[0])),
+}
 
 
 def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = None,

@@ -42,6 +42,8 @@ def reply_long(msg_id: int, data: bytes) -> bytes:
 
 
 def status(pos: int, enc: int | None = None, bits: int = HOMED_BITS, msg_id: int = 0x0481) -> bytes:
+    if msg_id in (0x0464, 0x0466):        # MOVE_COMPLETED / STOPPED: chan, pos, vel, 0, bits
+        return reply_long(msg_id, struct.pack("<HlhHL", 1, pos, 0, 0, bits))
     return reply_long(msg_id, struct.pack("<HllL", 1, pos, pos if enc is None else enc, bits))
 
 
@@ -180,8 +182,9 @@ def test_emulator_60_degree_move_follows_the_trapezoid():
     clock.advance(0.0002)
     got = frames(emu)
     assert [m for m, _ in got] == [0x0464]
-    _chan, pos, enc, bits = struct.unpack_from("<HllL", got[0][1], 6)
-    assert pos == enc == 8192000 and bits & 0x400
+    # MOVE_COMPLETED carries the status structure: chan, position, velocity, reserved, bits
+    _chan, pos, velocity, _reserved, bits = struct.unpack_from("<HlhHL", got[0][1], 6)
+    assert pos == 8192000 and velocity == 0 and bits & 0x400
 
 
 def test_driver_eta_equals_emulator_time_and_world_angle():
