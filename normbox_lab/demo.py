@@ -43,8 +43,9 @@ FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
 @dataclass
 class DemoOptions:
     quick: bool = False
-    truth: str = "default"          # default | model (closure)
+    truth: str = "default"          # default | model (closure) | paper
     noise: bool = True              # instrument noise of the emulators
+    errors: str | None = None       # error-source spec (sim.errors); truth "paper": PAPER_SPEC
     store: str | None = None
     out_dir: str = "demo-out"
     renderer: str = "fast"          # fast | stock
@@ -58,6 +59,17 @@ class DemoResult:
     runs: dict[str, int]
     timings_s: dict[str, float] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
+
+
+def error_spec(opts: DemoOptions) -> str | None:
+    """The error-source spec of the campaign: `--errors`, on top of the paper's set for
+    `--truth paper`; None when neither asks for one (the emulators' own noise only)."""
+    from normbox_lab.sim.errors import PAPER_SPEC, error_sources_from_config, parse_error_spec
+
+    if opts.truth != "paper":
+        return None if opts.errors is None else parse_error_spec(opts.errors).spec()
+    base = type("Cfg", (), {"render": {"errors": PAPER_SPEC}, "seed": opts.seed})()
+    return error_sources_from_config(base, opts.errors).spec()
 
 
 def _with_query(port: str, **params: str) -> str:
@@ -74,12 +86,17 @@ def demo_config(opts: DemoOptions, quality: str, cache_dir: Path) -> Any:
 
     base = parse_config(SIM_CONFIG_TEMPLATE)
     instruments = dict(base.instruments)
-    if not opts.noise:
+    spec = error_spec(opts)
+    if not opts.noise or spec is not None:
+        # with an error spec the world applies the radiometer's and the lamp's errors (so the
+        # spec is the whole story); the emulators' own draws are off
         for role in ("radiometer", "spectrometer", "sphere"):
             inst = instruments[role]
             instruments[role] = replace(inst, port=_with_query(inst.port, noise="off"))
     render = {**base.render, "quality": quality, "truth": opts.truth,
               "cache_dir": str(cache_dir)}
+    if spec is not None:
+        render["errors"] = spec
     return replace(base, seed=opts.seed, instruments=instruments, render=render)
 
 
@@ -95,10 +112,14 @@ class _FastRenderWorld:
 
         angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
         mat = self.patch_material(patch)
+        target, base = self.target_rel_se, 1
+        if self.errors.render_rel_se:
+            # rendering error: the truth's own noise, independent of the prediction's
+            target, base = self.errors.render_rel_se, 7919 + self.errors.seed
         return self.fast.render_view(patch=mat, wall=self.wall, holder=self.holder,
                                      angle_deg=angle, lamp=self.lamp,
-                                     target_rel_se=self.target_rel_se, direct_only=direct_only,
-                                     seed=config_seed(1, f"{mat.name}@{angle:g}"))
+                                     target_rel_se=target, direct_only=direct_only,
+                                     seed=config_seed(base, f"{mat.name}@{angle:g}"))
 
 
 def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Callable | None]:
@@ -109,10 +130,11 @@ def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Calla
         return VirtualNormbox(config=config), None
     from normbox_lab.predict.fastrender import FastNormbox, config_seed
 
-    fast = FastNormbox(config.geometry)
     world_cls = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})
     world = world_cls(config=config)
-    world.fast = fast
+    # the truth geometry (perturbed by the `geometry`/`homogeneity` error sources, if on)
+    world.fast = FastNormbox(world.geometry)
+    fast = world.fast if world.geometry == config.geometry else FastNormbox(config.geometry)
     world.target_rel_se = FAST_TARGET_REL_SE[quality]
 
     def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
@@ -216,7 +238,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
             spp=camera_size[2], seed=opts.seed, out_dir=out / "images"))
         notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
                   f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
-                  f"quality {quality}."),
+                  f"quality {quality}, error sources {error_spec(opts) or 'off'}."),
                  "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())]
         report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
                                                     brdf.run_id, notes))

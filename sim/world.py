@@ -12,6 +12,13 @@ World state, and who changes it:
   (until the next `place_patch`/`clear_aim`);
 - the gonioreflectometer's sample: `mount_gonio_material("patch-1".."patch-24" | "wall")`.
 
+Error sources (`sim.errors.ErrorSources`, from `errors=` or the lab config's `[render] errors`),
+all off by default: the sample-angle errors move the rendered angle; geometry and homogeneity
+make the truth geometry (`self.geometry`) differ from the nominal one (`self.nominal_geometry`,
+what the prediction uses); diffusivity and lamp scale the light on the sample but not the light
+map's view of the panel; the CS-1000A's gain and wavelength shift act on `radiance_in_view()`;
+the gonioreflectometer's calibration, non-linearity and noise on `brdf_truth()`.
+
 What the instruments see:
 - `radiance_in_view()` → (wavelength_nm 380…780 step 1, W·sr⁻¹·m⁻²·nm⁻¹): a Mitsuba render
   of the box with the truth materials (`normbox_lab.predict.render.render_view`, cached on disk by
@@ -38,6 +45,7 @@ from normbox_lab.predict.materials import (
 )
 from normbox_lab.predict.render import Lamp, RenderResult, luminance_cd_m2, render_view
 from normbox_lab.predict.scene import as_geometry, panel_map_at
+from normbox_lab.sim.errors import ErrorSources, error_sources_from_config, parse_error_spec
 
 #: render angles are rounded to this (rotator encoder noise must not defeat the cache)
 ANGLE_RESOLUTION_DEG = 0.001
@@ -49,9 +57,20 @@ class VirtualNormbox:
 
     def __init__(self, config: Any = None, *, geometry: Any = None, truth: str | None = None,
                  quality: str | None = None, lamp: Lamp | None = None,
-                 cache_dir: str | None = None, variant: str | None = None) -> None:
+                 cache_dir: str | None = None, variant: str | None = None,
+                 errors: ErrorSources | str | None = None) -> None:
         render_cfg = dict(getattr(config, "render", None) or {})
-        self.geometry = as_geometry(geometry if geometry is not None else config)
+        if isinstance(errors, ErrorSources):
+            self.errors = errors
+        elif config is not None:
+            self.errors = error_sources_from_config(config, errors)
+        else:
+            self.errors = parse_error_spec(errors)
+        self.nominal_geometry = as_geometry(geometry if geometry is not None else config)
+        self.geometry = self.errors.perturbed_geometry(self.nominal_geometry)
+        self.box_light_gain = self.errors.box_light_gain()
+        self.readings_per_config: dict[tuple[int | None, float], int] = {}
+        self.last_angle_error_deg = 0.0
         self.truth = truth or render_cfg.get("truth", "default")
         self.quality = quality or render_cfg.get("quality", "default")
         self.cache_dir = cache_dir or render_cfg.get("cache_dir")
@@ -148,9 +167,15 @@ class VirtualNormbox:
             return self.wavelength_nm.copy(), self.panel_radiance(*self.aim) * output
         if output == 0.0:
             return self.wavelength_nm.copy(), np.zeros_like(self.wavelength_nm)
-        result = self.render(self.patch, self.angle_deg())
-        self.last_render = result.scaled(output)
+        commanded = self.angle_deg()
+        key = (self.patch, round(commanded, 1))
+        reading = self.readings_per_config.get(key, 0)
+        self.readings_per_config[key] = reading + 1
+        self.last_angle_error_deg = self.errors.angle_error_deg(commanded, self.patch, reading)
+        result = self.render(self.patch, commanded + self.last_angle_error_deg)
+        self.last_render = result.scaled(output * self.box_light_gain)
         _, radiance = self.last_render.to_1nm(self.wavelength_nm)
+        radiance = self.errors.radiometer(self.wavelength_nm, radiance, (*key, reading))
         return self.wavelength_nm.copy(), radiance
 
     def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
@@ -164,4 +189,9 @@ class VirtualNormbox:
         material = (self.holder if self.gonio_material is None
                     else truth_material(self.gonio_material, self.truth,
                                         self.geometry.wall_lightness_L))
-        return truth_brdf_inplane(material, theta_i_deg, theta_o_deg, wavelength_nm, tilt_deg)
+        f = truth_brdf_inplane(material, theta_i_deg, theta_o_deg, wavelength_nm, tilt_deg)
+        if self.gonio_material is None:
+            return f
+        key = (str(self.gonio_material), round(float(theta_i_deg), 1),
+               round(float(theta_o_deg), 1))
+        return self.errors.gonio(f, key)

@@ -1,4 +1,5 @@
-"""`normbox-lab demo [--quick] [--truth default|model] [--noise on|off] [--store FILE]`."""
+"""`normbox-lab demo [--quick] [--truth default|model|paper] [--errors SPEC] [--noise on|off]
+[--store FILE]`."""
 
 from __future__ import annotations
 
@@ -15,9 +16,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "is 'report: PATH'.")
     p.add_argument("--quick", action="store_true",
                    help="reduced version: 4 patches × 3 angles, coarse renders (for tests)")
-    p.add_argument("--truth", choices=("default", "model"), default="default",
-                   help="truth materials: richer than the fit model (default), or inside it "
-                        "(model: the closure test)")
+    p.add_argument("--truth", choices=("default", "model", "paper"), default="default",
+                   help="truth materials: richer than the fit model (default), inside it "
+                        "(model: the closure test), or the paper scenario (paper: calibrated "
+                        "materials and every error source at the paper's magnitude)")
+    p.add_argument("--errors", metavar="SPEC",
+                   help="error sources of the virtual Normbox, e.g. "
+                        "'angle=1,angle-offset=65:+0.7;80:-0.7,cs1000=0.02' (x: uniform ±x; "
+                        "+x/-x: fixed; off; 'paper': all at the paper's magnitudes; see "
+                        "docs/error-budget.md); with a spec the emulators' own radiometer and "
+                        "lamp noise is off")
     p.add_argument("--noise", choices=("on", "off"), default="on",
                    help="instrument noise of the emulators")
     p.add_argument("--renderer", choices=("fast", "stock"), default="fast",
@@ -36,7 +44,12 @@ def _demo(args: argparse.Namespace) -> int:
     from normbox_lab.demo import DemoOptions, run_demo
 
     console = Console(stderr=True)
+    if args.errors is not None:
+        from normbox_lab.sim.errors import parse_error_spec
+
+        parse_error_spec(args.errors)       # a bad spec fails before anything runs
     opts = DemoOptions(quick=args.quick, truth=args.truth, noise=args.noise == "on",
+                       errors=args.errors,
                        store=args.store, out_dir=args.out, renderer=args.renderer)
     tasks: dict[str, int] = {}
     with Progress(TextColumn("[bold]{task.description:<16}"), BarColumn(), MofNCompleteColumn(),

@@ -81,7 +81,11 @@ BACKSCATTER_SIGMA = 0.30
 #: backscatter colour: kb(λ) = b · kd(λ) · (550 nm / λ)^BACKSCATTER_BLUE_EXPONENT
 BACKSCATTER_BLUE_EXPONENT = 3.0
 
-TRUTH_KINDS = ("default", "model")
+TRUTH_KINDS = ("default", "model", "paper")
+
+#: `truth="paper"`: per-material changes to TRUTH_PATCH_PARAMS / TRUTH_WALL_PARAMS, calibrated so
+#: the virtual campaign shows the paper's behaviour (docs/error-budget.md); keys "wall" or 1..24
+PAPER_TRUTH_CHANGES: dict[int | str, tuple[float, float, float, float, float]] = {}
 
 
 @dataclass(frozen=True)
@@ -203,6 +207,9 @@ def _check_truth(truth: str) -> None:
 
 def _truth_from_params(name: str, kd: np.ndarray, params: tuple[float, ...], truth: str,
                        extra: dict[str, Any]) -> Material:
+    if truth == "paper":
+        key: int | str = extra.get("patch", "wall")
+        params = PAPER_TRUTH_CHANGES.get(key, params)
     alpha, ks, eta, deta, b = params
     wl = MATERIAL_WAVELENGTHS_NM
     if truth == "model":
@@ -210,7 +217,7 @@ def _truth_from_params(name: str, kd: np.ndarray, params: tuple[float, ...], tru
                         metadata={"truth": "model", **extra})
     kb = b * kd * (550.0 / wl) ** BACKSCATTER_BLUE_EXPONENT
     return Material(name, wl, kd, ks, alpha, eta, 0.0, deta_per_100nm=deta, kb=kb,
-                    metadata={"truth": "default", **extra})
+                    metadata={"truth": truth, **extra})
 
 
 def truth_patch(n: int, truth: str = "default") -> Material:
