@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "import_",
     "pipeline",
     "demo",
+    "budget",
     "bench",
     "tui",
     "image",

@@ -171,7 +171,9 @@ class VirtualNormbox:
         key = (self.patch, round(commanded, 1))
         reading = self.readings_per_config.get(key, 0)
         self.readings_per_config[key] = reading + 1
-        self.last_angle_error_deg = self.errors.angle_error_deg(commanded, self.patch, reading)
+        # the hand-placement error belongs to the placement, not to the call
+        self.last_angle_error_deg = self.errors.angle_error_deg(commanded, self.patch,
+                                                                len(self.placed))
         result = self.render(self.patch, commanded + self.last_angle_error_deg)
         self.last_render = result.scaled(output * self.box_light_gain)
         _, radiance = self.last_render.to_1nm(self.wavelength_nm)

@@ -1,0 +1,445 @@
+"""The error budget: each error source's contribution to NSE / NRMSE / ΔE00, per patch × angle.
+
+Each source of the error path (`normbox_lab.sim.errors`, plus the fitting error) is a
+distribution; its effect on the reference-minus-prediction difference is propagated through
+the comparison by sampling its draws with the structure the source has in the lab (per reading,
+per sweep angle, per campaign), linearised where that is accurate:
+
+| source | perturbation δL of the difference | from |
+|---|---|---|
+| angle, angle-sweep, angle-offset | u · ∂P/∂s | the fast renderer, central differences with common random numbers |
+| geometry | Σ_f u_f · ∂P/∂f (f: sample height, aperture x/y, box size) | renderer, per angle (white patch), relative |
+| homogeneity | u · ∂P/∂h | renderer, per angle (white patch), relative |
+| cs1000 | u · R | — |
+| cs1000-wl | u · ∂R/∂λ | the reference spectrum |
+| lamp, diffusivity | u · R (one draw per campaign) | — |
+| gonio-cal | u · P (the fitted BRDFs scale with the calibration) | — |
+| qepro-nonlin | −x · P / 2 (mean of the residual compression over a reading, fixed sign) | linear model |
+| qepro-snr | P · N(0, 1/(SNR·√n_geometries)) per material (noise averaged by the fit) | linear model |
+| render | N(0, SE_pred) (+ N(0, x·P) with the `render` switch) | the prediction's standard errors |
+| fit | R · (d·err_d + (1 − d)·err_i) (the paper's error model, Fig. 12) | the fits' residuals |
+
+A source's contribution is the RMS over its draws of NRMSE(R, R + δ) (and the mean ΔE00(R, R + δ)):
+the NRMSE it alone would produce.  Independent sources add in quadrature: total² = Σ c².
+`significant`: the observed NRMSE (ΔE00) exceeds the 95th percentile of what the measurement
+sources (all but fit) produce together, i.e. the prediction's difference is beyond what the
+ground truth's own errors explain.  The observed NRMSE and ΔE00 get 95 % intervals from a
+parametric bootstrap over the measurement sources.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.sim.errors import GEOMETRY_FIELDS, PAPER_SPEC, ErrorSources, parse_error_spec
+
+#: the budget's sources, in table order
+BUDGET_SOURCES = ("angle", "angle-sweep", "angle-offset", "geometry", "cs1000", "cs1000-wl",
+                  "qepro-snr", "qepro-nonlin", "gonio-cal", "homogeneity", "diffusivity",
+                  "lamp", "render", "fit")
+#: geometry derivatives: step of the central differences (mm); homogeneity step (fraction)
+GEOMETRY_STEP_MM = 2.0
+HOMOGENEITY_STEP = 0.03
+ANGLE_STEP_DEG = 1.0
+N_GONIO_GEOMETRIES = 153
+
+
+@dataclass
+class BudgetInputs:
+    """Arrays [patch, angle, λ] on one wavelength grid; derivatives per unit of the source."""
+
+    wavelength_nm: np.ndarray
+    angle_deg: np.ndarray
+    patches: list[int]
+    reference: np.ndarray
+    prediction: np.ndarray
+    prediction_se: np.ndarray
+    d_angle: np.ndarray | None = None                      # ∂P/∂s, per degree
+    d_geometry_rel: dict[str, np.ndarray] = field(default_factory=dict)  # [angle, λ] per mm
+    d_homogeneity_rel: np.ndarray | None = None            # [angle, λ] per unit fraction
+    fit_nse: np.ndarray | None = None                      # error model's simulated NSE
+    white_patch_index: int = 0
+
+
+@dataclass
+class BudgetResult:
+    sources: list[str]
+    spec: str
+    angle_deg: np.ndarray
+    patches: list[int]
+    nrmse: np.ndarray                 # [source, patch, angle] contribution (fraction)
+    delta_e00: np.ndarray             # [source, patch, angle]
+    nse: np.ndarray                   # [source, angle, λ] RMS over patches and draws
+    total_nrmse: np.ndarray           # [patch, angle] quadrature sum
+    observed_nrmse: np.ndarray        # [patch, angle]
+    observed_nrmse_ci: np.ndarray     # [2, patch, angle] 95 % interval
+    observed_delta_e00: np.ndarray
+    observed_delta_e00_ci: np.ndarray
+    measurement_nrmse_p95: np.ndarray  # [patch, angle]
+    measurement_delta_e00_p95: np.ndarray
+    significant_nrmse: np.ndarray     # [patch, angle] bool
+    significant_delta_e00: np.ndarray
+    angle_offsets: Any = None         # analyze.angles.AngleOffsets
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def share_by_angle(self) -> np.ndarray:
+        """[source, angle]: each source's share of the total NRMSE² (mean over patches)."""
+        c2 = np.mean(self.nrmse ** 2, axis=1)
+        tot = np.maximum(c2.sum(axis=0, keepdims=True), 1e-300)
+        return c2 / tot
+
+    def nrmse_by_angle(self) -> np.ndarray:
+        """[source, angle]: RMS over patches of each source's NRMSE contribution."""
+        return np.sqrt(np.mean(self.nrmse ** 2, axis=1))
+
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        out = {k: np.asarray(getattr(self, k)) for k in (
+            "angle_deg", "nrmse", "delta_e00", "nse", "total_nrmse", "observed_nrmse",
+            "observed_nrmse_ci", "observed_delta_e00", "observed_delta_e00_ci",
+            "measurement_nrmse_p95", "measurement_delta_e00_p95")}
+        out["significant_nrmse"] = self.significant_nrmse.astype(float)
+        out["significant_delta_e00"] = self.significant_delta_e00.astype(float)
+        out["patches"] = np.array(self.patches, dtype=float)
+        if self.angle_offsets is not None:
+            out.update(self.angle_offsets.to_arrays())
+        return out
+
+    def store(self, store: Any, name: str, run_ref: Any = None) -> int:
+        return store.add_artifact(
+            kind="error-budget", name=name, arrays=self.to_arrays(),
+            metadata={"sources": list(self.sources), "spec": self.spec,
+                      "timings_s": dict(self.timings_s)}, run_ref=run_ref)
+
+    def table(self) -> str:
+        """Per angle: each source's NRMSE contribution (%, RMS over patches), the total, the
+        observed NRMSE (mean, with the mean 95 % interval), significant configurations."""
+        by = 100 * self.nrmse_by_angle()
+        head = ["source".ljust(13)] + [f"{a:>6g}°" for a in self.angle_deg]
+        lines = [" ".join(head)]
+        for s, row in zip(self.sources, by):
+            lines.append(" ".join([s.ljust(13)] + [f"{v:7.2f}" for v in row]))
+        tot = 100 * np.sqrt(np.mean(self.total_nrmse ** 2, axis=0))
+        obs = 100 * np.mean(self.observed_nrmse, axis=0)
+        lo = 100 * np.mean(self.observed_nrmse_ci[0], axis=0)
+        hi = 100 * np.mean(self.observed_nrmse_ci[1], axis=0)
+        lines.append(" ".join(["total".ljust(13)] + [f"{v:7.2f}" for v in tot]))
+        lines.append(" ".join(["observed".ljust(13)] + [f"{v:7.2f}" for v in obs]))
+        lines.append(" ".join(["  95% low".ljust(13)] + [f"{v:7.2f}" for v in lo]))
+        lines.append(" ".join(["  95% high".ljust(13)] + [f"{v:7.2f}" for v in hi]))
+        de = np.mean(self.observed_delta_e00, axis=0)
+        lines.append(" ".join(["ΔE00 obs".ljust(13)] + [f"{v:7.2f}" for v in de]))
+        sig = np.sum(self.significant_nrmse, axis=0)
+        lines.append(" ".join(["signif. n".ljust(13)] + [f"{int(v):7d}" for v in sig]))
+        return "\n".join(lines)
+
+
+# --- perturbations ---------------------------------------------------------------------------------
+def _draws(m: Any, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
+    return np.asarray(m.draw(rng, shape), dtype=float).reshape(shape)
+
+
+def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int,
+                  rng: np.random.Generator) -> np.ndarray | None:
+    """δ of the reference-minus-prediction difference, [draw, patch, angle, λ]; None when off or
+    not computable from the inputs."""
+    R, P = x.reference, x.prediction
+    n_p, n_a, _ = R.shape
+    K = n_draws
+    if name == "fit":
+        return None if x.fit_nse is None else (R * x.fit_nse)[None]
+    if name == "render":
+        se = x.prediction_se[None] * rng.standard_normal((K,) + R.shape)
+        if errors.render_rel_se:
+            se = se + errors.render_rel_se * P[None] * rng.standard_normal((K,) + R.shape)
+        return se
+    if not errors.is_on(name):
+        return None
+    if name in ("angle", "angle-sweep", "angle-offset"):
+        if x.d_angle is None:
+            return None
+        if name == "angle":
+            u = _draws(errors.angle_deg, rng, (K, n_p, n_a))
+        elif name == "angle-sweep":
+            u = np.broadcast_to(_draws(errors.angle_sweep_deg, rng, (K, 1, n_a)), (K, n_p, n_a))
+        else:
+            off = np.array([sum(v for a0, v in errors.angle_offset_deg.items()
+                                if abs(a0 - a) < 0.05) for a in x.angle_deg])
+            u = np.broadcast_to(off[None, None, :], (1, n_p, n_a))
+        return u[..., None] * x.d_angle[None]
+    if name == "geometry":
+        if not x.d_geometry_rel:
+            return None
+        d = np.zeros((K,) + R.shape)
+        for f in GEOMETRY_FIELDS:
+            if f in x.d_geometry_rel:
+                u = _draws(errors.geometry_mm, rng, (K, 1, 1, 1))
+                d += u * x.d_geometry_rel[f][None, None] * P[None]
+        return d
+    if name == "homogeneity":
+        if x.d_homogeneity_rel is None:
+            return None
+        u = _draws(errors.homogeneity, rng, (K, 1, 1, 1))
+        return u * x.d_homogeneity_rel[None, None] * P[None]
+    if name == "cs1000":
+        return _draws(errors.cs1000_gain, rng, (K, n_p, n_a))[..., None] * R[None]
+    if name == "cs1000-wl":
+        slope = np.gradient(R, x.wavelength_nm, axis=-1)
+        return _draws(errors.cs1000_shift_nm, rng, (K, n_p, n_a))[..., None] * slope[None]
+    if name in ("lamp", "diffusivity"):
+        m = errors.lamp_repeatability if name == "lamp" else errors.diffusivity
+        return _draws(m, rng, (K, 1, 1))[..., None] * R[None]
+    if name == "gonio-cal":
+        return _draws(errors.gonio_calibration, rng, (K, 1, 1))[..., None] * P[None]
+    if name == "qepro-nonlin":
+        return (-errors.qepro_nonlinearity / 2.0 * P)[None]
+    if name == "qepro-snr":
+        sigma = 1.0 / (errors.qepro_snr * np.sqrt(N_GONIO_GEOMETRIES))
+        return rng.normal(0.0, sigma, (K, n_p, 1, 1)) * P[None]
+    raise ValueError(f"unknown budget source {name!r}")
+
+
+def _nrmse(ref: np.ndarray, other: np.ndarray) -> np.ndarray:
+    return np.sqrt(np.mean((other - ref) ** 2, axis=-1)) / np.mean(ref, axis=-1)
+
+
+class _Colour:
+    """ΔE00 of spectra against the reference, normalised by the reference white (compare.py's
+    convention), for many draws at once."""
+
+    def __init__(self, x: BudgetInputs) -> None:
+        from normbox_lab.analyze.compare import XYZ_to_Lab_D65, spectra_to_XYZ
+
+        self.wl = x.wavelength_nm
+        self.xyz_ref = spectra_to_XYZ(x.reference, self.wl)
+        self.y_white = self.xyz_ref[x.white_patch_index, 0, 1]
+        self.lab_ref = XYZ_to_Lab_D65(self.xyz_ref / self.y_white)
+
+    def delta_e(self, spectra: np.ndarray) -> np.ndarray:
+        from normbox_lab.analyze.compare import XYZ_to_Lab_D65, delta_e00, spectra_to_XYZ
+
+        lab = XYZ_to_Lab_D65(spectra_to_XYZ(spectra, self.wl) / self.y_white)
+        return delta_e00(np.broadcast_to(self.lab_ref, lab.shape), lab)
+
+
+def compute_budget(x: BudgetInputs, errors: ErrorSources, *,
+                   sources: Sequence[str] = BUDGET_SOURCES, n_draws: int = 64,
+                   seed: int = 0, angle_offsets: Any = None) -> BudgetResult:
+    """Every source's contribution (see the module doc) and the observed metrics' intervals."""
+    rng = np.random.default_rng(seed)
+    R, P = x.reference, x.prediction
+    colour = _Colour(x)
+    names, c_nrmse, c_de, c_nse = [], [], [], []
+    measurement = np.zeros((n_draws,) + R.shape)
+    for name in sources:
+        d = perturbations(name, errors, x, n_draws, rng)
+        if d is None:
+            continue
+        names.append(name)
+        nr = np.sqrt(np.mean(_nrmse(R[None], R[None] + d) ** 2, axis=0))
+        c_nrmse.append(nr)
+        c_de.append(np.mean(colour.delta_e(R[None] + d[: min(len(d), 16)]), axis=0))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rel = np.where(R[None] != 0, d / R[None], 0.0)
+        c_nse.append(np.sqrt(np.mean(rel ** 2, axis=(0, 1))))
+        if name != "fit":
+            measurement += d if len(d) == n_draws else d[:1]
+    nrmse = np.array(c_nrmse) if c_nrmse else np.zeros((0,) + R.shape[:2])
+    de = np.array(c_de) if c_de else np.zeros((0,) + R.shape[:2])
+    total = np.sqrt(np.sum(nrmse ** 2, axis=0))
+    observed = _nrmse(R, P)
+    observed_de = colour.delta_e(P[None])[0]
+    # the measurement sources together: what they alone produce, and the observed metric's
+    # parametric bootstrap
+    meas_nrmse = _nrmse(R[None], R[None] + measurement)
+    boot_nrmse = _nrmse(R[None], P[None] + measurement)
+    sub = measurement[:32]
+    meas_de = colour.delta_e(R[None] + sub)
+    boot_de = colour.delta_e(P[None] + sub)
+    ci_nrmse = _pivot(observed, boot_nrmse)
+    ci_de = _pivot(observed_de, boot_de)
+    p95_n = np.percentile(meas_nrmse, 95, axis=0)
+    p95_d = np.percentile(meas_de, 95, axis=0)
+    return BudgetResult(names, errors.spec(), x.angle_deg, list(x.patches), nrmse, de,
+                        np.array(c_nse) if c_nse else np.zeros((0,) + R.shape[1:]), total,
+                        observed, ci_nrmse, observed_de, ci_de, p95_n, p95_d,
+                        observed > p95_n, observed_de > p95_d, angle_offsets)
+
+
+def _pivot(observed: np.ndarray, boot: np.ndarray) -> np.ndarray:
+    """Basic bootstrap 95 % interval around the observed value."""
+    lo, med, hi = np.percentile(boot, [2.5, 50, 97.5], axis=0)
+    return np.array([np.maximum(observed - (hi - med), 0.0), observed + (med - lo)])
+
+
+# --- derivatives with the fast renderer -------------------------------------------------------
+def render_derivatives(patch_materials: Sequence[Any], wall: Any, angle_deg: Sequence[float],
+                       wavelength_nm: np.ndarray, *, geometry: Any, lamp: Any = None,
+                       white: Any = None, n_paths: int = 1 << 15, seed: int = 11,
+                       with_geometry: bool = True,
+                       progress: Callable[[str, int, int], None] | None = None
+                       ) -> dict[str, Any]:
+    """∂P/∂s for every patch × angle, and the relative geometry / homogeneity derivatives per
+    angle (with `white`, default the first patch), by central differences; each pair of
+    renders shares its seed (common random numbers)."""
+    from dataclasses import replace
+
+    from normbox_lab.predict.fastrender import FastNormbox, config_seed
+
+    progress = progress or (lambda stage, done, total: None)
+    angles = [float(a) for a in angle_deg]
+
+    def interp(r: Any) -> np.ndarray:
+        return np.interp(wavelength_nm, r.wavelength_nm, r.radiance)
+
+    box = FastNormbox(geometry)
+    n_p = len(patch_materials)
+    d_angle = np.zeros((n_p, len(angles), wavelength_nm.size))
+    total = 2 * n_p * len(angles)
+    done = 0
+    for ai, a in enumerate(angles):
+        for pi, m in enumerate(patch_materials):
+            s = config_seed(seed, f"{m.name}@{a:g}")
+            pair = [interp(box.render_view(patch=m, wall=wall, angle_deg=a + sgn * ANGLE_STEP_DEG,
+                                           lamp=lamp, n_paths=n_paths, seed=s))
+                    for sgn in (1, -1)]
+            d_angle[pi, ai] = (pair[0] - pair[1]) / (2 * ANGLE_STEP_DEG)
+            done += 2
+            progress("derivatives", done, total)
+    out: dict[str, Any] = {"d_angle": d_angle}
+    if not with_geometry:
+        return out
+    g0 = box.geometry
+    w = white if white is not None else patch_materials[0]
+    steps: dict[str, tuple[float, str]] = {f: (GEOMETRY_STEP_MM, f) for f in GEOMETRY_FIELDS}
+    steps["homogeneity"] = (HOMOGENEITY_STEP, "panel_homogeneity_percent")
+    rel: dict[str, np.ndarray] = {}
+    for key, (step, attr) in steps.items():
+        unit = 100.0 if key == "homogeneity" else 1.0
+        boxes = [FastNormbox(replace(g0, **{attr: getattr(g0, attr) + sgn * step * unit}))
+                 for sgn in (1, -1)]
+        r = np.zeros((len(angles), wavelength_nm.size))
+        for ai, a in enumerate(angles):
+            s = config_seed(seed, f"{key}@{a:g}")
+            up, down = (interp(b.render_view(patch=w, wall=wall, angle_deg=a, lamp=lamp,
+                                             n_paths=4 * n_paths, seed=s)) for b in boxes)
+            mid = 0.5 * (up + down)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                r[ai] = np.where(mid > 0, (up - down) / (2 * step) / mid, 0.0)
+        rel[key] = r
+    out["d_homogeneity_rel"] = rel.pop("homogeneity")
+    out["d_geometry_rel"] = rel
+    return out
+
+
+def errors_for_run(lab_config_text: str, sources: str | None) -> ErrorSources:
+    """The distributions the budget propagates: the run's `[render] errors` if the run came
+    from the virtual Normbox with a spec, else the paper's figures; `sources` (a spec, or
+    names alone to keep those magnitudes) on top."""
+    import tomllib
+
+    try:
+        render_cfg = tomllib.loads(lab_config_text or "").get("render", {})
+    except tomllib.TOMLDecodeError:
+        render_cfg = {}
+    base = parse_error_spec(render_cfg.get("errors") or PAPER_SPEC)
+    if not sources:
+        return base
+    from normbox_lab.sim.errors import SOURCE_FIELDS
+
+    names = [s.strip() for s in sources.split(",") if s.strip()]
+    if all("=" not in s for s in names):
+        unknown = [n for n in names if n not in SOURCE_FIELDS and n != "fit"]
+        if unknown:
+            from normbox_lab.core.errors import ConfigError
+
+            raise ConfigError("--sources", 0, f"errors.{unknown[0]}",
+                              f"unknown error source; known: {', '.join(BUDGET_SOURCES)}")
+        return base.only(*[n for n in names if n != "fit"])
+    return parse_error_spec(sources, source="--sources")
+
+
+# --- on a stored campaign ----------------------------------------------------------------------
+def _latest_run(store: Any, protocol: str) -> Any:
+    runs = [r for r in store.runs() if r.protocol == protocol and r.status == "done"]
+    return runs[-1] if runs else None
+
+
+def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 15,
+                      with_geometry: bool = True,
+                      progress: Callable[[str, int, int], None] | None = None
+                      ) -> tuple[BudgetInputs, dict[str, float]]:
+    """Reference, prediction, fit error model and the renderer's derivatives of a stored
+    reference sweep (after `predict` and `compare`)."""
+    import time
+
+    from normbox_lab.acquire.config import parse_config
+    from normbox_lab.analyze.pipeline import (
+        WHITE_PATCH,
+        fit_key,
+        lamp_from_light_map,
+        latest_fits,
+        reference_data,
+    )
+    from normbox_lab.core.errors import StoreError
+    from normbox_lab.predict.materials import Material
+
+    run = store.get_run(ref_run)
+    ref = reference_data(store, run.id)
+    try:
+        pred = store.latest_artifact("prediction", f"ref-run-{run.id}").arrays
+    except (KeyError, LookupError, StoreError) as exc:
+        raise StoreError(f"run {run.id} has no prediction: run `normbox-lab predict` "
+                         f"first ({exc})") from exc
+    try:
+        fit_nse = store.latest_artifact("error-model", f"ref-run-{run.id}").arrays[
+            "simulated_nse"]
+        fit_nse = np.broadcast_to(fit_nse, ref.radiance.shape).copy()
+    except (KeyError, LookupError, StoreError):
+        fit_nse = None
+    fits = latest_fits(store)
+    geometry = parse_config(run.lab_config, f"run {run.id} lab config").geometry \
+        if run.lab_config else None
+    light = _latest_run(store, "light-map")
+    lamp = lamp_from_light_map(store, light.id if light is not None else None)
+    mats = [Material.from_fit(fits[fit_key(p)]) for p in ref.patches]
+    white = ref.patches.index(WHITE_PATCH) if WHITE_PATCH in ref.patches else 0
+    t0 = time.perf_counter()
+    der = render_derivatives(mats, Material.from_fit(fits["wall"]), ref.angle_deg,
+                             ref.wavelength_nm, geometry=geometry, lamp=lamp,
+                             white=mats[white], n_paths=n_paths, with_geometry=with_geometry,
+                             progress=progress)
+    timings = {"derivatives": time.perf_counter() - t0}
+    x = BudgetInputs(ref.wavelength_nm, ref.angle_deg, list(ref.patches), ref.radiance,
+                     pred["radiance"], pred["std_error"], der["d_angle"],
+                     der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
+                     white)
+    return x, timings
+
+
+def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
+               n_paths: int = 1 << 15, n_draws: int = 64,
+               progress: Callable[[str, int, int], None] | None = None) -> BudgetResult:
+    """The error budget of a stored reference sweep; stored as artifact "error-budget"."""
+    import time
+
+    from normbox_lab.analyze.angles import estimate_angle_offsets
+
+    run = store.get_run(ref_run)
+    errors = errors_for_run(run.lab_config, sources)
+    names = list(BUDGET_SOURCES)
+    if sources and all("=" not in s for s in sources.split(",")):
+        names = [n for n in BUDGET_SOURCES if n in {s.strip() for s in sources.split(",")}]
+    need_geometry = any(errors.is_on(n) for n in ("geometry", "homogeneity"))
+    x, timings = budget_inputs_run(store, run.id, n_paths=n_paths,
+                                   with_geometry=need_geometry, progress=progress)
+    t0 = time.perf_counter()
+    offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
+    result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
+    timings["propagation"] = time.perf_counter() - t0
+    result.timings_s = timings
+    result.store(store, f"ref-run-{run.id}", run_ref=run.id)
+    return result
