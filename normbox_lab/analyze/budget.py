@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.sim.errors import GEOMETRY_FIELDS, PAPER_SPEC, ErrorSources, parse_error_spec
+from normbox_lab.sim.errors import GEOMETRY_FIELDS, PAPER_FIGURES, ErrorSources, parse_error_spec
 
 #: the budget's sources, in table order
 BUDGET_SOURCES = ("angle", "angle-sweep", "angle-offset", "geometry", "cs1000", "cs1000-wl",
@@ -345,7 +345,7 @@ def errors_for_run(lab_config_text: str, sources: str | None) -> ErrorSources:
         render_cfg = tomllib.loads(lab_config_text or "").get("render", {})
     except tomllib.TOMLDecodeError:
         render_cfg = {}
-    base = parse_error_spec(render_cfg.get("errors") or PAPER_SPEC)
+    base = parse_error_spec(render_cfg.get("errors") or PAPER_FIGURES)
     if not sources:
         return base
     from normbox_lab.sim.errors import SOURCE_FIELDS

@@ -9,7 +9,7 @@ from normbox_lab.commands.common import add_store_argument
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "budget", help="error budget per source, 95 % intervals, sample-angle offsets",
+        "budget", help="error budget per source, 95 %% intervals, sample-angle offsets",
         description="For every patch × angle of a reference sweep (after predict and compare "
                     "--brdf-run), each error source's contribution to NRMSE / ΔE00 / NSE, "
                     "propagated through the comparison (angle, geometry and light through the "
@@ -31,12 +31,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _budget(args: argparse.Namespace) -> int:
     import time
+    from pathlib import Path
 
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze.budget import budget_run
-
-    from pathlib import Path
-
     from normbox_lab.core.errors import StoreError
 
     if not Path(args.store).exists():
