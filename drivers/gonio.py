@@ -55,6 +55,9 @@ THETA_I_DEG = tuple(range(-80, 1, 10))
 THETA_O_DEG = tuple(range(-80, 81, 10))
 REFERENCE_GEOMETRY_DEG = (0.0, 45.0)
 WHITE_TARGET_FRACTION = 0.6
+#: auto-ranging keeps the peak below this fraction of full scale where it can (the CCD is
+#: nonlinear beyond the stored correction near full scale)
+RANGE_CEILING_FRACTION = 0.95
 
 #: calibration-validity defaults (overridable per lab: ``[instruments.spectrometer]`` options
 #: are the QE Pro's; these are the gonio's).  The QE Pro data sheet gives the TEC set point
@@ -88,6 +91,11 @@ class DarkFrame:
     integration_time_s: float
     tec_temperature_c: float
     taken_s: float                  # clock.now_s() when taken
+    drift_counts_s: float | None = None   # dark-current change since the previous dark
+
+    @property
+    def rate_counts_s(self) -> float:
+        return float(np.mean(self.counts)) / self.integration_time_s
 
     def valid_for(self, integration_time_s: float, tec_temperature_c: float, now_s: float,
                   tec_tolerance_c: float, max_age_s: float) -> bool:
@@ -153,6 +161,7 @@ class Gonioreflectometer:
         self._cal: dict[str, Any] | None = None
         self._darks: dict[float, DarkFrame] = {}
         self._next_id = 1
+        self._last_dark: DarkFrame | None = None
         self.darks_taken = 0
         self._geometry = (0.0, 0.0)
 
@@ -231,6 +240,11 @@ class Gonioreflectometer:
             self._lamp(True)
         frame = DarkFrame(self._new_id(), acq.counts, float(integration_time_s),
                           float(acq.tec_temperature_c), self.clock.now_s())
+        if self._last_dark is not None:
+            frame = DarkFrame(frame.dark_id, frame.counts, frame.integration_time_s,
+                              frame.tec_temperature_c, frame.taken_s,
+                              frame.rate_counts_s - self._last_dark.rate_counts_s)
+        self._last_dark = frame
         self._darks[key] = frame
         self.darks_taken += 1
         return frame
@@ -310,7 +324,9 @@ class Gonioreflectometer:
         for _ in range(12):
             acq = self._acquire(t)
             peak = float(np.max(acq.counts))
-            if acq.saturated and t > 8e-3:
+            too_high = acq.saturated or \
+                float(np.max(acq.raw_counts)) > RANGE_CEILING_FRACTION * full
+            if too_high and t > 8e-3:
                 t = self._clamp_t(t / 4)
                 continue
             if not acq.saturated and peak < 0.05 * full and t < 64 * t_w and not blocked:
@@ -320,6 +336,7 @@ class Gonioreflectometer:
         if acq.saturated:
             raise DeviceError("SATURATED", f"saturated even at {t:g} s",
                               instrument=self.instrument_id)
+        darks_before = self.darks_taken
         dark = self._dark(t, acq.tec_temperature_c)
         white_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w
         sample_rate = (acq.counts - dark.counts) / t
@@ -343,6 +360,9 @@ class Gonioreflectometer:
                       "dark_id": dark.dark_id,
                       "dark_tec_temperature_c": dark.tec_temperature_c,
                       "dark_age_s": self.clock.now_s() - dark.taken_s,
+                      "dark_new": self.darks_taken > darks_before,
+                      "dark_drift_counts_s": dark.drift_counts_s,
+                      "peak_signal_counts": float(np.max(acq.counts - dark.counts)),
                       "peak_counts": float(np.max(acq.raw_counts)),
                       "full_scale_counts": float(full)})
 

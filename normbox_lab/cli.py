@@ -19,6 +19,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "sim",
     "run",
     "runs",
+    "qa",
     "export",
     "import_",
     "pipeline",

@@ -219,7 +219,9 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
         brdf = timed("brdf-inplane", lambda: run_protocol(
             lab, store, "brdf-inplane", {"materials": [*patches, "wall"]}, progress))
         runs["brdf-inplane"] = brdf.run_id
-        timed("fit", lambda: fit_run(store, brdf.run_id, 2.0, progress))
+        # the demo goes on through flagged data (recorded in each artifact's provenance) and
+        # prints the flags at the end; `demo --strict` fails on any error flag
+        timed("fit", lambda: fit_run(store, brdf.run_id, 2.0, progress, accept_flagged=True))
         light = timed("light-map", lambda: run_protocol(lab, store, "light-map", {}, progress))
         runs["light-map"] = light.run_id
         ref = timed("reference-sweep", lambda: run_protocol(
@@ -229,8 +231,9 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
         lamp = lamp_from_light_map(store, light.run_id)
         timed("predict", lambda: predict_run(store, ref.run_id, geometry=config.geometry,
                                              quality=quality, lamp=lamp, render=render,
-                                             progress=progress))
-        comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id))
+                                             progress=progress, accept_flagged=True))
+        comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id,
+                                                          accept_flagged=True))
         camera_size = (80, 60, 16) if opts.quick else (320, 240, None)
         images = timed("images", lambda: camera_figures_run(
             store, ref.run_id, patch=CAMERA_PATCH, angle_deg=CAMERA_ANGLE_DEG, truth=opts.truth,
@@ -242,6 +245,12 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                  "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())]
         report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
                                                     brdf.run_id, notes))
+        from normbox_lab.analyze import qa
+
+        flags = {name: qa.flags(store, run_id) for name, run_id in runs.items()}
+        fit_errors = {a.name: float(a.metadata["fit_error_pct"])
+                      for a in {a.name: a for a in store.artifacts("fit", run_ref=brdf.run_id)
+                                }.values()}
     finally:
         lab.close()
         store.close()
@@ -253,5 +262,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                                       for i, a in enumerate(comparison.angle_deg)},
                "ratings": comparison.rating_counts(),
                "camera_delta_e00": images.delta_e00,
-               "camera_files": {k: str(v) for k, v in images.files.items()}}
+               "camera_files": {k: str(v) for k, v in images.files.items()},
+               "fit_error_pct": fit_errors,
+               "flags": flags}
     return DemoResult(report, store_path, runs, timings, summary)

@@ -36,9 +36,14 @@ nonlinearity coefficients [1, −0.005/262143] undo the 0.5 % nonlinearity the s
 order towards the set point, τ = 30 s, from 25 °C at power-up.  `intensities()` blocks for the
 integration time on the injected clock.
 
-Faults (`faults=` spec, kinds ``disconnect``): the USB link drops for the parameter's seconds
+Faults (`faults=` spec): ``disconnect``: the USB link drops for the parameter's seconds
 (default 3): calls raise `SeaBreezeError`, and ``from_serial_number`` finds no device until it
-is back.
+is back.  Conditions, counted per acquisition and latched from the one at which they fire
+(``kind@n`` = from the n-th spectrum on; ``kind`` alone = from the first):
+``saturation`` (a light leak holds pixels 500–519 at `parameter` × full scale, default 0.97,
+whatever the integration time), ``tec-drift`` (the detector warms by `parameter` °C, default
+2, while the set point stays), ``dark-drift`` (`parameter` counts/s more dark current, default
+1000), ``lamp-dim`` (the gonio lamp's output × `parameter`, default 1e-4).
 """
 
 from __future__ import annotations
@@ -66,6 +71,9 @@ DARK_RATE_COUNTS_S = 200.0
 TEC_TAU_S = 30.0
 AMBIENT_C = 25.0
 WHITE_TARGET_COUNTS = 150_000.0
+#: condition faults and their default parameters
+CONDITION_FAULTS = {"saturation": 0.97, "tec-drift": 2.0, "dark-drift": 1000.0,
+                    "lamp-dim": 1e-4}
 
 
 class SeaBreezeError(Exception):
@@ -170,7 +178,8 @@ class SimulatedQEProDevice:
         self.detector_angle = _angle_source(detector_arm, "gonio-detector")
         self.tilt_deg = float(tilt_deg)
         self.arm_clearance_deg = float(arm_clearance_deg)
-        self.faults = core.FaultInjector(faults, seed, ("disconnect",))
+        self.faults = core.FaultInjector(faults, seed, ("disconnect", *CONDITION_FAULTS))
+        self.conditions: dict[str, float] = {}      # latched condition faults → parameter
         self.rng = np.random.default_rng(seed)
         px = np.arange(PIXELS, dtype=float)
         c0, c1, c2 = WAVELENGTH_COEFFS
@@ -214,7 +223,8 @@ class SimulatedQEProDevice:
     def tec_temperature_c(self, at_s: float | None = None) -> float:
         target = self._tec_setpoint_c if self._tec_enabled else AMBIENT_C
         dt = (self.clock.now_s() if at_s is None else at_s) - self._tec_since_s
-        return target + (self._tec_from_c - target) * math.exp(-dt / TEC_TAU_S)
+        return (target + (self._tec_from_c - target) * math.exp(-dt / TEC_TAU_S)
+                + self.conditions.get("tec-drift", 0.0))
 
     def set_tec_setpoint(self, c: float) -> None:
         self._tec_from_c, self._tec_since_s = self.tec_temperature_c(), self.clock.now_s()
@@ -259,19 +269,27 @@ class SimulatedQEProDevice:
 
     def acquire(self) -> np.ndarray:
         self.check()
+        for kind, default in CONDITION_FAULTS.items():
+            if kind not in self.conditions and self.faults.fires(kind):
+                self.conditions[kind] = self.faults.parameter(kind, default)
         t = self.integration_time_us * 1e-6
         t0 = self.clock.now_s()
         self.clock.sleep(t)                         # the exposure
-        signal = self.radiance_at_detector() * self.responsivity * t
+        signal = (self.radiance_at_detector() * self.responsivity * t
+                  * self.conditions.get("lamp-dim", 1.0))
         # dark current integrated over the exposure (the TEC may still be cooling)
         temps = [self.tec_temperature_c(t0 + (k + 0.5) / 16 * t) for k in range(16)]
-        dark = t * float(np.mean([DARK_RATE_COUNTS_S * 2.0 ** ((c + 10.0) / 6.0)
-                                  for c in temps]))
+        dark = t * (float(np.mean([DARK_RATE_COUNTS_S * 2.0 ** ((c + 10.0) / 6.0)
+                                   for c in temps]))
+                    + self.conditions.get("dark-drift", 0.0))
         optical = signal + dark
         measured = optical * (1.0 - NONLINEARITY * optical / MAX_COUNTS)
         noise = self.rng.normal(0.0, 1.0, PIXELS) * np.sqrt(
             SHOT_VAR_PER_COUNT * np.maximum(measured, 0.0) + READ_NOISE_COUNTS ** 2)
         counts = OFFSET_COUNTS + measured + noise
+        if "saturation" in self.conditions:
+            counts[500:520] = np.maximum(counts[500:520],
+                                         self.conditions["saturation"] * MAX_COUNTS)
         counts[DARK_PIXELS] = OFFSET_COUNTS + self.rng.normal(0.0, READ_NOISE_COUNTS,
                                                               len(DARK_PIXELS))
         return np.clip(np.round(counts), 0, MAX_COUNTS)

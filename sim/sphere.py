@@ -37,7 +37,10 @@ Behaviour (all on the injected clock):
 
 Device faults: ``unstable`` (at a command: the regulation loses lock, a 2 % dip and SETTLING
 for `parameter` s, default 60), ``lamp-fail`` (at a command: output 0, state ERROR, error 201
-queued; cleared by OUTP OFF then ON).
+queued; cleared by OUTP OFF then ON).  Conditions that the regulation does *not* see (STAT?
+stays STABLE; only the output, hence the radiometer and the sphere's own monitor ``MEAS:LUM?``,
+show them), latched from the command at which they fire: ``lamp-drift`` (the output drifts by
+`parameter` %/h, default −10), ``flicker`` (output noise of `parameter` % rms, default 2).
 """
 
 from __future__ import annotations
@@ -80,7 +83,7 @@ def preset_spectrum(name: str) -> np.ndarray:
 
 class SphereEmulator(core.LineEmulator):
     device_name = "sphere"
-    device_faults = ("unstable", "lamp-fail")
+    device_faults = ("unstable", "lamp-fail", "lamp-drift", "flicker")
     terminators = (b"\n", b"\r")
     presets = ("D65", "A")
 
@@ -103,6 +106,8 @@ class SphereEmulator(core.LineEmulator):
         self.dip_since_s = 0.0
         self.errors: list[int] = []
         self.hours = 412.0
+        self.drift_since_s: float | None = None     # lamp-drift latched at
+        self.flicker_rms = 0.0
 
     # --- physics the world reads -------------------------------------------------------------
     def _warm(self, now_s: float) -> float:
@@ -126,8 +131,13 @@ class SphereEmulator(core.LineEmulator):
         now = self.clock.now_s()
         hours_on = (now - self.on_since_s) / 3600.0
         dip = self.dip * math.exp(-(now - self.dip_since_s) / 20.0) if self.dip else 0.0
+        fault_drift = 0.0
+        if self.drift_since_s is not None:
+            fault_drift = (self.faults.parameter("lamp-drift", -10.0) / 100.0
+                           * (now - self.drift_since_s) / 3600.0)
         return (self.level_percent / 100.0 * self._warm(now) * (1.0 + DRIFT_PER_H * hours_on)
-                * (1.0 - dip) * (1.0 + self.rng.gauss(0.0, NOISE_RMS)))
+                * (1.0 + fault_drift) * (1.0 - dip)
+                * (1.0 + self.rng.gauss(0.0, math.hypot(NOISE_RMS, self.flicker_rms))))
 
     def panel_map(self) -> np.ndarray:
         """(5, 5) relative radiance of the opal panel (mean 1)."""
@@ -167,6 +177,10 @@ class SphereEmulator(core.LineEmulator):
         if self.on and not self.failed and self.faults.fires("unstable"):
             self.settle_until_s = now + self.faults.parameter("unstable", 60.0)
             self.dip, self.dip_since_s = 0.02, now
+        if self.drift_since_s is None and self.faults.fires("lamp-drift"):
+            self.drift_since_s = now
+        if not self.flicker_rms and self.faults.fires("flicker"):
+            self.flicker_rms = self.faults.parameter("flicker", 2.0) / 100.0
         head, _, arg = text.partition(" ")
         head = head.upper()
         arg = arg.strip()

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
+from normbox_lab.acquire.quality import QualityLimits, parse_limits
 from normbox_lab.core.errors import ConfigError
 from normbox_lab.core.geometry import NormboxGeometry
 
@@ -70,6 +71,7 @@ class LabConfig:
     protocols: dict[str, dict[str, Any]]
     render: dict[str, Any]
     text: str = ""                  # the source, snapshotted into every run
+    quality: QualityLimits = field(default_factory=QualityLimits)   # [quality] gate limits
 
     def protocol_defaults(self, name: str) -> dict[str, Any]:
         return dict(self.protocols.get(name, {}))
@@ -153,7 +155,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             raise err(tab, key, f"must be ≤ {maximum}, got {v}")
         return float(v)
 
-    known_top = {"lab", "instruments", "geometry", "protocols", "render"}
+    known_top = {"lab", "instruments", "geometry", "protocols", "render", "quality"}
     for k in data:
         if k not in known_top:
             raise err(k, None, f"unknown table; expected one of {', '.join(sorted(known_top))}")
@@ -232,8 +234,9 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
     if "quality" in render and render["quality"] not in ("quick", "default", "high"):
         raise err("render", "quality", "must be quick, default or high")
 
+    quality = parse_limits(data.get("quality"), err)
     return LabConfig(path, name, simulated, time_scale, seed, instruments, geometry, protocols,
-                     render, text)
+                     render, text, quality)
 
 
 SIM_CONFIG_TEMPLATE = """\
@@ -304,6 +307,11 @@ tilt_deg = 4.0
 [protocols.repeatability]
 repeats = 10
 threshold_percent = 1.0
+
+[quality]               # limits of the quality gates (defaults and their sources:
+                        # docs/engine-and-protocols.md, "Quality flags"); e.g.
+# fit_outlier_factor = 2.5
+# tec_tolerance_c = 0.5
 """
 
 

@@ -27,6 +27,7 @@ from typing import Any, Protocol
 from normbox_lab.acquire.estimate import DryRun, dry_run
 from normbox_lab.acquire.events import EngineEvent, Operator, PromptRequest, RunResult
 from normbox_lab.acquire.plan import Plan
+from normbox_lab.acquire.quality import LampMonitor, RunGates, limits_from_text
 from normbox_lab.acquire.retry import RetryPolicy, Skip, StopAtPrompt, run_with_retry
 from normbox_lab.acquire.steps import (
     KINDS,
@@ -123,6 +124,7 @@ class Engine:
         self._estimates: dict[str, float] = {}
         self._committed: set[str] = set()
         self._skipped: list[str] = []
+        self._gates: RunGates | None = None
         self._ratio = 1.0
         self._hook_context: dict[str, Any] = {}
         self._remaining_s = 0.0
@@ -217,6 +219,8 @@ class Engine:
             self._emit("fault", key, role=role, attempt=attempt, error=repr(exc),
                        transient=transient)
             self._known.pop(role, None)
+            if isinstance(exc, DeviceError) and self._gates is not None:
+                self._gates.device_error(key, role, str(exc.code), exc.meaning)
             if transient and attempt < self.retry.attempts:
                 self._emit("warning", key, message=f"{role}: {exc} — retry "
                            f"{attempt}/{self.retry.attempts - 1}")
@@ -228,6 +232,8 @@ class Engine:
                 decide=lambda exc, attempt: self._fault_decision(key, role, exc, attempt))
         except Skip as skip:
             self._store_event("skip", key=key, role=role, error=str(skip.__cause__))
+            if self._gates is not None:
+                self._gates.skipped(key, role, str(skip.__cause__))
             raise
 
     def _recover(self, role: str) -> None:
@@ -274,6 +280,9 @@ class Engine:
         else:
             self._reopen_run(resume)
         self._skipped = []
+        # the limits of the lab config the run recorded (its [quality] table)
+        self._gates = RunGates(self.store, self.run_id, limits_from_text(
+            self.store.get_run(self.run_id).lab_config, "lab config"))
         self._known = {}     # physical state after a (re)start: unknown
         self.state = "running"
         t0 = self.clock.now_s()
@@ -327,7 +336,12 @@ class Engine:
             self._emit("run-finished", status=status, error=repr(exc))
             raise
         done = len(self._committed)
+        self._gates.finish(self.plan.protocol)
         detail: dict[str, Any] = {"taken": taken, "done": done}
+        flags = self.store.flag_rows(run_id=self.run_id)
+        if flags:
+            errors = sum(1 for f in flags if f["severity"] == "error")
+            detail["flags"] = {"errors": errors, "warnings": len(flags) - errors}
         if self._skipped:
             detail["skipped"] = self._skipped
             if status == "done":
@@ -461,8 +475,13 @@ class Engine:
         meta["segment"] = self.segment
         if step.requires:
             meta["requires"] = dict(step.requires)
+        for role in (r for r, v in step.requires.items() if v == "stable"):
+            lamp = self.instrument(role)
+            if isinstance(lamp, LampMonitor):     # the lamp's own monitor, for the drift gate
+                meta["lamp_monitor_cd_m2"] = float(lamp.luminance_cd_m2())
         kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
+        self._quality_gates(step.key)
         took = self.clock.now_s() - t_start
         est = self._estimates.get(step.key, 0.0)
         if est > 0 and took > 0:
@@ -482,6 +501,17 @@ class Engine:
                 self._emit("warning", step.key, message=message, flag=True)
         self._emit("progress", step.key, done=len(self._committed), planned=self.plan.planned,
                    eta_s=remaining * self._ratio, remaining_estimate_s=remaining)
+
+    def _quality_gates(self, key: str) -> None:
+        """The acquisition quality gates on the reading just committed (flags are stored)."""
+        if self._gates is None:
+            return
+        stored = self.store.reading(self.run_id, key)
+        for flag in self._gates.reading(key, stored.kind, stored.metadata, stored.arrays):
+            self._store_event("flag", key=key, gate=flag.gate, severity=flag.severity,
+                              message=flag.message)
+            self._emit("warning", key, message=f"{flag.severity} {flag.gate}: {flag.message}",
+                       flag=True, gate=flag.gate, severity=flag.severity)
 
     def _unstable_suspend(self, step: Step, after: bool = False) -> bool:
         """Suspender: a lamp this reading requires stable is not → wait, return True."""

@@ -10,6 +10,9 @@ Tables (schema version in ``PRAGMA user_version``; forward migrations in `MIGRAT
 - ``arrays``      float64 blobs with their shape, owned by a reading or an artifact
 - ``instruments`` identity and calibration snapshot per run and role
 - ``artifacts``   fits, predictions, comparisons, reports (pipeline results are data too)
+- ``flags``       quality flags: (run, reading key or artifact, gate, severity, value, limit,
+                  message); one per (run, artifact, key, gate), a re-check replaces it.  The
+                  public API is `normbox_lab.analyze.qa`.
 
 Arrays are stored as little-endian float64 bytes with the shape as JSON: exact round trips,
 no pickle.
@@ -94,6 +97,24 @@ MIGRATIONS: list[str] = [
     );
     CREATE INDEX artifacts_kind ON artifacts(kind, name);
     CREATE INDEX run_events_run ON run_events(run_id);
+    """,
+    # version 2: quality flags (run_id / artifact_id 0 = none)
+    """
+    CREATE TABLE flags (
+        id           INTEGER PRIMARY KEY,
+        run_id       INTEGER NOT NULL DEFAULT 0,
+        artifact_id  INTEGER NOT NULL DEFAULT 0,
+        key          TEXT NOT NULL DEFAULT '',
+        gate         TEXT NOT NULL,
+        severity     TEXT NOT NULL CHECK (severity IN ('warning', 'error')),
+        value        REAL,
+        limit_value  REAL,
+        message      TEXT NOT NULL,
+        created_s    REAL NOT NULL,
+        UNIQUE (run_id, artifact_id, key, gate)
+    );
+    CREATE INDEX flags_run ON flags(run_id);
+    CREATE INDEX flags_artifact ON flags(artifact_id);
     """,
 ]
 SCHEMA_VERSION = len(MIGRATIONS)
@@ -475,6 +496,40 @@ class Store:
                 out.append(Artifact(r[0], r[1], r[2], r[3], r[4], json.loads(r[5]),
                                     self._arrays("artifact", r[0])))
         return out
+
+    # --- quality flags (see normbox_lab.analyze.qa) ----------------------------------------
+    def add_flag(self, *, run_id: int | None, artifact_id: int | None, key: str, gate: str,
+                 severity: str, value: float | None, limit: float | None,
+                 message: str) -> int:
+        """Record one flag; the same (run, artifact, key, gate) replaces the earlier one."""
+        if severity not in ("warning", "error"):
+            raise StoreError(f"unknown flag severity {severity!r}")
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT OR REPLACE INTO flags (run_id, artifact_id, key, gate, severity, value,"
+                " limit_value, message, created_s) VALUES (?,?,?,?,?,?,?,?,?)",
+                (int(run_id or 0), int(artifact_id or 0), key, gate, severity,
+                 None if value is None else float(value),
+                 None if limit is None else float(limit), message, self._wall_s()))
+        return int(cur.lastrowid)
+
+    def flag_rows(self, *, run_id: int | None = None,
+                  artifact_id: int | None = None) -> list[dict[str, Any]]:
+        """Flags (as dicts, oldest first) of a run and/or an artifact; all when both None."""
+        sql = ("SELECT id, run_id, artifact_id, key, gate, severity, value, limit_value,"
+               " message, created_s FROM flags WHERE 1=1")
+        args: list[Any] = []
+        if run_id is not None:
+            sql += " AND run_id=?"
+            args.append(int(run_id))
+        if artifact_id is not None:
+            sql += " AND artifact_id=?"
+            args.append(int(artifact_id))
+        cols = ("id", "run_id", "artifact_id", "key", "gate", "severity", "value", "limit",
+                "message", "created_s")
+        with self._lock:
+            rows = self._db.execute(sql + " ORDER BY id", args).fetchall()
+        return [dict(zip(cols, r, strict=True)) for r in rows]
 
     def latest_artifact(self, kind: str, name: str) -> Artifact:
         found = self.artifacts(kind, name)

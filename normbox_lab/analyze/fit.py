@@ -292,11 +292,12 @@ def fit_material(data: BrdfData, w: float = 2.0, *,
     best = min(runs, key=lambda r: r.cost)
     nfev = sum(r.nfev for r in runs)
     x = best.x
+    final = best
     if full is not coarse:
         polish = _outer(full, x, lo, hi)
         nfev += polish.nfev
         if 2.0 * polish.cost <= full.cost(*full.inner(*x), *x):
-            x = polish.x
+            x, final = polish.x, polish
     alpha, eta, c = (float(v) for v in x)
     kd, ks = full.inner(alpha, eta, c)
     kd, c = canonical_c(kd, c, float(lo[2]))
@@ -305,6 +306,9 @@ def fit_material(data: BrdfData, w: float = 2.0, *,
                       metadata={"n_starts": len(runs), "nfev": int(nfev),
                                 "start_costs": [float(2 * r.cost) for r in runs],
                                 "outer_step_nm": outer_step_nm,
+                                "converged": bool(final.status > 0),
+                                "status_message": str(final.message),
+                                "bounds": {k: [float(v[0]), float(v[1])] for k, v in b.items()},
                                 "fit_time_s": time.perf_counter() - t0})
     fit.fit_error_pct = fit_error_pct(fit, data)
     return fit

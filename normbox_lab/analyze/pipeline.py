@@ -78,11 +78,16 @@ def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
 
 def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
             progress: ProgressFn = _noop,
-            materials: Iterable[str] | None = None) -> dict[str, Any]:
+            materials: Iterable[str] | None = None, *,
+            accept_flagged: bool = False) -> dict[str, Any]:
     """Fit every material of a gonio run (or only `materials`); each fit is stored as a ``fit``
-    artifact."""
+    artifact and checked by the fit gates (`qa.check_fits`, against all the run's latest
+    fits).  A run with error flags is refused unless `accept_flagged` (then recorded in each
+    fit's provenance)."""
+    from normbox_lab.analyze import qa
     from normbox_lab.analyze.fit import data_from_store_run, fit_material
 
+    accepted = qa.require_clean(store, run=brdf_run, accept_flagged=accept_flagged, step="fit")
     data = data_from_store_run(store, brdf_run)
     if not data:
         raise DataError(str(store.path), f"run {brdf_run}", "no BRDF readings to fit")
@@ -96,8 +101,14 @@ def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
     for k, name in enumerate(sorted(data)):
         progress("fit", k, len(data))
         fit = fit_material(data[name], w)
+        fit.metadata.update(qa.provenance(accepted))
         fit.store(store, run_ref=brdf_run)
         fits[name] = fit
+    from normbox_lab.predict.brdf_model import MaterialFit
+
+    latest = {a.name: a for a in store.artifacts("fit", run_ref=brdf_run)}
+    qa.check_fits(store, brdf_run,
+                  {n: (a.id, MaterialFit.from_artifact(a)) for n, a in latest.items()})
     progress("fit", len(data), len(data))
     return fits
 
@@ -126,18 +137,26 @@ def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
 def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None = None,
                 geometry: Any = None, quality: str = "default", lamp: Any = None,
                 render: Callable[..., Any] | None = None,
-                progress: ProgressFn = _noop) -> int:
-    """Render every patch × angle of the reference run with the fitted materials."""
+                progress: ProgressFn = _noop, accept_flagged: bool = False) -> int:
+    """Render every patch × angle of the reference run with the fitted materials.  Error
+    flags on the reference run or on the (stored) fits used are refused unless
+    `accept_flagged`."""
+    from normbox_lab.analyze import qa
     from normbox_lab.predict.materials import Material, holder_material
     from normbox_lab.predict.render import render_view
 
     ref = reference_data(store, ref_run)
+    stored_fits = fits is None
     fits = fits if fits is not None else latest_fits(store)
     need = [fit_key(p) for p in ref.patches] + ["wall"]
     missing = [n for n in need if n not in fits]
     if missing:
         raise StoreError(f"no fits for {', '.join(missing)}: run `normbox-lab fit` on a gonio "
                          f"run with those materials first")
+    fit_ids = [a.id for a in {a.name: a for a in store.artifacts("fit")}.values()
+               if a.name in need] if stored_fits else []
+    accepted = qa.require_clean(store, run=ref_run, artifacts=fit_ids,
+                                accept_flagged=accept_flagged, step="predict")
     render = render or render_view
     wall = Material.from_fit(fits["wall"])
     holder = holder_material()
@@ -165,27 +184,35 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
         direct[ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
         done += 1
     progress("predict", total, total)
-    return store.add_artifact(
+    aid = store.add_artifact(
         "prediction", f"ref-run-{store.get_run(ref_run).id}",
         {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
          "patches": np.array(ref.patches, dtype=float), "radiance": out, "std_error": err,
          "direct_white": direct, "full_white": out[ref.patches.index(wp)]},
         metadata={"quality": quality, "white_patch": wp,
                   "render_s": time.perf_counter() - t0,
-                  "fits": {n: fits[n].name for n in need}},
+                  "fits": {n: fits[n].name for n in need}, **qa.provenance(accepted)},
         run_ref=ref_run)
+    qa.check_prediction(store, ref_run, aid, ref.patches, ref.angle_deg, out, err)
+    return aid
 
 
 # --- compare and error model ---------------------------------------------------------------
 
-def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None) -> Any:
+def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None, *,
+                accept_flagged: bool = False) -> Any:
     """ΔE00, NRMSE… of the latest prediction against the reference; stores the comparison and
-    (when the gonio data are at hand) the error model."""
+    (when the gonio data are at hand) the error model.  Error flags on the reference run or
+    the prediction are refused unless `accept_flagged` (then recorded in the comparison)."""
+    from normbox_lab.analyze import qa
     from normbox_lab.analyze.compare import compare, direct_light_geometry, error_model
 
     run_id = store.get_run(ref_run).id
     ref = reference_data(store, run_id)
-    pred = store.latest_artifact("prediction", f"ref-run-{run_id}").arrays
+    pred_artifact = store.latest_artifact("prediction", f"ref-run-{run_id}")
+    accepted = qa.require_clean(store, run=run_id, artifacts=[pred_artifact.id],
+                                accept_flagged=accept_flagged, step="compare")
+    pred = pred_artifact.arrays
     if not np.array_equal(pred["patches"].astype(int), ref.patches) or \
             not np.array_equal(pred["angle_deg"], ref.angle_deg):
         raise StoreError(f"the prediction of run {run_id} does not match its readings; "
@@ -194,7 +221,9 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
     result = compare(ref.radiance, pred["radiance"], ref.wavelength_nm, ref.angle_deg,
                      [f"{p} {n}" for p, n in zip(ref.patches, ref.patch_names)],
                      white_patch=white, white_angle_deg=float(ref.angle_deg.min()))
-    result.store(store, f"ref-run-{run_id}", run_ref=run_id)
+    store.add_artifact("comparison", f"ref-run-{run_id}", result.to_arrays(),
+                       metadata={**result.to_metadata(), **qa.provenance(accepted)},
+                       run_ref=run_id)
     if brdf_run is not None:
         from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
 

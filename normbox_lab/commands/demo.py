@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 
 
@@ -34,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo-out", metavar="DIR",
                    help="where the lab config, the store and the report go (default demo-out)")
     p.add_argument("--store", metavar="FILE", help="default: DIR/normbox-demo.sqlite")
+    p.add_argument("--strict", action="store_true",
+                   help="exit non-zero when any quality flag is an error (the demo itself "
+                        "goes on through flagged data and prints the flags)")
     p.set_defaults(handler=_demo)
 
 
@@ -76,6 +80,24 @@ def _demo(args: argparse.Namespace) -> int:
           f"region means patch {c.get('patch_region', float('nan')):.2f}, "
           f"wall {c.get('wall_region', float('nan')):.2f}; images: "
           f"{Path(s['camera_files']['truth_png']).parent}")
+    fe = s.get("fit_error_pct", {})
+    if fe:
+        import statistics
+
+        med = statistics.median(fe.values())
+        worst = max(fe, key=fe.get)
+        print(f"fit error: median {med:.2f} %, worst {worst} {fe[worst]:.2f} % "
+              f"({fe[worst] / med:.2f} × median)")
+    n_err = n_all = 0
+    for name, found in s.get("flags", {}).items():
+        for f in found:
+            print(f"flag [{name}] {f.line()}")
+        n_all += len(found)
+        n_err += sum(1 for f in found if f.severity == "error")
+    print(f"{n_all} flags: {n_err} errors, {n_all - n_err} warnings")
     print(f"store: {result.store} (runs {result.runs})")
     print(f"report: {result.report}")
+    if args.strict and n_err:
+        print(f"normbox-lab: error: --strict: {n_err} error flags", file=sys.stderr)
+        return 1
     return 0

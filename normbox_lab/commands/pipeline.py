@@ -14,6 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.add_argument("run", metavar="BRDF_RUN_ID")
     f.add_argument("-w", "--weight-exponent", type=float, default=2.0,
                    help="cost weight cos^w θi (paper: 1…4, sometimes 6; default 2)")
+    _accept_flagged(f)
     add_store_argument(f)
     f.set_defaults(handler=_fit)
 
@@ -24,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--quality", default="default", choices=("quick", "default", "high"))
     p.add_argument("--light-map", metavar="RUN_ID",
                    help="take the lamp luminance from this light-map run")
+    _accept_flagged(p)
     add_store_argument(p)
     p.set_defaults(handler=_predict)
 
@@ -32,6 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "also the error model.")
     c.add_argument("run", metavar="REFERENCE_RUN_ID")
     c.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run the fits came from")
+    _accept_flagged(c)
     add_store_argument(c)
     c.set_defaults(handler=_compare)
 
@@ -41,6 +44,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
     add_store_argument(r)
     r.set_defaults(handler=_report)
+
+
+def _accept_flagged(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--accept-flagged", action="store_true",
+                   help="use inputs with error quality flags anyway (see `normbox-lab qa`); "
+                        "the accepted flags are recorded in the result's provenance")
 
 
 def _open(args: argparse.Namespace):
@@ -59,11 +68,26 @@ def _fit(args: argparse.Namespace) -> int:
 
     with _open(args) as store:
         fits = fit_run(store, args.run, args.weight_exponent,
-                       progress=lambda s, d, t: print(f"\rfit {d}/{t}", end="", flush=True))
+                       progress=lambda s, d, t: print(f"\rfit {d}/{t}", end="", flush=True),
+                       accept_flagged=args.accept_flagged)
         print()
         for name, fit in fits.items():
             print(f"{name:>6}  α={fit.alpha:.3f}  η={fit.eta:.3f}  c={fit.c:.4f} sr⁻¹  "
                   f"error {fit.fit_error_pct:.2f} %")
+        return _print_artifact_flags(store, "fit")
+
+
+def _print_artifact_flags(store, kind: str) -> int:
+    """The flags the last step put on its artifacts; 0 (flags are data, not failures)."""
+    from normbox_lab.analyze import qa
+
+    latest = {a.name: a.id for a in store.artifacts(kind)}
+    found = [f for aid in latest.values() for f in qa.flags(store, artifact=aid)]
+    for f in found:
+        print(f.line())
+    if found:
+        errors = sum(1 for f in found if f.severity == "error")
+        print(f"{len(found)} flags: {errors} errors, {len(found) - errors} warnings")
     return 0
 
 
@@ -74,7 +98,8 @@ def _predict(args: argparse.Namespace) -> int:
         aid = predict_run(store, args.run, quality=args.quality,
                           lamp=lamp_from_light_map(store, args.light_map),
                           progress=lambda s, d, t: print(f"\rpredict {d}/{t}", end="",
-                                                         flush=True))
+                                                         flush=True),
+                          accept_flagged=args.accept_flagged)
         print(f"\nprediction stored (artifact {aid})")
     return 0
 
@@ -85,7 +110,7 @@ def _compare(args: argparse.Namespace) -> int:
     from normbox_lab.analyze.pipeline import compare_run
 
     with _open(args) as store:
-        c = compare_run(store, args.run, args.brdf_run)
+        c = compare_run(store, args.run, args.brdf_run, accept_flagged=args.accept_flagged)
     print(f"ΔE00 mean {np.nanmean(c.delta_e00):.2f}, max {np.nanmax(c.delta_e00):.2f}; "
           f"NRMSE mean {100 * np.nanmean(c.nrmse):.2f} %")
     for label, n in c.rating_counts().items():

@@ -195,8 +195,14 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
         print(f"resume with: normbox-lab run --resume {engine.run_uuid}{store_arg}")
         return 130
     store_arg = f" --store {args.store}" if args.store else ""
-    print(f"run {result.uuid} (id {result.run_id}): {result.status}, "
+    from normbox_lab.analyze import qa
+
+    flagged = qa.summary(store, result.run_id)
+    status = qa.run_status(store, result.run_id) if result.status == "done" else result.status
+    print(f"run {result.uuid} (id {result.run_id}): {status}, "
           f"{result.done}/{result.planned} readings ({result.taken} taken now)")
+    if flagged.flags:
+        print(f"{flagged.line()} — see: normbox-lab qa {result.run_id}{store_arg}")
     if result.skipped:
         print(f"skipped: {', '.join(result.skipped)}")
     if result.status != "done":

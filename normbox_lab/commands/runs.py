@@ -11,15 +11,22 @@ from normbox_lab.commands.common import add_store_argument
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("runs", help="list the runs in the store",
                        description="One line per run: id, uuid prefix, protocol, status, "
-                                   "readings done/planned, last update.")
+                                   "readings done/planned, last update, quality flags.")
     add_store_argument(p)
     p.set_defaults(handler=_runs)
 
 
-def format_run_line(run) -> str:
+def format_run_line(run, flags=None) -> str:
+    """One run; `flags` (a `qa.QaSummary`) adds its flag count, and a done run with flags
+    reads "completed with flags"."""
     when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(run.updated_s))
-    return (f"{run.id:>4}  {run.uuid[:8]}  {run.protocol:<18} {run.status:<11} "
-            f"{run.done:>5}/{run.planned:<5} {when}")
+    status = run.status
+    tail = ""
+    if flags is not None and flags.flags:
+        status = "completed with flags" if run.status == "done" else status
+        tail = f"  {flags.flags} flags ({flags.errors} errors)"
+    return (f"{run.id:>4}  {run.uuid[:8]}  {run.protocol:<18} {status:<11} "
+            f"{run.done:>5}/{run.planned:<5} {when}{tail}")
 
 
 def _runs(args: argparse.Namespace) -> int:
@@ -34,6 +41,9 @@ def _runs(args: argparse.Namespace) -> int:
         runs = store.runs()
         if not runs:
             print("no runs")
+        from normbox_lab.analyze.qa import summaries_by_run
+
+        counts = summaries_by_run(store)
         for run in runs:
-            print(format_run_line(run))
+            print(format_run_line(run, counts.get(run.id)))
     return 0

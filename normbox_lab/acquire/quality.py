@@ -1,0 +1,312 @@
+"""Quality gates at acquisition time: every suspect reading becomes a stored flag.
+
+A flag is data (DESIGN §3): (run, reading key or artifact, gate, severity, measured value,
+limit, message), kept in the store's ``flags`` table and read through
+`normbox_lab.analyze.qa`.  This module holds the limits (lab config ``[quality]``, defaults
+below with their source) and the gates the engine applies to each reading as it is committed
+(`RunGates.reading`), to instrument error codes (`RunGates.device_error`) and to the whole run
+when it ends (`RunGates.finish`).  The pipeline's gates (fits, predictions) live in
+`normbox_lab.analyze.qa`.
+
+Gates (severity; what is measured; limit field):
+
+=====================  ========  =============================================================
+gate                   severity  condition
+=====================  ========  =============================================================
+brdf-nonfinite         error     a BRDF value is NaN or infinite
+brdf-negative          error     min BRDF < −`brdf_negative_per_sr` (unblocked geometries)
+saturation             warning   peak raw counts > `saturation_fraction` × full scale
+noise-floor            warning   peak dark-corrected counts < `noise_floor_counts`
+dark-drift             warning   |dark current change| between consecutive darks >
+                                 `dark_drift_counts_s`
+tec-off-setpoint       error     |TEC − set point| > `tec_tolerance_c` during a reading
+lamp-drift             warning   sphere monitor (its own MEAS:LUM?) changed by more than
+                                 `lamp_drift_percent` since the run's first reading
+repeatability-cv       warning   CV of the luminance of a repeatability run >
+                                 `repeatability_cv_percent`
+radiometer-range       error     Lv outside `radiometer_min_luminance_cd_m2` …
+                                 `radiometer_max_luminance_cd_m2`
+instrument-error       warning   the instrument answered with an error code (e.g. CS-1000A
+                                 ER10 over range); the reading was retried or skipped
+=====================  ========  =============================================================
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, fields
+from typing import Any, Protocol, runtime_checkable
+
+#: where each default comes from (shown by `normbox-lab qa --limits` and in docs)
+LIMIT_SOURCES: dict[str, str] = {
+    "brdf_negative_per_sr": "3× the per-pixel BRDF noise of a dark patch at grazing geometry "
+                            "(QE Pro SNR 1000:1 at full scale, auto-ranged to ≥ 5 % of it)",
+    "saturation_fraction": "QE Pro: 18-bit counts; above ~95 % of full scale the CCD is "
+                           "nonlinear beyond its stored correction (Ocean Insight QE Pro data "
+                           "sheet)",
+    "noise_floor_counts": "QE Pro read noise ~15 counts and SNR 1000:1 at full scale: 2000 "
+                          "counts gives ~1.5 % per-pixel noise",
+    "dark_drift_counts_s": "dark current ~200 counts/s at −10 °C doubling every ~6 °C: 100 "
+                           "counts/s is a ~3.5 °C change of the detector",
+    "tec_tolerance_c": "cseabreeze QE Pro TEC set point −10 °C; ±0.5 °C (the calibration "
+                       "wait's tolerance)",
+    "lamp_drift_percent": "Image Engineering LE7: regulated output; 0.5 % is a quarter of the "
+                          "CS-1000A's ±2 % radiometric accuracy",
+    "repeatability_cv_percent": "half the repeatability protocol's 1 % change threshold",
+    "radiometer_min_luminance_cd_m2": "CS-1000A specified luminance range, lower end "
+                                      "(Konica Minolta catalogue, 1° acceptance; assumed)",
+    "radiometer_max_luminance_cd_m2": "CS-1000A specified luminance range, upper end "
+                                      "(Konica Minolta catalogue, 1° acceptance; assumed)",
+    "fit_error_limit_pct": "paper: fit errors of the ColorChecker patches are a few percent; "
+                           "15 % is clearly out of family",
+    "fit_outlier_factor": "a material whose fit error exceeds this multiple of the median of "
+                          "all materials' fit errors",
+    "prediction_rel_se_limit": "Monte-Carlo standard error per band relative to the "
+                               "radiance: 1 % (the fast renderer's default target is 0.4 %)",
+}
+
+
+@dataclass(frozen=True)
+class QualityLimits:
+    """Limits of the quality gates (lab config ``[quality]``; every field optional)."""
+
+    brdf_negative_per_sr: float = 0.002
+    saturation_fraction: float = 0.95
+    noise_floor_counts: float = 2000.0
+    dark_drift_counts_s: float = 100.0
+    tec_tolerance_c: float = 0.5
+    lamp_drift_percent: float = 0.5
+    repeatability_cv_percent: float = 0.5
+    radiometer_min_luminance_cd_m2: float = 0.01
+    radiometer_max_luminance_cd_m2: float = 80_000.0
+    fit_error_limit_pct: float = 15.0
+    fit_outlier_factor: float = 2.5
+    prediction_rel_se_limit: float = 0.01
+
+
+def parse_limits(table: Any, err: Callable[[str, str | None, str], Exception]) -> QualityLimits:
+    """The ``[quality]`` table of a lab config; `err(table, key, message)` builds the
+    `ConfigError` (file:line:field)."""
+    if table is None:
+        return QualityLimits()
+    if not isinstance(table, dict):
+        raise err("quality", None, "must be a table")
+    known = {f.name for f in fields(QualityLimits)}
+    values: dict[str, float] = {}
+    for key, v in table.items():
+        if key not in known:
+            raise err("quality", key, f"unknown limit; known: {', '.join(sorted(known))}")
+        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
+            raise err("quality", key, f"must be a finite number, got {v!r}")
+        if key == "brdf_negative_per_sr" and v < 0:
+            raise err("quality", key, f"must be ≥ 0, got {v}")
+        elif key == "saturation_fraction" and not 0 < v <= 1:
+            raise err("quality", key, f"must be in (0, 1], got {v}")
+        elif key == "fit_outlier_factor" and v <= 1:
+            raise err("quality", key, f"must be > 1, got {v}")
+        elif key != "brdf_negative_per_sr" and v <= 0:
+            raise err("quality", key, f"must be > 0, got {v}")
+        values[key] = float(v)
+    limits = QualityLimits(**values)
+    if limits.radiometer_min_luminance_cd_m2 >= limits.radiometer_max_luminance_cd_m2:
+        raise err("quality", "radiometer_min_luminance_cd_m2",
+                  "must be below radiometer_max_luminance_cd_m2")
+    return limits
+
+
+def limits_from_text(text: str, path: str = "lab config") -> QualityLimits:
+    """The limits in a lab-config snapshot (a run's ``lab_config``); defaults when absent."""
+    import tomllib
+
+    from normbox_lab.core.errors import ConfigError
+
+    if not text.strip():
+        return QualityLimits()
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(path, 0, "quality", f"not TOML: {exc}") from exc
+    lines = text.splitlines()
+
+    def err(table: str, key: str | None, message: str) -> Exception:
+        line = 0
+        inside = False
+        for i, raw in enumerate(lines, 1):
+            s = raw.strip()
+            if s.startswith("["):
+                inside = s.strip("[] ") == table
+                if inside and key is None:
+                    line = i
+                continue
+            if inside and key is not None and s.split("=", 1)[0].strip() == key:
+                line = i
+        return ConfigError(path, line, f"{table}.{key}" if key else table, message)
+
+    return parse_limits(data.get("quality"), err)
+
+
+@runtime_checkable
+class LampMonitor(Protocol):
+    """A light source that reports its own output (the sphere's MEAS:LUM?)."""
+
+    def luminance_cd_m2(self) -> float: ...
+
+
+@dataclass(frozen=True)
+class FlagSpec:
+    """A flag before it is stored."""
+
+    key: str
+    gate: str
+    severity: str
+    value: float | None
+    limit: float | None
+    message: str
+
+
+def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
+               limits: QualityLimits) -> list[FlagSpec]:
+    """Gates on one gonio reading (metadata and arrays as stored)."""
+    import numpy as np
+
+    out: list[FlagSpec] = []
+    brdf = np.asarray(arrays["brdf_per_sr"], dtype=float)
+    blocked = bool(metadata.get("blocked", False))
+    bad = int(np.sum(~np.isfinite(brdf)))
+    if bad:
+        out.append(FlagSpec(key, "brdf-nonfinite", "error", float(bad), 0.0,
+                            f"{bad} BRDF values are NaN or infinite"))
+    finite = brdf[np.isfinite(brdf)]
+    if not blocked and finite.size and float(finite.min()) < -limits.brdf_negative_per_sr:
+        lo = float(finite.min())
+        out.append(FlagSpec(key, "brdf-negative", "error", lo, -limits.brdf_negative_per_sr,
+                            f"BRDF down to {lo:.4f} sr⁻¹ (below "
+                            f"−{limits.brdf_negative_per_sr:g}): stale dark or bad reference?"))
+    full = metadata.get("full_scale_counts")
+    peak = metadata.get("peak_counts")
+    if full and peak is not None:
+        frac = float(peak) / float(full)
+        if frac > limits.saturation_fraction:
+            out.append(FlagSpec(key, "saturation", "warning", frac, limits.saturation_fraction,
+                                f"peak {float(peak):.0f} counts = {100 * frac:.1f} % of full "
+                                f"scale (limit {100 * limits.saturation_fraction:.0f} %)"))
+    signal = metadata.get("peak_signal_counts")
+    if signal is not None and not blocked and float(signal) < limits.noise_floor_counts:
+        out.append(FlagSpec(key, "noise-floor", "warning", float(signal),
+                            limits.noise_floor_counts,
+                            f"peak signal {float(signal):.0f} counts is below the noise floor "
+                            f"{limits.noise_floor_counts:g}"))
+    drift = metadata.get("dark_drift_counts_s")
+    if metadata.get("dark_new") and drift is not None and \
+            abs(float(drift)) > limits.dark_drift_counts_s:
+        out.append(FlagSpec(key, "dark-drift", "warning", float(drift),
+                            limits.dark_drift_counts_s,
+                            f"dark current changed by {float(drift):+.0f} counts/s since the "
+                            f"previous dark (limit ±{limits.dark_drift_counts_s:g})"))
+    tec, sp = metadata.get("tec_temperature_c"), metadata.get("tec_setpoint_c")
+    if tec is not None and sp is not None and math.isfinite(float(tec)) and \
+            math.isfinite(float(sp)) and abs(float(tec) - float(sp)) > limits.tec_tolerance_c:
+        d = float(tec) - float(sp)
+        out.append(FlagSpec(key, "tec-off-setpoint", "error", d, limits.tec_tolerance_c,
+                            f"detector at {float(tec):.2f} °C, {d:+.2f} °C off its set point "
+                            f"{float(sp):.1f} °C (limit ±{limits.tec_tolerance_c:g})"))
+    return out
+
+
+def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
+                   limits: QualityLimits) -> list[FlagSpec]:
+    """Gates on one radiometer reading."""
+    import numpy as np
+
+    out: list[FlagSpec] = []
+    rad = np.asarray(arrays["radiance_W_sr_m2_nm"], dtype=float)
+    bad = int(np.sum(~np.isfinite(rad)))
+    if bad:
+        out.append(FlagSpec(key, "radiance-nonfinite", "error", float(bad), 0.0,
+                            f"{bad} radiance values are NaN or infinite"))
+    colo = metadata.get("colorimetry") or {}
+    lv = colo.get("Lv_cd_m2")
+    if lv is not None:
+        lv = float(lv)
+        lo, hi = limits.radiometer_min_luminance_cd_m2, limits.radiometer_max_luminance_cd_m2
+        if not lo <= lv <= hi:
+            out.append(FlagSpec(key, "radiometer-range", "error", lv, lo if lv < lo else hi,
+                                f"Lv {lv:.4g} cd/m² outside the radiometer's specified range "
+                                f"{lo:g} … {hi:g} cd/m²"))
+    return out
+
+
+class RunGates:
+    """The gates of one run as the engine commits readings (also replayable from the store)."""
+
+    def __init__(self, store: Any, run_id: int, limits: QualityLimits | None = None) -> None:
+        self.store = store
+        self.run_id = run_id
+        self.limits = limits or QualityLimits()
+        self.lamp_first: tuple[str, float] | None = None
+        self.found: list[FlagSpec] = []
+        for r in store.readings(run_id):
+            mon = r.metadata.get("lamp_monitor_cd_m2")
+            if mon is not None and self.lamp_first is None:
+                self.lamp_first = (r.key, float(mon))
+
+    def _record(self, specs: list[FlagSpec]) -> list[FlagSpec]:
+        for f in specs:
+            self.store.add_flag(run_id=self.run_id, artifact_id=None, key=f.key, gate=f.gate,
+                                severity=f.severity, value=f.value, limit=f.limit,
+                                message=f.message)
+        self.found += specs
+        return specs
+
+    def reading(self, key: str, kind: str, metadata: Mapping[str, Any],
+                arrays: Mapping[str, Any]) -> list[FlagSpec]:
+        """The per-reading gates; records and returns the flags."""
+        if kind == "brdf":
+            specs = brdf_flags(key, metadata, arrays, self.limits)
+        else:
+            specs = spectral_flags(key, metadata, arrays, self.limits)
+        mon = metadata.get("lamp_monitor_cd_m2")
+        if mon is not None:
+            if self.lamp_first is None:
+                self.lamp_first = (key, float(mon))
+            elif self.lamp_first[1] > 0:
+                change = 100.0 * (float(mon) / self.lamp_first[1] - 1.0)
+                if abs(change) > self.limits.lamp_drift_percent:
+                    specs.append(FlagSpec(key, "lamp-drift", "warning", change,
+                                          self.limits.lamp_drift_percent,
+                                          f"sphere monitor {float(mon):.4g} cd/m², "
+                                          f"{change:+.2f} % from {self.lamp_first[0]} "
+                                          f"(limit ±{self.limits.lamp_drift_percent:g} %)"))
+        return self._record(specs)
+
+    def device_error(self, key: str, role: str, code: str, message: str) -> list[FlagSpec]:
+        """An instrument error code met while taking `key` (retried or skipped)."""
+        return self._record([FlagSpec(key, f"instrument-error:{code}", "warning", None, None,
+                                      f"{role} reported {code}: {message}")])
+
+    def skipped(self, key: str, role: str, message: str) -> list[FlagSpec]:
+        return self._record([FlagSpec(key, "skipped", "error", None, None,
+                                      f"{role}: reading skipped by the operator ({message})")])
+
+    def finish(self, protocol: str) -> list[FlagSpec]:
+        """Run-level gates once the run ends (repeatability CV)."""
+        import numpy as np
+
+        specs: list[FlagSpec] = []
+        if protocol.endswith(("repeatability", "repeatability.py")):
+            lv = [float((r.metadata.get("colorimetry") or {}).get("Lv_cd_m2", float("nan")))
+                  for r in self.store.readings(self.run_id, "spectral")]
+            lv_arr = np.array([v for v in lv if math.isfinite(v)])
+            if lv_arr.size >= 2 and lv_arr.mean() > 0:
+                cv = 100.0 * float(lv_arr.std(ddof=1) / lv_arr.mean())
+                if cv > self.limits.repeatability_cv_percent:
+                    specs.append(FlagSpec("", "repeatability-cv", "warning", cv,
+                                          self.limits.repeatability_cv_percent,
+                                          f"luminance CV {cv:.2f} % over {lv_arr.size} repeats "
+                                          f"(limit {self.limits.repeatability_cv_percent:g} %)"))
+        return self._record(specs)
+
+
+__all__ = ["LIMIT_SOURCES", "FlagSpec", "LampMonitor", "QualityLimits", "RunGates", "brdf_flags",
+           "limits_from_text", "parse_limits", "spectral_flags"]

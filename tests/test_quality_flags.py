@@ -1,0 +1,225 @@
+"""Quality gates: each condition injected through an emulator, found as a flag in the store,
+in `normbox_lab.analyze.qa` and on the `normbox-lab qa` command line."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.acquire.lab import build_lab
+from normbox_lab.acquire.quality import QualityLimits, brdf_flags
+from normbox_lab.acquire.store import Store
+from normbox_lab.analyze import qa
+from normbox_lab.cli import main
+from normbox_lab.core.errors import ConfigError, DataError
+from normbox_lab.demo import run_protocol
+
+
+def lab_with(*, qepro: str = "", sphere: str = "", radiometer: str = "", quality: str = "",
+             world: str = "normbox"):
+    """The simulated lab with faults on its emulators (radiometer without its random
+    per-measurement gain, so repeatability is the lamp's)."""
+    text = SIM_CONFIG_TEMPLATE.replace('port = "sim://cs1000a"', 'port = "sim://cs1000a?noise=off"')
+    if qepro:
+        text = text.replace('port = "sim://qepro"', f'port = "sim://qepro?faults={qepro}"')
+    if sphere:
+        text = text.replace('port = "sim://sphere"', f'port = "sim://sphere?faults={sphere}"')
+    if radiometer:
+        text = text.replace('sim://cs1000a?noise=off', f'sim://cs1000a?noise=off&faults={radiometer}')
+    if quality:
+        text += quality + "\n"             # the template ends with its [quality] table
+    return build_lab(parse_config(text, "lab.toml"), world=world)
+
+
+def brdf_run(tmp_path, lab, *, materials=(1,), theta_i=(-30, 0), name="s.sqlite"):
+    store = Store(tmp_path / name)
+    run = run_protocol(lab, store, "brdf-inplane",
+                       {"materials": list(materials), "theta_i_deg": list(theta_i)},
+                       lambda *a: None)
+    return store, run.run_id
+
+
+def gates_of(store, run_id) -> dict[str, list[qa.Flag]]:
+    out: dict[str, list[qa.Flag]] = {}
+    for f in qa.flags(store, run_id):
+        out.setdefault(f.gate, []).append(f)
+    return out
+
+
+def qa_cli(store, run_id, capsys) -> tuple[int, list[str]]:
+    rc = main(["qa", str(run_id), "--store", str(store.path)])
+    return rc, capsys.readouterr().out.strip().splitlines()
+
+
+def test_clean_gonio_run_has_no_flags(tmp_path, capsys):
+    store, run = brdf_run(tmp_path, lab_with())
+    assert qa.flags(store, run) == []
+    assert qa.run_status(store, run) == "done"
+    rc, lines = qa_cli(store, run, capsys)
+    assert rc == 0 and lines[-1] == "0 flags: 0 errors, 0 warnings"
+
+
+# acquisitions: calibration takes ~4 spectra, so "@8" latches a condition in the sweep
+@pytest.mark.parametrize(("fault", "gate", "severity"), [
+    ("saturation@8", "saturation", "warning"),
+    ("tec-drift@8:2", "tec-off-setpoint", "error"),
+    ("dark-drift@8:1000", "dark-drift", "warning"),      # seen when the next dark is taken
+    ("dark-drift@8:-30000", "brdf-negative", "error"),
+    ("lamp-dim@8:0.0001", "noise-floor", "warning"),
+])
+def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
+    store, run = brdf_run(tmp_path, lab_with(qepro=fault), theta_i=(-30, -60))
+    found = gates_of(store, run)
+    assert gate in found, (fault, {g: len(v) for g, v in found.items()})
+    f = found[gate][0]
+    assert f.severity == severity and f.run_id == run and f.key.startswith("p01/")
+    assert f.value is not None and f.limit is not None
+    # the first readings (before the condition) are clean
+    assert all(not f.key.startswith("p01/i-30/o-80") for f in qa.flags(store, run))
+    rc, lines = qa_cli(store, run, capsys)
+    assert any(gate in line and f.key in line for line in lines)
+    s = qa.summary(store, run)
+    assert lines[-1] == f"{s.flags} flags: {s.errors} errors, {s.warnings} warnings"
+    assert rc == (1 if s.errors else 0)
+    assert qa.run_status(store, run) == "completed with flags"
+
+
+def test_error_flags_refuse_the_fit_unless_accepted(tmp_path):
+    from normbox_lab.analyze.pipeline import fit_run
+
+    store, run = brdf_run(tmp_path, lab_with(qepro="dark-drift@8:-30000"),
+                          theta_i=(-60, -30, 0))
+    with pytest.raises(DataError, match="error flag.*accept-flagged"):
+        fit_run(store, run)
+    assert store.artifacts("fit") == []
+    fits = fit_run(store, run, accept_flagged=True)
+    art = store.latest_artifact("fit", "p01")
+    accepted = art.metadata["accepted_flags"]
+    assert accepted and {a["gate"] for a in accepted} == {"brdf-negative"}
+    assert fits["p01"].fit_error_pct > 0
+
+
+def test_fit_outlier_is_an_error_flag_on_the_fit(tmp_path):
+    """The gonio lamp loses half its output in the middle of patch 1 (after its white
+    reference): patch 1's fit is an outlier against the other materials, flagged as an error
+    on the fit artifact, and predict refuses it."""
+    from normbox_lab.analyze.pipeline import fit_run
+
+    store, run = brdf_run(tmp_path, lab_with(qepro="lamp-dim@40:0.5"),
+                          materials=(1, 2, 3), theta_i=(-60, -30, 0))
+    fits = fit_run(store, run)
+    found = gates_of(store, run)
+    assert [f.key for f in found["fit-outlier"]] == ["p01"], {
+        n: f.fit_error_pct for n, f in fits.items()}
+    f = found["fit-outlier"][0]
+    assert f.artifact_id == store.latest_artifact("fit", "p01").id
+    assert f.severity == "error" and f.value > 2.5 and f.limit == 2.5
+    with pytest.raises(DataError, match="predict: 1 error flag.*p01 fit-outlier"):
+        qa.require_clean(store, artifacts=[f.artifact_id], step="predict")
+
+
+def test_lamp_drift_seen_by_the_sphere_monitor(tmp_path, capsys):
+    store = Store(tmp_path / "s.sqlite")
+    lab = lab_with(sphere="lamp-drift@6:-100", world="analytic")
+    run = run_protocol(lab, store, "repeatability", {"repeats": 6}, lambda *a: None).run_id
+    found = gates_of(store, run)
+    assert "lamp-drift" in found, {g: len(v) for g, v in found.items()}
+    f = found["lamp-drift"][-1]
+    assert f.value < -0.5 and f.limit == 0.5
+    monitor = [r.metadata["lamp_monitor_cd_m2"] for r in store.readings(run)]
+    assert monitor[-1] < monitor[0]
+    rc, lines = qa_cli(store, run, capsys)
+    assert rc == 0 and any("lamp-drift" in line for line in lines)
+
+
+def test_repeatability_cv_above_threshold(tmp_path):
+    store = Store(tmp_path / "s.sqlite")
+    run = run_protocol(lab_with(sphere="flicker:3", world="analytic"), store, "repeatability", {"repeats": 8},
+                       lambda *a: None).run_id
+    (f,) = gates_of(store, run)["repeatability-cv"]
+    assert f.key == "" and f.value > 0.5 and f.severity == "warning"
+
+
+def test_repeatability_steady_lamp_has_no_cv_flag(tmp_path):
+    store = Store(tmp_path / "s.sqlite")
+    run = run_protocol(lab_with(world="analytic"), store, "repeatability", {"repeats": 8},
+                       lambda *a: None).run_id
+    assert "repeatability-cv" not in gates_of(store, run)
+
+
+def test_radiometer_range_and_error_codes(tmp_path, capsys):
+    store = Store(tmp_path / "s.sqlite")
+    lab = lab_with(radiometer="over-range@1",
+                   quality="radiometer_max_luminance_cd_m2 = 1.0", world="analytic")
+    run = run_protocol(lab, store, "repeatability", {"repeats": 3}, lambda *a: None).run_id
+    found = gates_of(store, run)
+    assert len(found["radiometer-range"]) == 3
+    f = found["radiometer-range"][0]
+    assert f.severity == "error" and f.value > 1.0 and f.limit == 1.0
+    (er,) = found["instrument-error:ER10"]
+    assert er.key == "rep01" and "over measurement range" in er.message
+    rc, lines = qa_cli(store, run, capsys)
+    assert rc == 1 and lines[-1] == "4 flags: 3 errors, 1 warnings"
+
+
+def test_nonfinite_brdf_gate():
+    wl = np.arange(380.0, 781.0)
+    b = np.full(wl.size, 0.1)
+    b[3] = np.nan
+    (f,) = brdf_flags("k", {"blocked": False}, {"brdf_per_sr": b}, QualityLimits())
+    assert (f.gate, f.severity, f.value) == ("brdf-nonfinite", "error", 1.0)
+
+
+def test_fit_not_converged_and_at_bounds(tmp_path):
+    from normbox_lab.predict.brdf_model import MaterialFit
+
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("brdf-inplane", status="done").id
+        wl = np.arange(380.0, 781.0, 10.0)
+        fits = {}
+        for k, name in enumerate(["p01", "p02", "p03"]):
+            fit = MaterialFit(name, wl, np.full(wl.size, 0.5), np.full(wl.size, 0.1),
+                              1.5 if name == "p02" else 0.3, 1.5, 0.0, 4.0 + k, 2.0,
+                              metadata={"converged": name != "p03", "status_message": "max nfev",
+                                        "bounds": {"alpha": [1e-3, 1.5], "eta": [1.01, 3.0],
+                                                   "c": [0.0, 0.1]}})
+            fits[name] = (fit.store(store, run_ref=run), fit)
+        qa.check_fits(store, run, fits)
+        found = gates_of(store, run)
+        assert [f.key for f in found["fit-at-bounds"]] == ["p02"]
+        assert [f.key for f in found["fit-not-converged"]] == ["p03"]
+        assert found["fit-not-converged"][0].severity == "error"
+        assert "fit-outlier" not in found            # 4–6 %: no outlier
+
+
+def test_prediction_standard_error_above_target(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("reference-sweep", status="done").id
+        rad = np.ones((2, 1, 5))
+        se = np.array([[[0.001] * 5], [[0.05] * 5]])
+        aid = store.add_artifact("prediction", f"ref-run-{run}", {"radiance": rad},
+                                 run_ref=run)
+        qa.check_prediction(store, run, aid, [7, 19], [45.0], rad, se)
+        (f,) = qa.flags(store, artifact=aid)
+        assert (f.gate, f.key, f.value) == ("prediction-se", "p19@45", pytest.approx(0.05))
+        assert qa.require_clean(store, run=run, artifacts=[aid]) == []   # warnings pass
+
+
+def test_bad_limit_names_file_line_field(tmp_path):
+    text = SIM_CONFIG_TEMPLATE + "fit_outlier_factor = 0.5\n"    # in the [quality] table
+    with pytest.raises(ConfigError) as exc:
+        parse_config(text, "lab.toml")
+    line = text.splitlines().index("fit_outlier_factor = 0.5") + 1
+    assert (exc.value.file, exc.value.line, exc.value.field) == \
+        ("lab.toml", line, "quality.fit_outlier_factor")
+    with pytest.raises(ConfigError, match="unknown limit"):
+        parse_config(SIM_CONFIG_TEMPLATE + "foo = 1\n", "l.toml")
+
+
+def test_qa_of_an_unknown_run_names_it(tmp_path, capsys):
+    with Store(tmp_path / "s.sqlite") as store:
+        store.create_run("x")
+    rc = main(["qa", "nope", "--store", str(tmp_path / "s.sqlite")])
+    assert rc == 1
+    assert "no run matches 'nope'" in capsys.readouterr().err
