@@ -223,3 +223,18 @@ def test_qa_of_an_unknown_run_names_it(tmp_path, capsys):
     rc = main(["qa", "nope", "--store", str(tmp_path / "s.sqlite")])
     assert rc == 1
     assert "no run matches 'nope'" in capsys.readouterr().err
+
+
+def test_runs_shows_flag_counts_and_completed_with_flags(tmp_path, capsys):
+    store, run = brdf_run(tmp_path, lab_with(qepro="tec-drift@8:2"), theta_i=(-30,))
+    clean = run_protocol(lab_with(), store, "brdf-inplane",
+                         {"materials": [2], "theta_i_deg": [-30]}, lambda *a: None).run_id
+    s = qa.summary(store, run)
+    assert s.errors > 0 and qa.summaries_by_run(store)[run] == s and clean not in \
+        qa.summaries_by_run(store)
+    assert main(["runs", "--store", str(store.path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    flagged = next(line for line in lines if line.split()[0] == str(run))
+    assert "completed with flags" in flagged and f"{s.flags} flags ({s.errors} errors)" in flagged
+    plain = next(line for line in lines if line.split()[0] == str(clean))
+    assert " done " in plain and "flags" not in plain

@@ -309,7 +309,7 @@ repeats = 10
 threshold_percent = 1.0
 
 [quality]               # limits of the quality gates (defaults and their sources:
-                        # docs/engine-and-protocols.md, "Quality flags"); e.g.
+                        # docs/quality.md); e.g.
 # fit_outlier_factor = 2.5
 # tec_tolerance_c = 0.5
 """
