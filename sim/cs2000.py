@@ -26,10 +26,25 @@ Commands emulated:
                  (b 00 = 24 values, 01–05, 11–15, 100, 101); f 0 ASCII, 1 hex (big-endian float32);
                  ER20 before any measurement, ER17 bad parameters
   STSR, DTCR     aperture 0 (1°); calibration date/time
-Everything else → ER00 (not emulated).
+  SCMS,m[,f] / SCMR   sync 0 none / 1 internal (f = 2000–20000, Hz × 100) / 2 external;
+                 SCMR → ``OK00,m`` (``OK00,1,fffff`` for internal)
+  OBSS/OBSR, CSMS/CSMR, DIMS/DIMR, BALS/BALR   observer, display colour space, absolute /
+                 difference display, backlight: kept and read back
+  UCCS/UCCR, LNSS/LNSR, NDFS/NDFR   calibration channel 00–10, close-up lens, external ND;
+                 ER05 when their compensation values are absent
+  UCPS, ALFS, NFCS   compensation-factor writes (steps 1–2, committed with ``…,3``): accepted
+                 and kept without interpreting the values (*simplified*); UCPR/ALFR/NFCR read
+                 back presence (ER05 when absent); UCCD,cc deletes a user channel
+  STDS,nn / STDR,nn,m,f,b / STDD,nn / STAD   memory 00–99 (STDR formats as MEDR; ER20 empty)
+  TGSL/TGSR, TGDS,nn / TGDR,nn,m,f,b / TGDD,nn / TGAD   targets 01–20 (TGDR layout as STDR,
+                 *assumed*)
+  BPSS,b / BPSR  baud (fw ≥ 3.00.0000), reply at the old rate; BPSR right-aligned in 6 chars
+  INIT,n         0 data + settings, 1 data, 2 settings → factory defaults (fw ≥ 3.00.9301)
+Everything else → ER00.
 
 Timing model (assumed; docs/radiometers.md): pre-measurement clamp(1 + 2·log10(100/Lv), 1,
-10) s; ttt = clamp(ceil(K/Lv), 2, 242) s with K = 200 (Normal) / 50 (Fast); Multi-Integ
+10) s; ttt = clamp(ceil(K/Lv), 2, 242) s with K = 200 (Normal) / 50 (Fast), the measurement
+ending ANNOUNCE_MARGIN_S = 0.15 s before the announced ttt (whole seconds rounded up); Multi-Integ
 clamp(2·tt, 2, 242); Manual clamp(ceil(2·t) + 1, 2, 242); replies cross the line at 10 bits per
 byte at `baud`.
 
@@ -58,6 +73,10 @@ SPECTRAL_BLOCKS = {1: (0, 100), 2: (100, 200), 3: (200, 300), 4: (300, 401)}
 COLORIMETRIC_BLOCKS = {0, 1, 2, 3, 4, 5, 11, 12, 13, 14, 15, 100, 101}
 COMMAND_DELAY_S = 0.02
 CR_WAIT_S = 0.01                 # how long a trailing CR waits for its LF
+#: the instrument announces whole seconds rounded up: it ends this long before the announced
+#: time (*assumed* margin), so a client that waits the announced time finds it done
+ANNOUNCE_MARGIN_S = 0.15
+BAUD_RATES = (2400, 4800, 9600, 19200, 38400, 57600, 115200)
 K_NORMAL_CD_S_M2 = 200.0
 K_FAST_CD_S_M2 = 50.0
 
@@ -118,10 +137,33 @@ class CS2000AEmulator(core.Emulator):
         self._inbuf = bytearray()
         self._delim = b"\n"
         self._cr_hold_s: float | None = None
-        # settings kept in flash survive a power blip
+        self._factory_settings()
+        self._factory_data()
+        self._power_on()
+
+    def _factory_settings(self) -> None:
+        """Settings kept in flash (they survive a power blip); INIT,0/2 restores these."""
         self.speed_mode, self.nd, self.multi_time_s, self.manual_time_us = 2, 2, 1, 33333
         self.button_enabled = False
-        self._power_on()
+        self.sync_mode, self.sync_frequency = 0, 6000          # no sync, 60.00 Hz
+        self.cal_channel = 0
+        self.lens = 0
+        self.nd_filter = 0
+        self.target = 1
+        self.backlight = (1, 1)
+        self.colour_space = 0
+        self.display_mode = 0
+        self.observer = 0
+        self.line_baud = 115200
+
+    def _factory_data(self) -> None:
+        """Stored data (INIT,0/1 clears these): memory, targets, compensation factors."""
+        self.memory: dict[int, dict[str, Any]] = {}
+        self.targets: dict[int, dict[str, Any]] = {}
+        self.user_channels: dict[int, str] = {}
+        self.lens_factors = False
+        self.nd_factors = False
+        self._staged: dict[str, list[str]] = {}
 
     def prepare(self) -> None:
         self.optics.prepare()
@@ -136,10 +178,11 @@ class CS2000AEmulator(core.Emulator):
 
     # --- timing (public: ETAs come from here) ---------------------------------------------------
     def measure_time_s(self, luminance_cd_m2: float) -> float:
-        """Pre-measurement + ttt with the current speed mode (no data transfer)."""
+        """Pre-measurement + ttt − the announcement margin, with the current speed mode (no
+        data transfer)."""
         ttt = measurement_time_s(luminance_cd_m2, self.speed_mode, self.multi_time_s,
                                  self.manual_time_us)
-        return (pre_measurement_s(luminance_cd_m2) + ttt) * self.time_factor
+        return (pre_measurement_s(luminance_cd_m2) + ttt - ANNOUNCE_MARGIN_S) * self.time_factor
 
     def line_time_s(self, n_bytes: int) -> float:
         return n_bytes * 10.0 / self.baud * self.time_factor
@@ -295,6 +338,312 @@ class CS2000AEmulator(core.Emulator):
     def _cmd_DTCR(self, args: list[str]) -> None:
         self.reply("OK00,20200101,120000" if not args else "ER00")
 
+    def _setting(self, args: list[str], name: str, allowed: tuple[int, ...]) -> None:
+        """``XXXS,n``: one integer setting among `allowed`."""
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if v[0] not in allowed:
+            self.reply("ER17")
+            return
+        setattr(self, name, v[0])
+        self._settings_changed()
+        self.reply("OK00")
+
+    def _read(self, args: list[str], text: str) -> None:
+        self.reply("ER00" if args else f"OK00,{text}")
+
+    def _cmd_SCMS(self, args: list[str]) -> None:
+        if not args or not args[0].isdigit():
+            self.reply("ER00" if not args else "ER17")
+            return
+        mode = int(args[0])
+        v = self._ints(args, 2 if mode == 1 else 1)
+        if v is None:
+            return
+        if mode not in (0, 1, 2) or (mode == 1 and not 2000 <= v[1] <= 20000):
+            self.reply("ER17")
+            return
+        self.sync_mode = mode
+        if mode == 1:
+            self.sync_frequency = v[1]
+        self._settings_changed()
+        self.reply("OK00")
+
+    def _cmd_SCMR(self, args: list[str]) -> None:
+        self._read(args, f"{self.sync_mode},{self.sync_frequency:05d}" if self.sync_mode == 1
+                   else f"{self.sync_mode}")
+
+    def _cmd_OBSS(self, args: list[str]) -> None:
+        self._setting(args, "observer", (0, 1))
+
+    def _cmd_OBSR(self, args: list[str]) -> None:
+        self._read(args, str(self.observer))
+
+    def _cmd_CSMS(self, args: list[str]) -> None:
+        self._setting(args, "colour_space", (0, 1, 2, 3, 4, 5))
+
+    def _cmd_CSMR(self, args: list[str]) -> None:
+        self._read(args, str(self.colour_space))
+
+    def _cmd_DIMS(self, args: list[str]) -> None:
+        self._setting(args, "display_mode", (0, 1))
+
+    def _cmd_DIMR(self, args: list[str]) -> None:
+        self._read(args, str(self.display_mode))
+
+    def _cmd_BALS(self, args: list[str]) -> None:
+        v = self._ints(args, 2)
+        if v is None:
+            return
+        if not set(v) <= {0, 1}:
+            self.reply("ER17")
+            return
+        self.backlight = (v[0], v[1])
+        self._settings_changed()
+        self.reply("OK00")
+
+    def _cmd_BALR(self, args: list[str]) -> None:
+        self._read(args, f"{self.backlight[0]},{self.backlight[1]}")
+
+    def _cmd_UCCS(self, args: list[str]) -> None:
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if not 0 <= v[0] <= 10:
+            self.reply("ER17")
+        elif v[0] and v[0] not in self.user_channels:
+            self.reply("ER05")                       # no compensation values in that channel
+        else:
+            self.cal_channel = v[0]
+            self._settings_changed()
+            self.reply("OK00")
+
+    def _cmd_UCCR(self, args: list[str]) -> None:
+        self._read(args, f"{self.cal_channel:02d}")
+
+    def _cmd_LNSS(self, args: list[str]) -> None:
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if v[0] not in (0, 1):
+            self.reply("ER17")
+        elif v[0] == 1 and not self.lens_factors:
+            self.reply("ER05")
+        else:
+            self.lens = v[0]
+            self._settings_changed()
+            self.reply("OK00")
+
+    def _cmd_LNSR(self, args: list[str]) -> None:
+        self._read(args, str(self.lens))
+
+    def _cmd_NDFS(self, args: list[str]) -> None:
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if v[0] not in (0, 1, 2):
+            self.reply("ER17")
+        elif v[0] and not self.nd_factors:
+            self.reply("ER05")
+        else:
+            self.nd_filter = v[0]
+            self._settings_changed()
+            self.reply("OK00")
+
+    def _cmd_NDFR(self, args: list[str]) -> None:
+        self._read(args, str(self.nd_filter))
+
+    # compensation factors: UCPS / ALFS / NFCS are multi-step writes ended by ``XXXS,3``.
+    # The steps are accepted and kept without interpreting their values (*simplified*).
+    def _staged_write(self, name: str, args: list[str]) -> str | None:
+        """Stage one step; returns the commit argument (after ``3``) once committed."""
+        if not args or args[0] not in ("1", "2", "3"):
+            self.reply("ER17" if args else "ER00")
+            return None
+        if args[0] != "3":
+            self._staged.setdefault(name, []).append(",".join(args))
+            self.reply("OK00")
+            return None
+        if not self._staged.pop(name, None):
+            self.reply("ER17")                       # nothing to commit
+            return None
+        self.flash_writes += 1
+        self.reply("OK00")
+        return ",".join(args[1:])
+
+    def _cmd_UCPS(self, args: list[str]) -> None:
+        if args and args[0] == "3" and not (len(args) == 2 and args[1].isdigit()
+                                            and 1 <= int(args[1]) <= 10):
+            self.reply("ER17")
+            return
+        committed = self._staged_write("UCPS", args)
+        if committed is not None:
+            self.user_channels[int(committed)] = "USER"
+
+    def _cmd_UCPR(self, args: list[str]) -> None:
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if not 1 <= v[0] <= 10:
+            self.reply("ER17")
+        elif v[0] not in self.user_channels:
+            self.reply("ER05")
+        else:
+            self.reply(f"OK00,{self.user_channels[v[0]]:<10}")
+
+    def _cmd_UCCD(self, args: list[str]) -> None:
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if not 1 <= v[0] <= 10:
+            self.reply("ER17")
+            return
+        self.user_channels.pop(v[0], None)
+        if self.cal_channel == v[0]:
+            self.cal_channel = 0
+        self.reply("OK00")
+
+    def _cmd_ALFS(self, args: list[str]) -> None:
+        if self._staged_write("ALFS", args) is not None:
+            self.lens_factors = True
+
+    def _cmd_ALFR(self, args: list[str]) -> None:
+        self.reply("OK00" if self.lens_factors else "ER05")
+
+    def _cmd_NFCS(self, args: list[str]) -> None:
+        if self._staged_write("NFCS", args) is not None:
+            self.nd_factors = True
+
+    def _cmd_NFCR(self, args: list[str]) -> None:
+        self.reply("OK00" if self.nd_factors else "ER05")
+
+    # stored measurements 00–99 and colour-difference targets 01–20
+    def _slot(self, args: list[str], lo: int, hi: int, count: int = 1) -> list[int] | None:
+        v = self._ints(args, count)
+        if v is None:
+            return None
+        if not lo <= v[0] <= hi:
+            self.reply("ER17")
+            return None
+        return v
+
+    def _cmd_STDS(self, args: list[str]) -> None:
+        v = self._slot(args, 0, 99)
+        if v is None:
+            return
+        if self.data is None:
+            self.reply("ER20")
+            return
+        self.memory[v[0]] = self.data
+        self.reply("OK00")
+
+    def _cmd_STDR(self, args: list[str]) -> None:
+        v = self._slot(args, 0, 99, 4)
+        if v is None:
+            return
+        if not self._valid_block(*v[1:]):
+            self.reply("ER17")
+        elif v[0] not in self.memory:
+            self.reply("ER20")
+        else:
+            self.reply(self._data_reply(self.memory[v[0]], *v[1:]))
+
+    def _cmd_STDD(self, args: list[str]) -> None:
+        v = self._slot(args, 0, 99)
+        if v is not None:
+            self.memory.pop(v[0], None)
+            self.reply("OK00")
+
+    def _cmd_STAD(self, args: list[str]) -> None:
+        if args:
+            self.reply("ER00")
+            return
+        self.memory.clear()
+        self.reply("OK00")
+
+    def _cmd_TGSL(self, args: list[str]) -> None:
+        v = self._slot(args, 1, 20)
+        if v is not None:
+            self.target = v[0]
+            self._settings_changed()
+            self.reply("OK00")
+
+    def _cmd_TGSR(self, args: list[str]) -> None:
+        self._read(args, f"{self.target:02d}")
+
+    def _cmd_TGDS(self, args: list[str]) -> None:
+        v = self._slot(args, 1, 20)
+        if v is None:
+            return
+        if self.data is None:
+            self.reply("ER20")
+            return
+        self.targets[v[0]] = self.data
+        self.reply("OK00")
+
+    def _cmd_TGDR(self, args: list[str]) -> None:
+        v = self._slot(args, 1, 20, 4)           # TGDR,nn,m,f,b like STDR (*assumed*)
+        if v is None:
+            return
+        if not self._valid_block(*v[1:]):
+            self.reply("ER17")
+        elif v[0] not in self.targets:
+            self.reply("ER20")
+        else:
+            self.reply(self._data_reply(self.targets[v[0]], *v[1:]))
+
+    def _cmd_TGDD(self, args: list[str]) -> None:
+        v = self._slot(args, 1, 20)
+        if v is not None:
+            self.targets.pop(v[0], None)
+            self.reply("OK00")
+
+    def _cmd_TGAD(self, args: list[str]) -> None:
+        if args:
+            self.reply("ER00")
+            return
+        self.targets.clear()
+        self.reply("OK00")
+
+    def _cmd_BPSS(self, args: list[str]) -> None:
+        if _firmware_tuple(self.firmware) < (3, 0, 0):
+            self.reply("ER00")
+            return
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if v[0] not in BAUD_RATES:
+            self.reply("ER17")
+            return
+        self.reply("OK00")                         # still at the old rate
+        self.line_baud = self.baud = v[0]
+        self._settings_changed()
+
+    def _cmd_BPSR(self, args: list[str]) -> None:
+        if _firmware_tuple(self.firmware) < (3, 0, 0):
+            self.reply("ER00")
+            return
+        self._read(args, f"{self.line_baud:>6}")
+
+    def _cmd_INIT(self, args: list[str]) -> None:
+        if _firmware_tuple(self.firmware) < (3, 0, 9301):
+            self.reply("ER00")
+            return
+        v = self._ints(args, 1)
+        if v is None:
+            return
+        if v[0] not in (0, 1, 2):
+            self.reply("ER17")
+            return
+        if v[0] in (0, 2):
+            self._factory_settings()
+            self.flash_writes += 1
+        if v[0] in (0, 1):
+            self._factory_data()
+            self.data = None
+        self.reply("OK00")
+
     def _cmd_MEAS(self, args: list[str]) -> None:
         v = self._ints(args, 1)
         if v is None:
@@ -310,34 +659,38 @@ class CS2000AEmulator(core.Emulator):
         v = self._ints(args, 3)
         if v is None:
             return
-        kind, fmt, block = v
-        valid = (fmt in (0, 1) and ((kind == 0 and block == 1)
-                                    or (kind == 1 and block in SPECTRAL_BLOCKS)
-                                    or (kind == 2 and block in COLORIMETRIC_BLOCKS)))
-        if not valid:
+        if not self._valid_block(*v):
             self.reply("ER17")
             return
         if self.data is None:
             self.reply("ER20")
             return
-        d = self.data
-        if kind == 0:
-            self.reply(f"OK00,{self.speed_mode},0,{d['integration_time_us']:09d},"
-                       f"{int(self.nd == 1)},0,0,0,00")
-            return
+        kind, fmt, block = v
+        self.reply(self._data_reply(self.data, kind, fmt, block))
         if kind == 1:
-            lo, hi = SPECTRAL_BLOCKS[block]
-            values = d["spectrum"][lo:hi]
-            text = ",".join(fmt_hex(x) if fmt else fmt_e(x) for x in values)
             self._spectral_read.add(block)
-        else:
-            text = ",".join(self._colorimetric(block, fmt))
-        self.reply(f"OK00,{text}")
         if self.button_enabled and (kind == 2 or self._spectral_read == set(SPECTRAL_BLOCKS)):
             self.data = None                        # MSWE,1: the buffer is read once
 
-    def _colorimetric(self, block: int, fmt: int) -> list[str]:
-        c2, c10 = self.data["colorimetry"], self.data["colorimetry10"]
+    @staticmethod
+    def _valid_block(kind: int, fmt: int, block: int) -> bool:
+        return (fmt in (0, 1) and ((kind == 0 and block == 1)
+                                   or (kind == 1 and block in SPECTRAL_BLOCKS)
+                                   or (kind == 2 and block in COLORIMETRIC_BLOCKS)))
+
+    def _data_reply(self, d: dict[str, Any], kind: int, fmt: int, block: int) -> str:
+        if kind == 0:
+            # speed, sync, integration µs, internal ND, lens, external ND, angle, cal channel
+            return (f"OK00,{d['speed_mode']},{d['sync_mode']},{d['integration_time_us']:09d},"
+                    f"{d['nd_used']},{d['lens']},{d['nd_filter']},0,{d['cal_channel']:02d}")
+        if kind == 1:
+            lo, hi = SPECTRAL_BLOCKS[block]
+            values = d["spectrum"][lo:hi]
+            return "OK00," + ",".join(fmt_hex(x) if fmt else fmt_e(x) for x in values)
+        return "OK00," + ",".join(self._colorimetric(d, block, fmt))
+
+    def _colorimetric(self, d: dict[str, Any], block: int, fmt: int) -> list[str]:
+        c2, c10 = d["colorimetry"], d["colorimetry10"]
         nan = math.nan
         full = [("e", c2["Le"]), ("lv", c2["Lv"]), ("e", c2["X"]), ("e", c2["Y"]),
                 ("e", c2["Z"]), ("c", c2["x"]), ("c", c2["y"]), ("c", c2["u_prime"]),
@@ -384,7 +737,10 @@ class CS2000AEmulator(core.Emulator):
         self._spectral_read = set()
         self._pending = {"spectrum": spectrum, "colorimetry": c2,
                          "colorimetry10": colorimetry(spectrum, 10), "ttt": ttt,
-                         "integration_time_us": t_int_us, "over_range": over}
+                         "integration_time_us": t_int_us, "over_range": over,
+                         "speed_mode": self.speed_mode, "nd_used": int(self.nd == 1),
+                         "sync_mode": self.sync_mode, "lens": self.lens,
+                         "nd_filter": self.nd_filter, "cal_channel": self.cal_channel}
         self.phase = "pre"
         self.phase_end_s = self.clock.now_s() + pre_measurement_s(lv) * self.time_factor
 
@@ -400,7 +756,7 @@ class CS2000AEmulator(core.Emulator):
                 self.reply("ER10")
                 return
             self.phase = "measuring"
-            self.phase_end_s += p["ttt"] * self.time_factor
+            self.phase_end_s += (p["ttt"] - ANNOUNCE_MARGIN_S) * self.time_factor
             self.reply(f"OK00,{p['ttt']:03d}")
         elif self.phase == "measuring":
             self.data = p

@@ -3,9 +3,14 @@ real clock (what `normbox-lab sim serve` does in its own process), for outside c
 
 from __future__ import annotations
 
+import array
 import contextlib
+import fcntl
+import termios
 import threading
 from collections.abc import Iterator
+
+from serial.urlhandler import protocol_socket
 
 from normbox_lab.core.clock import RealClock
 from normbox_lab.sim import core, serve
@@ -31,3 +36,20 @@ def served(device: str, transport: str, **options: str) -> Iterator[serve.TcpSer
 
 def tcp_port(server: serve.TcpServer) -> int:
     return int(server.endpoint.rsplit(":", 1)[1])
+
+
+class CountingSocketSerial(protocol_socket.Serial):
+    """pyserial's ``socket://`` port, except that `in_waiting` counts the bytes waiting.
+
+    pyserial's own socket port reports 1 whenever anything is waiting, so a client that empties
+    its input with ``read_all()`` (colour-specio does, before each read-out) takes one byte and
+    leaves the rest of the line behind; a serial port reports the full count.
+    """
+
+    @property
+    def in_waiting(self) -> int:
+        if not self.is_open:
+            return 0
+        count = array.array("i", [0])
+        fcntl.ioctl(self._socket, termios.FIONREAD, count)
+        return count[0]
