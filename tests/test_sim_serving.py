@@ -102,3 +102,34 @@ def test_serve_help_says_ptys_cannot_carry_modem_lines(capsys):
     out = " ".join(capsys.readouterr().out.split())
     assert "ptys cannot carry RTS/DTR" in out and "socket://HOST:PORT" in out
     assert "--tcp ::1:0" in out
+
+
+def test_colour_science_is_loaded_before_the_endpoint_line(monkeypatch, capsys):
+    from normbox_lab.sim import radiometer_common
+    from normbox_lab.sim.cs2000 import CS2000AEmulator
+
+    events = []
+    monkeypatch.setattr(radiometer_common, "_CMFS", {})
+    real_prepare = CS2000AEmulator.prepare
+
+    def prepare(self):
+        real_prepare(self)
+        events.append(("prepared", sorted(radiometer_common._CMFS), capsys.readouterr().out))
+
+    monkeypatch.setattr(CS2000AEmulator, "prepare", prepare)
+    monkeypatch.setattr(serve.TcpServer, "serve", lambda self, stop=None: events.append(
+        ("served", capsys.readouterr().out)))
+    assert main(["sim", "serve", "cs2000a", "--tcp", "127.0.0.1:0"]) == 0
+    (tag, observers, out_then), (tag2, out_later) = events
+    assert (tag, observers, out_then) == ("prepared", [2, 10], "")     # nothing printed yet
+    assert tag2 == "served" and out_later.startswith("tcp: 127.0.0.1:")
+
+
+
+@pytest.mark.slow
+def test_latency_command_prints_the_ratio_last(capsys):
+    # a served CS-2000A on the real clock, cold start (≈ 10 s here): format, not speed
+    assert main(["sim", "latency", "cs2000a"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[0].startswith("cs2000a: endpoint line after ")
+    assert lines[-1].startswith("ratio ") and float(lines[-1].split()[1]) > 0

@@ -39,6 +39,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="an emulator option, as in the sim:// URL (e.g. noise=off, "
                         "time_factor=0.05 for the radiometers); repeatable")
     s.set_defaults(handler=_serve)
+    lat = simsub.add_parser(
+        "latency", help="first-measurement latency of a served radiometer from a cold start",
+        description="Start `sim serve DEVICE --tcp 127.0.0.1:0` in a new process (noise off, "
+                    "the default 100 cd/m² light), connect as soon as the endpoint line "
+                    "appears, enter remote mode and time the first measurement against the "
+                    "emulator's timing model. Last line: the ratio measured / model.")
+    lat.add_argument("device", choices=("cs1000a", "cs2000a"), metavar="DEVICE",
+                     help="cs1000a or cs2000a")
+    lat.set_defaults(handler=_latency)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
@@ -87,4 +96,49 @@ def _serve(args: argparse.Namespace) -> int:
         server.serve()
     except KeyboardInterrupt:
         pass
+    return 0
+
+
+def _latency(args: argparse.Namespace) -> int:
+    import socket
+    import subprocess
+    import time
+
+    from normbox_lab.sim import core
+    from normbox_lab.sim.radiometer_common import DEFAULT_LUMINANCE_CD_M2
+
+    remote, measure, final = {"cs1000a": (b"RMT,1\n", b"MES,1\n", b"OK\n"),
+                              "cs2000a": (b"RMTS,1\n", b"MEAS,1\n", b"OK00\n")}[args.device]
+    model = core.create(args.device, noise="off")
+    module = sys.modules[type(model).__module__]
+    model_s = (model.measure_time_s(DEFAULT_LUMINANCE_CD_M2)
+               + module.COMMAND_DELAY_S * model.time_factor + model.line_time_s(len(final)))
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", args.device,
+                             "--tcp", "127.0.0.1:0", "--option", "noise=off"],
+                            stdout=subprocess.PIPE, text=True)
+    try:
+        endpoint = proc.stdout.readline().strip()
+        ready_s = time.monotonic() - t0
+        if not endpoint.startswith("tcp: "):
+            return _fail(f"sim serve {args.device} printed {endpoint!r}, not an endpoint")
+        port = int(endpoint.rsplit(":", 1)[1])
+        with socket.create_connection(("127.0.0.1", port), timeout=60) as conn:
+            lines = conn.makefile("rb")
+            conn.sendall(remote)
+            lines.readline()
+            t_meas = time.monotonic()
+            conn.sendall(measure)
+            first = lines.readline()
+            t_first = time.monotonic() - t_meas
+            last = lines.readline()
+            took_s = time.monotonic() - t_meas
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    print(f"{args.device}: endpoint line after {ready_s:.2f} s (cold start)")
+    print(f"first reply {first.strip().decode(errors='replace')} after {t_first:.3f} s; "
+          f"final {last.strip().decode(errors='replace')} after {took_s:.3f} s")
+    print(f"timing model {model_s:.3f} s (pre-measurement + measurement + final reply)")
+    print(f"ratio {took_s / model_s:.3f}")
     return 0
