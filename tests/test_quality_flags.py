@@ -238,3 +238,18 @@ def test_runs_shows_flag_counts_and_completed_with_flags(tmp_path, capsys):
     assert "completed with flags" in flagged and f"{s.flags} flags ({s.errors} errors)" in flagged
     plain = next(line for line in lines if line.split()[0] == str(clean))
     assert " done " in plain and "flags" not in plain
+
+
+def test_report_opens_with_the_qa_summary(tmp_path):
+    from normbox_lab.analyze.report import ReportData, build_html
+
+    store, run = brdf_run(tmp_path, lab_with(qepro="tec-drift@8:2"), theta_i=(-30,))
+    found = qa.flags(store, run)
+    html, _, tables = build_html(ReportData(flags=found))
+    s = qa.summary(store, run)
+    first_h2 = html.index("<h2>")
+    assert html[first_h2:].startswith("<h2>Quality</h2>")          # the report opens with it
+    assert f"<p class=\"qa-summary\">{s.line()}</p>" in html
+    assert "tab-qa" in tables and "tec-off-setpoint" in html and found[0].key in html
+    html, _, tables = build_html(ReportData())
+    assert "0 flags: 0 errors, 0 warnings" in html and "tab-qa" not in tables

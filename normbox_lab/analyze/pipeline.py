@@ -269,7 +269,13 @@ def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
     patch_fit_names = [fit_key(n.split()[0]) for n in comparison.patch_names]
     latest_images = {a.name: a for a in store.artifacts("image-figure", run_ref=run_id)}
     images = [ImageFigure.from_artifact(a) for a in latest_images.values()]
+    from normbox_lab.analyze import qa
+
+    flags = qa.flags(store, run_id)
+    if brdf_run is not None and store.get_run(brdf_run).id != run_id:
+        flags += qa.flags(store, brdf_run)
     rd = ReportData(comparison=comparison, fits=fits, brdf_data=data, error_model=em,
+                    flags=flags,
                     title=f"Normbox validation report — reference run {run_id}",
                     polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
                     patch_fit_names=patch_fit_names, notes=list(notes), images=images,

@@ -58,6 +58,7 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)
     images: list[ImageFigure] = field(default_factory=list)   # virtual-camera figures
+    flags: list[Any] = field(default_factory=list)   # quality flags (`analyze.qa.Flag`)
 
 
 @dataclass
@@ -369,6 +370,25 @@ def _rating_class(_i: int, j: int, v: Any) -> str:
     return f"r{int(rating_index(v))}"
 
 
+def _qa_html(flags: Sequence[Any], max_rows: int = 200) -> str:
+    """The QA summary the report opens with: counts, then one row per flag (errors first)."""
+    errors = sum(1 for f in flags if f.severity == "error")
+    head = (f'<section id="qa"><h2>Quality</h2><p class="qa-summary">{len(flags)} flags: '
+            f"{errors} errors, {len(flags) - errors} warnings</p>")
+    if not flags:
+        return head + "</section>"
+    ordered = sorted(flags, key=lambda f: (f.severity != "error", f.run_id or 0, f.key))
+    rows = [[f.severity, str(f.run_id or ""), f.key or "(run)", f.gate,
+             "" if f.value is None else float(f.value),
+             "" if f.limit is None else float(f.limit), f.message]
+            for f in ordered[:max_rows]]
+    more = (f"<p>… and {len(flags) - max_rows} more (normbox-lab qa RUN_ID)</p>"
+            if len(flags) > max_rows else "")
+    return head + _table_html("tab-qa", "Quality flags",
+                              ["severity", "run", "reading / artifact", "gate", "value",
+                               "limit", "message"], rows) + more + "</section>"
+
+
 def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     """(html, figure ids, table ids)."""
     parts: list[str] = []
@@ -383,6 +403,9 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
         parts.append(_table_html(tid, *args, **kw))
         tabs.append(tid)
 
+    parts.append(_qa_html(d.flags))
+    if d.flags:
+        tabs.append("tab-qa")
     c = d.comparison
     if c is not None:
         ang_hdr = ["patch"] + [f"{v:g}°" for v in c.angle_deg]
