@@ -2,9 +2,10 @@
 
 The emulator runs on the real clock and is serviced continuously, whether or not a client is
 attached: its motions finish, its measurements end, and what it says while nobody listens is
-lost (as on a serial cable with no computer at the other end).  A new TCP connection starts
-from a clean line: nothing said before it connected reaches it, as with a freshly opened
-serial port.  One TCP client at a time; a second connection is closed at once.
+lost (as on a serial cable with no computer at the other end).  A new TCP connection, or a
+client opening the pty, starts from a clean line: nothing said before it came reaches it, as
+with a freshly opened serial port.  One TCP client at a time; a second connection is closed at
+once.
 
 Linux ptys cannot carry modem lines (RTS/DTR ioctls fail on them), so clients that set or
 pulse RTS/DTR (Thorlabs APT clients do) should use the TCP endpoint through pyserial's
@@ -117,14 +118,20 @@ class TcpServer:
 
 
 class PtyServer:
+    """A pseudo-terminal whose slave end is left to the client: while nobody has it open, the
+    master reads EIO, and what the emulator says is lost; a client that opens it starts from a
+    clean line."""
+
     def __init__(self, emulator: core.Emulator) -> None:
         self.emulator = emulator
-        self.master, self.slave = os.openpty()
-        tty.setraw(self.slave)
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        os.close(slave)
         os.set_blocking(self.master, False)
-        self.path = os.ttyname(self.slave)
         self.url = self.path
         self.endpoint = f"pty: {self.path}"
+        self.client_present = False
 
     def serve(self, stop: threading.Event | None = None) -> None:
         stop = stop or threading.Event()
@@ -133,21 +140,30 @@ class PtyServer:
                 self.step()
         finally:
             os.close(self.master)
-            os.close(self.slave)
 
     def step(self) -> None:
         emu = self.emulator
-        ready, _, _ = select.select([self.master], [], [], _timeout_s(emu))
-        if self.master in ready:
+        timeout = _timeout_s(emu)
+        ready, _, _ = select.select([self.master], [], [], timeout)
+        present, data = True, b""
+        if ready:
             try:
                 data = os.read(self.master, 4096)
-            except OSError:           # EIO while no client has the slave open
-                data = b""
-            if data:
-                emu.feed(data)
+            except BlockingIOError:
+                pass
+            except OSError:            # EIO: no client has the slave open
+                present = False
+        if present and not self.client_present:
+            emu.take_output()          # said before this client came: lost
+        self.client_present = present
+        if data:
+            emu.feed(data)
         out = emu.take_output()
+        if not present:
+            threading.Event().wait(timeout)    # EIO is always "ready": do not spin
+            return
         if out:
             try:
                 os.write(self.master, out)
-            except BlockingIOError:   # nobody reads the pty and its buffer is full: lost
+            except OSError:            # buffer full or the client just left: lost
                 pass

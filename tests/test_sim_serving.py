@@ -3,7 +3,9 @@ emulator that is serviced while nobody is connected, and a clean line for each n
 
 from __future__ import annotations
 
+import os
 import socket
+import tty
 
 import pytest
 
@@ -133,3 +135,48 @@ def test_latency_command_prints_the_ratio_last(capsys):
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[0].startswith("cs2000a: endpoint line after ")
     assert lines[-1].startswith("ratio ") and float(lines[-1].split()[1]) > 0
+
+
+def _read_pty_until(server: serve.PtyServer, fd: int, want: bytes) -> bytes:
+    got = b""
+    for _ in range(200):
+        server.step()
+        try:
+            got += os.read(fd, 4096)
+        except BlockingIOError:
+            pass
+        if got.endswith(want):
+            return got
+    return got
+
+
+def _open_pty_client(path: str) -> int:
+    fd = os.open(path, os.O_RDWR | os.O_NOCTTY | os.O_NONBLOCK)
+    tty.setraw(fd)
+    return fd
+
+
+def test_pty_serviced_without_a_client_and_each_client_starts_clean():
+    clock = VirtualClock()
+    emu = ZaberRotatorEmulator(clock)
+    server = serve.PtyServer(emu)
+    try:
+        server.step()
+        assert not server.client_present
+        first = _open_pty_client(server.path)
+        os.write(first, b"/1 set comm.alert 1\n/1 1 move vel 5000\n")
+        for _ in range(3):
+            server.step()
+        os.close(first)                                # leaves without reading
+        for _ in range(3):
+            server.step()
+        assert not server.client_present
+        clock.advance(300.0)                           # the run ends at the limit switch:
+        server.step()                                  # its alert is lost
+        assert emu.angle_deg() == pytest.approx(170.0)
+        second = _open_pty_client(server.path)
+        os.write(second, b"/1 1 tools echo fresh\n")
+        assert _read_pty_until(server, second, b"\r\n") == b"@01 1 OK IDLE WL fresh\r\n"
+        os.close(second)
+    finally:
+        os.close(server.master)

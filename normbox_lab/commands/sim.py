@@ -8,9 +8,10 @@ import sys
 
 SERVE_EPILOG = """\
 The emulator is loaded completely (colour-science included) before the endpoint line is
-printed, and it keeps running while no client is connected. A new TCP connection starts from a
-clean line. Linux ptys cannot carry RTS/DTR: clients that set or pulse modem lines (Thorlabs APT
-clients, colour-specio's rtscts) should use --tcp and pyserial's socket://HOST:PORT URL.
+printed, and it keeps running while no client is connected. A new TCP connection, or a client
+opening the pty, starts from a clean line. Linux ptys cannot carry RTS/DTR (the modem-line
+ioctls fail on them): clients that set or pulse RTS/DTR themselves (some Thorlabs APT drivers
+pulse RTS on connect) should use --tcp and pyserial's socket://HOST:PORT URL.
 IPv6 loopback: --tcp ::1:0 (printed as tcp: [::1]:PORT)."""
 
 
