@@ -167,7 +167,8 @@ class CS2000A(KonicaMinoltaRadiometer):
         self._ensure_remote()
         fields = self.command("IDDR")
         raw = ",".join(["OK00", *fields]).encode()
-        if len(fields) != 3 or fields[1] not in ("1", "2") or not fields[2].strip().isdigit():
+        if len(fields) != 3 or fields[1] not in ("1", "2") \
+                or not fields[2].strip().isascii() or not fields[2].strip().isdigit():
             raise self._protocol("IDDR: expected OK00,<name>,<variation>,<serial>", raw)
         url = str(getattr(self.port, "port", "") or "")
         return InstrumentIdentity("spectroradiometer", fields[0].strip(),
@@ -208,16 +209,21 @@ class CS2000A(KonicaMinoltaRadiometer):
         raw = ",".join(["OK00", *fields]).encode()
         names = {v: k for k, v in SPEED_MODES.items()}
         nds = {v: k for k, v in ND_MODES.items()}
-        if not fields or not all(f.isdigit() for f in fields) or int(fields[0]) not in names:
+        if not fields:
             raise self._protocol("SPMR: unexpected reply", raw)
-        mode = names[int(fields[0])]
-        if len(fields) != (2 if mode in ("normal", "fast") else 3) or int(fields[-1]) not in nds:
+        mode = names.get(self.parse_int(fields[0], raw, 0, 9), "")
+        if not mode:
+            raise self._protocol("SPMR: unknown speed mode", raw)
+        if len(fields) != (2 if mode in ("normal", "fast") else 3):
             raise self._protocol("SPMR: wrong number of fields", raw)
-        out: dict[str, object] = {"speed": mode, "nd": nds[int(fields[-1])]}
+        nd = nds.get(self.parse_int(fields[-1], raw, 0, 9), "")
+        if not nd:
+            raise self._protocol("SPMR: unknown ND mode", raw)
+        out: dict[str, object] = {"speed": mode, "nd": nd}
         if mode.startswith("multi"):
-            out["time_s"] = float(int(fields[1]))
+            out["time_s"] = float(self.parse_int(fields[1], raw, 1, 16))
         elif mode == "manual":
-            out["time_s"] = int(fields[1]) / 1e6
+            out["time_s"] = self.parse_int(fields[1], raw, 5_000, 120_000_000) / 1e6
         self.speed, self.nd = mode, str(out["nd"])
         if "time_s" in out:
             self.time_s = float(out["time_s"])  # type: ignore[arg-type]
@@ -285,11 +291,14 @@ class CS2000A(KonicaMinoltaRadiometer):
     def measurement_conditions_once(self) -> dict[str, Any]:
         raw = self.exchange(b"MEDR,0,0,1")
         fields = self.parse_reply(raw)
-        if len(fields) != 8 or not all(x.isdigit() for x in fields):
+        if len(fields) != 8:
             raise self._protocol("MEDR,0,0,1: expected 8 numeric fields", raw)
         keys = ("speed_mode", "sync_mode", "integration_time_us", "internal_nd", "close_up_lens",
                 "external_nd", "angle", "calibration_channel")
-        return dict(zip(keys, (int(x) for x in fields), strict=True))
+        values = [self.parse_int(x, raw) for x in fields]
+        if not 0 < values[2] <= 600_000_000:
+            raise self._protocol("MEDR,0,0,1: integration time out of range", raw)
+        return dict(zip(keys, values, strict=True))
 
     def _run_measurement(self) -> int:
         try:
@@ -297,9 +306,9 @@ class CS2000A(KonicaMinoltaRadiometer):
             first = self._read_line(FIRST_REPLY_TIMEOUT_S)
             assert first is not None
             fields = self.parse_reply(first)
-            if len(fields) != 1 or not fields[0].isdigit() or not 1 <= int(fields[0]) <= 999:
+            if len(fields) != 1:
                 raise self._protocol("MEAS,1: expected OK00,ttt", first)
-            ttt = int(fields[0])
+            ttt = self.parse_int(fields[0], first, 1, 999)
             final = self._read_line(ttt * 1.2 + 10.0, watch_abort=True)
             if final is None:
                 self._cancel_quietly()

@@ -109,7 +109,7 @@ class SerialRadiometer:
         buf = bytearray()
         while len(buf) < n:
             remaining = deadline - self.clock.now_s()
-            if remaining <= 0:
+            if remaining <= 1e-9:           # (a float residue would never elapse)
                 if buf:
                     raise self._protocol(f"binary block cut short ({len(buf)} of {n} bytes)",
                                          bytes(buf))
@@ -130,7 +130,7 @@ class SerialRadiometer:
             if watch_abort and not buf and self._abort.is_set():
                 return None
             remaining = deadline - self.clock.now_s()
-            if remaining <= 0:
+            if remaining <= 1e-9:           # (a float residue would never elapse)
                 if buf:
                     raise self._protocol("reply cut short (no line end)", bytes(buf))
                 raise self._timeout(f"no reply within {timeout_s:g} s")
@@ -258,6 +258,16 @@ class SerialRadiometer:
         if not math.isfinite(value):
             raise self._protocol(f"not a finite number: {text!r}", raw)
         return value
+
+    def parse_int(self, text: str, raw: bytes, lo: int = 0, hi: int = 10**12) -> int:
+        """A plain decimal integer in [lo, hi] (no sign, at most 12 digits)."""
+        if not _plain_digits(text) or not lo <= int(text) <= hi:
+            raise self._protocol(f"expected an integer in {lo}…{hi}: {text[:40]!r}", raw)
+        return int(text)
+
+
+def _plain_digits(text: str) -> bool:
+    return text.isascii() and text.isdigit() and len(text) <= 12
 
 
 def undefined_to_nan(value: float) -> float:

@@ -1,0 +1,221 @@
+"""Fuzzing every parser of untrusted bytes: mutated replies into each driver's real read path,
+mutated lab configs, mutated brdf-json files.  Bounded and seeded: the default suite runs
+`DEFAULT_N` inputs per parser (a few seconds each); the slow one runs 100 000 per parser.
+
+The only acceptable outcomes are a valid result or a typed `NormboxError` (ProtocolError /
+DeviceError / InstrumentTimeout naming the instrument and the bytes, ConfigError naming
+file:line:field with a line > 0, DataError naming file and location).  Anything else — a
+struct.error, OverflowError, UnicodeDecodeError, IndexError, a raw ValueError — is a defect.
+
+Counts per parser are printed (``-s``):  nice -n 10 .venv/bin/python -m pytest -s -m slow
+tests/test_fuzz.py
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from collections import Counter
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from fuzz import ReplyPort, mutate
+
+from normbox_lab.core.clock import VirtualClock
+from normbox_lab.core.errors import ConfigError, NormboxError
+from normbox_lab.drivers.cs1000 import CS1000A
+from normbox_lab.drivers.cs2000 import CS2000A
+from normbox_lab.drivers.rotator_apt import AptRotationStage
+from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
+from normbox_lab.drivers.sphere import SphereLightSource
+
+DEFAULT_N = 1500
+SLOW_N = 100_000
+
+# --- valid replies to mutate ----------------------------------------------------------------------
+WL = np.arange(380.0, 781.0)
+SPEC = 2e-3 * (1.0 + np.sin(WL / 37.0) ** 2)
+CS1000_COLOUR = b"6.4182e-1,2.0000e2,1.0984e2,2.0000e2,3.5595e1,0.4475,0.4074,0.2559,0.5243,2856,+0.0012\n"
+CS1000_LINE = (",".join(f"{v:.4e}" for v in SPEC[:28]) + "\n").encode()
+CS2000_BLOCK = ("OK00," + ",".join(f"{v:.4e}" for v in SPEC[:100]) + "\n").encode()
+CS2000_HEX = ("OK00," + ",".join(struct.pack(">f", v).hex().upper() for v in SPEC[:100])
+              + "\n").encode()
+CS2000_COLOUR = ("OK00," + ",".join(["1.2345e2"] * 24) + "\n").encode()
+CS2000_COND = b"OK00,2,0,1000000,2,0,0,0,0\n"
+ZABER_POS = b"@01 1 OK IDLE -- 12345\r\n"
+ZABER_WARN = b"@01 1 OK IDLE WR 02 WR NI\r\n"
+
+
+def _apt_frame(msg_id: int, data: bytes) -> bytes:
+    return struct.pack("<HHBB", msg_id, len(data), 0x01 | 0x80, 0x50) + data
+
+
+APT_STATUS = _apt_frame(0x0481, struct.pack("<HllL", 1, 13653, 13653, 0x400))
+APT_VEL = _apt_frame(0x0415, struct.pack("<H3l", 1, 0, 1374, 21987328))
+APT_INFO = _apt_frame(0x0006, struct.pack("<l8sH4B60sHHH", 55000123, b"K10CR1\0\0", 16,
+                                          3, 0, 1, 0, b"\0" * 60, 1, 1, 1))
+
+
+def _port_and_clock() -> tuple[ReplyPort, VirtualClock]:
+    clock = VirtualClock()
+    return ReplyPort([], clock), clock
+
+
+# --- one input per parser -----------------------------------------------------------------------
+def cs1000_ascii(rng: random.Random) -> None:
+    d = CS1000A(*_port_and_clock(), attempts=1, command_timeout_s=1.0)
+    d.remote = True
+    which = rng.randrange(4)
+    if which == 0:
+        d.port.replies = [mutate(rng, CS1000_COLOUR)]
+        d._data_line(11)
+    elif which == 1:
+        d.port.replies = [mutate(rng, CS1000_LINE)]
+        d._data_line(28)
+    elif which == 2:
+        d.port.replies = [mutate(rng, b"OK,1.50\n") + mutate(rng, b"OK\n")]
+        d._run_measurement()
+    else:
+        d.port.replies = [mutate(rng, b"OK,0,1,2.500\n")]
+        d.status()
+
+
+def cs1000_binary(rng: random.Random) -> None:
+    d = CS1000A(*_port_and_clock(), data_format="binary", attempts=1,
+                command_timeout_s=1.0)
+    blocks = [struct.pack(f"<{n}f", *SPEC[i * 60:i * 60 + n])
+              for i, n in enumerate((60, 60, 60, 60, 60, 60, 41))]
+    k = rng.randrange(7)
+    blocks[k] = mutate(rng, blocks[k])
+    d.port.replies = [b"OK\n", *blocks]
+    d._read_spectrum()
+
+
+def _cs2000(rng: random.Random, fmt: str) -> None:
+    d = CS2000A(*_port_and_clock(), data_format=fmt, attempts=1,
+                command_timeout_s=1.0)
+    d.remote = True
+    d._button_off = True
+    which = rng.randrange(6)
+    if which == 0:
+        d.port.replies = [mutate(rng, CS2000_HEX if fmt == "hex" else CS2000_BLOCK)]
+        d._data(f"MEDR,1,{int(fmt == 'hex')},1", 100)
+    elif which == 1:
+        d.port.replies = [mutate(rng, CS2000_COLOUR)]
+        d._data("MEDR,2,0,00", 24)
+    elif which == 2:
+        d.port.replies = [mutate(rng, CS2000_COND)]
+        d.measurement_conditions_once()
+    elif which == 3:
+        d.port.replies = [mutate(rng, b"OK00,2,1,2\n")]
+        d.read_speed()
+    elif which == 4:
+        d.port.replies = [mutate(rng, b"OK00,CS-2000A ,2,2000123\n")]
+        d.identify()
+    else:
+        d.port.replies = [mutate(rng, b"OK00,003\n") + mutate(rng, b"OK00\n")]
+        d._run_measurement()
+
+
+def cs2000_ascii(rng: random.Random) -> None:
+    _cs2000(rng, "ascii")
+
+
+def cs2000_hex(rng: random.Random) -> None:
+    _cs2000(rng, "hex")
+
+
+def zaber(rng: random.Random) -> None:
+    s = ZaberRotationStage(*_port_and_clock(), connect=False, attempts=1)
+    which = rng.randrange(3)
+    if which == 0:
+        s.port.replies = [mutate(rng, ZABER_POS)]
+        s.position_deg()
+    elif which == 1:
+        s.port.replies = [mutate(rng, ZABER_WARN)]
+        s.warnings()
+    else:
+        s.port.replies = [mutate(rng, b"@01 1 OK BUSY -- 0\r\n")]
+        s.is_moving()
+
+
+def apt_frames(rng: random.Random) -> None:
+    s = AptRotationStage(*_port_and_clock(), connect=False, attempts=1)
+    frame, msgid = rng.choice([(APT_STATUS, 0x0481), (APT_VEL, 0x0415), (APT_INFO, 0x0006)])
+    s.port.replies = [mutate(rng, frame)]
+    if msgid == 0x0481:
+        s.status()
+    else:
+        s._send(b"\x00" * 6)
+        s._expect(msgid)
+
+
+def sphere(rng: random.Random) -> None:
+    lamp = SphereLightSource(*_port_and_clock(), attempts=1)
+    which = rng.randrange(5)
+    if which == 0:
+        lamp.port.replies = [mutate(rng, b"STABLE\n"), b'0,"No error"\n']
+        lamp.state()
+    elif which == 1:
+        lamp.port.replies = [mutate(rng, b"50.0\n")]
+        lamp.level_percent()
+    elif which == 2:
+        lamp.port.replies = [mutate(rng, b"380,5,5,rel\n") + mutate(rng, b"0.1,0.2,0.3,0.4,0.5\n")]
+        lamp.internal_spectrum()
+    elif which == 3:
+        lamp.port.replies = [mutate(rng, (",".join(["1.0"] * 25) + "\n").encode())]
+        lamp.panel_map()
+    else:
+        lamp.port.replies = [mutate(rng, b"ERR -222\n"), mutate(rng, b'-222,"Data out of range"\n'),
+                             b'0,"No error"\n']
+        lamp.set_level_percent(50.0)
+
+
+PARSERS: dict[str, Callable[[random.Random], None]] = {
+    "cs1000a-ascii": cs1000_ascii, "cs1000a-binary": cs1000_binary,
+    "cs2000a-ascii": cs2000_ascii, "cs2000a-hex": cs2000_hex, "zaber": zaber,
+    "apt-frames": apt_frames, "sphere": sphere,
+}
+
+
+def run_fuzz(case: Callable[[random.Random], None], n: int, seed: int) -> Counter:
+    """Run `n` inputs; count outcomes; the first untyped exception is re-raised with its seed."""
+    outcomes: Counter = Counter()
+    for i in range(n):
+        rng = random.Random(seed * 1_000_003 + i)
+        try:
+            case(rng)
+            outcomes["ok"] += 1
+        except ConfigError as exc:
+            assert exc.line > 0, f"input {i}: {exc}"
+            outcomes[type(exc).__name__] += 1
+        except NormboxError as exc:
+            outcomes[type(exc).__name__] += 1
+        except Exception as exc:  # noqa: BLE001 - the point of the test: nothing untyped
+            raise AssertionError(f"input {i} (seed {seed}): untyped {type(exc).__name__}: "
+                                 f"{exc}") from exc
+    return outcomes
+
+
+@pytest.mark.parametrize("name", sorted(PARSERS))
+def test_fuzz_parser_raises_only_typed_errors(name):
+    counts = run_fuzz(PARSERS[name], DEFAULT_N, seed=1)
+    print(f"fuzz {name}: {DEFAULT_N} inputs, untyped 0, outcomes {dict(counts)}")
+    assert sum(counts.values()) == DEFAULT_N
+    assert counts["ok"] < DEFAULT_N           # the mutations do reach the parser
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", sorted(PARSERS))
+def test_fuzz_parser_100k(name):
+    counts = run_fuzz(PARSERS[name], SLOW_N, seed=2)
+    print(f"fuzz {name}: {SLOW_N} inputs, untyped 0, outcomes {dict(counts)}")
+    assert sum(counts.values()) == SLOW_N
+
+
+def test_mutator_is_seeded():
+    a = [mutate(random.Random(5), CS1000_LINE) for _ in range(3)]
+    b = [mutate(random.Random(5), CS1000_LINE) for _ in range(3)]
+    assert a == b and not math.isnan(len(a[0]))
