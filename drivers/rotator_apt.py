@@ -105,8 +105,12 @@ class AptRotationStage(RotationStageBase):
     def open(cls, url: str, clock: Clock, **options: Any) -> AptRotationStage:
         from normbox_lab.sim.transport import open_port
 
-        port = open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
-                         rtscts=True, timeout=0.05)
+        try:
+            port = open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
+                             rtscts=True, timeout=0.05)
+        except (SerialException, OSError, ValueError) as exc:
+            raise InstrumentError(f"cannot open {url!r}: {exc}",
+                                  instrument=str(options.get("instrument_id", ""))) from exc
         return cls(port, clock, **options)
 
     # --- framing ------------------------------------------------------------------------------

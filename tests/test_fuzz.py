@@ -173,7 +173,46 @@ def sphere(rng: random.Random) -> None:
         lamp.set_level_percent(50.0)
 
 
+TOML_VALUES = ["1.5", '"x"', "[0, 1]", "true", "-1", "0", "1e400", "{ a = 1 }", "[]",
+               '"sim://nowhere"', "nan", "inf", '[1, "a"]', "999999999999999999999", '""',
+               "[30, 95]", "[[1]]", "2024-01-01", '"/dev/ttyUSB9"', "25", "1.0e-300"]
+
+
+def lab_toml(rng: random.Random) -> None:
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+
+    lines = SIM_CONFIG_TEMPLATE.splitlines()
+    for _ in range(rng.randint(1, 3)):
+        i = rng.randrange(len(lines))
+        op = rng.randrange(7)
+        if op == 0:
+            del lines[i]
+        elif op == 1:
+            lines.insert(i, lines[rng.randrange(len(lines))])
+        elif op == 2 and "=" in lines[i]:
+            key = lines[i].split("=", 1)[0]
+            lines[i] = f"{key}= {rng.choice(TOML_VALUES)}"
+        elif op == 3:
+            lines.insert(i + 1, rng.choice(["bogus = 1", "[bogus]", "[instruments.bogus]",
+                                            "[protocols.reference-sweep]", "x.y = 2",
+                                            "[instruments.radiometer.sub]"]))
+        elif op == 4:
+            j = rng.randrange(len(lines))
+            lines[i], lines[j] = lines[j], lines[i]
+        elif op == 5:
+            lines[i] = mutate(rng, lines[i].encode()).decode("utf-8", "replace")
+        else:
+            lines.insert(i, f"{rng.choice(['angles_deg', 'patches', 'repeats', 'baud', 'seed'])}"
+                            f" = {rng.choice(TOML_VALUES)}")
+    cfg = parse_config("\n".join(lines), "lab.toml")
+    from normbox_lab.acquire import engine
+
+    name = rng.choice(("reference-sweep", "repeatability", "brdf-inplane", "light-map"))
+    engine.build_plan(name, cfg.protocol_defaults(name))
+
+
 PARSERS: dict[str, Callable[[random.Random], None]] = {
+    "lab-toml": lab_toml,
     "cs1000a-ascii": cs1000_ascii, "cs1000a-binary": cs1000_binary,
     "cs2000a-ascii": cs2000_ascii, "cs2000a-hex": cs2000_hex, "zaber": zaber,
     "apt-frames": apt_frames, "sphere": sphere,
@@ -219,3 +258,13 @@ def test_mutator_is_seeded():
     a = [mutate(random.Random(5), CS1000_LINE) for _ in range(3)]
     b = [mutate(random.Random(5), CS1000_LINE) for _ in range(3)]
     assert a == b and not math.isnan(len(a[0]))
+
+
+@pytest.mark.parametrize("url", ["/dev/ttyUSB9-absent", "sim://rotator-apt?faults=stall=2",
+                                 "sim://nowhere"])
+def test_opening_a_bad_port_is_an_instrument_error(url):
+    from normbox_lab.core.errors import InstrumentError
+
+    for cls in (AptRotationStage, ZaberRotationStage, SphereLightSource, CS1000A, CS2000A):
+        with pytest.raises(InstrumentError, match="cannot open"):
+            cls.open(url, VirtualClock())

@@ -44,6 +44,26 @@ ROLE_DRIVERS: dict[str, tuple[str, ...]] = {
     "spectrometer": ("qepro",),
 }
 REQUIRED_ROLES = ("radiometer", "rotator", "sphere")
+
+#: what an instrument table may hold besides `driver` and `port`: the driver's own options
+#: (a test checks them against the drivers' signatures) and the limits the lab itself reads,
+#: each with the TOML value types it takes (int also where a float is expected)
+_LAB_OPTIONS: dict[str, type] = {"min_angle_deg": float, "max_angle_deg": float,
+                                 "timeout_s": float, "instrument_id": str}
+_LINE: dict[str, type] = {"command_timeout_s": float, "attempts": int,
+                          "reconnect_timeout_s": float}
+_STAGE: dict[str, type] = {**_LINE, "steps_per_deg": float, "max_velocity_deg_s": float,
+                           "acceleration_deg_s2": float, "home_velocity_deg_s": float,
+                           "position_tolerance_deg": float, "auto_home": bool}
+DRIVER_OPTIONS: dict[str, dict[str, type]] = {
+    "cs1000a": {**_LINE, "baud": int, "data_format": str, "observer_deg": int},
+    "cs2000a": {**_LINE, "baud": int, "data_format": str, "delimiter": str},
+    "apt-k10cr1": {**_STAGE, "update_messages": bool},
+    "zaber": {**_STAGE, "device": int, "axis": int, "poll_s": float, "resync_quiet_s": float},
+    "sphere-scpi": {"command_timeout_s": float, "poll_s": float, "attempts": int,
+                    "resync_quiet_s": float, "reconnect_wait_s": float},
+    "qepro": {"backend": str, "tec_setpoint_c": float, "reconnect_timeout_s": float},
+}
 BAUD_RATES = (4800, 9600, 19200, 38400, 57600, 115200)
 
 
@@ -98,9 +118,78 @@ class _Locator:
                 k = s.split("=", 1)[0].strip().strip('"') if "=" in s else None
                 if k == key:
                     return i
-        if key is not None:
-            return self.line_of(table) if table else 0
-        return 0
+        if key is not None and table:
+            found = self.line_of(table)
+            if found:
+                return found
+        # not a [header] of its own (an inline or dotted table): the first line naming it
+        last = (key or table).rsplit(".", 1)[-1]
+        for i, raw in enumerate(self.lines, 1):
+            if last and last in raw:
+                return i
+        if "." in table:
+            return self.line_of(table.rsplit(".", 1)[0])
+        return 1 if self.lines else 0
+
+
+#: protocol parameters that name ColorChecker patches (1–24; brdf-inplane also "wall")
+_PATCH_PARAMETERS = ("patch", "patches", "materials")
+_COUNT_PARAMETERS = ("repeats", "rows", "columns")
+
+
+def _shipped_parameters(name: str) -> dict[str, Any] | None:
+    """The PARAMETERS of a shipped protocol, None for any other name (a user's .py file)."""
+    import importlib
+    import importlib.util
+
+    module_name = "normbox_lab.protocols." + name.replace("-", "_")
+    if not name.replace("-", "_").isidentifier() or name.startswith("_") \
+            or importlib.util.find_spec(module_name) is None:
+        return None
+    return dict(getattr(importlib.import_module(module_name), "PARAMETERS", {}))
+
+
+def _is_number(v: Any) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+
+
+def _parameter_problem(shipped: dict[str, Any] | None, key: str, value: Any) -> str:
+    """Why `value` cannot be the default of protocol parameter `key` ("" when it can)."""
+    if shipped is None:
+        return ""
+    if key not in shipped:
+        return f"unknown parameter; known: {', '.join(sorted(shipped))}"
+    default = shipped[key]
+    items = value if isinstance(value, list) else [value]
+    if isinstance(default, list):
+        if not isinstance(value, list) or not value or len(value) > 10_000:
+            return f"must be a non-empty list like {default[:3]!r}…, got {value!r}"[:200]
+        kinds = {type(d) for d in default}
+    else:
+        if isinstance(value, list):
+            return f"must be a single value like {default!r}, not a list"
+        kinds = {type(default)}
+    for v in items:
+        if str in kinds and isinstance(v, str):
+            continue
+        if bool in kinds:
+            if not isinstance(v, bool):
+                return f"must be true or false, got {v!r}"
+            continue
+        if int in kinds and float not in kinds and key in _PATCH_PARAMETERS + _COUNT_PARAMETERS:
+            if not isinstance(v, int) or isinstance(v, bool):
+                return f"must be an integer, got {v!r}"
+        elif (int in kinds or float in kinds) and not _is_number(v):
+            return f"must be a finite number, got {v!r}"
+        elif kinds == {str} and not isinstance(v, str):
+            return f"must be a string, got {v!r}"
+        if key in _PATCH_PARAMETERS and isinstance(v, int) and not 1 <= v <= 24:
+            return f"patches are numbered 1–24, got {v}"
+        if key in _COUNT_PARAMETERS and isinstance(v, int) and not 1 <= v <= 10_000:
+            return f"must be 1–10000, got {v}"
+        if _is_number(v) and abs(v) > 1e9:
+            return f"must be of sensible size, got {v!r}"
+    return ""
 
 
 def load_config(path: str | Path) -> LabConfig:
@@ -124,8 +213,11 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             import re
 
             m = re.search(r"line (\d+)", str(exc))
-            line = int(m.group(1)) if m else 0
+            line = int(m.group(1)) if m else 1
         raise ConfigError(path, line, "(syntax)", str(exc)) from None
+    except ValueError as exc:          # tomllib: an integer beyond Python's digit limit
+        line = next((i for i, raw in enumerate(text.splitlines(), 1) if len(raw) > 4000), 1)
+        raise ConfigError(path, line, "(value)", str(exc)) from None
     loc = _Locator(text)
 
     def err(table: str, key: str | None, message: str) -> ConfigError:
@@ -193,6 +285,19 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             raise err(tab, "port", "must be a non-empty string (device path, socket:// or "
                       "sim:// URL)")
         options = {k: v for k, v in spec.items() if k not in ("driver", "port")}
+        allowed = {**DRIVER_OPTIONS.get(driver, {}), **_LAB_OPTIONS}
+        for k, v in options.items():
+            if k not in allowed:
+                raise err(tab, k, f"unknown option for driver {driver!r}; known: "
+                          f"{', '.join(sorted(allowed))}")
+            want = allowed[k]
+            ok = (isinstance(v, bool) if want is bool else isinstance(v, str) if want is str
+                  else isinstance(v, int) and not isinstance(v, bool) if want is int
+                  else isinstance(v, (int, float)) and not isinstance(v, bool))
+            if not ok:
+                raise err(tab, k, f"must be {want.__name__}, got {type(v).__name__} {v!r}")
+            if want in (int, float) and not (math.isfinite(v) and abs(v) < 1e12):
+                raise err(tab, k, f"must be a finite number of sensible size, got {v!r}")
         if "baud" in options:
             b = options["baud"]
             if isinstance(b, bool) or not isinstance(b, int) or b not in BAUD_RATES:
@@ -208,7 +313,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
         instruments[role] = InstrumentConfig(role, driver, port, options)
     for role in REQUIRED_ROLES:
         if role not in instruments:
-            raise ConfigError(path, loc.line_of("instruments") or 0, f"instruments.{role}",
+            raise ConfigError(path, loc.line_of("instruments") or 1, f"instruments.{role}",
                               "missing; every lab needs a radiometer, a rotator and a sphere")
 
     geo_tab = table(data.get("geometry"), "geometry")
@@ -228,6 +333,11 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
     for pname, pvals in table(data.get("protocols"), "protocols").items():
         if not isinstance(pvals, dict):
             raise err("protocols", pname, "must be a table of parameter defaults")
+        shipped = _shipped_parameters(pname)
+        for key, value in pvals.items():
+            problem = _parameter_problem(shipped, key, value)
+            if problem:
+                raise err(f"protocols.{pname}", key, problem)
         protocols[pname] = dict(pvals)
 
     render = dict(table(data.get("render"), "render"))
