@@ -211,7 +211,21 @@ def lab_toml(rng: random.Random) -> None:
     engine.build_plan(name, cfg.protocol_defaults(name))
 
 
+BRDF_JSON = (b'[{"wavelengths": [400, 500, 600]},\n'
+             b' {"thetaIn": 30, "phiIn": 0, "thetaOut": 20, "phiOut": 180, '
+             b'"spectrum": [0.1, 0.2, 0.3]},\n'
+             b' {"thetaIn": 30, "phiIn": 0, "thetaOut": 40, "phiOut": 0, '
+             b'"spectrum": [0.15, 0.25, 0.35]}]\n')
+
+
+def brdf_json(rng: random.Random) -> None:
+    from normbox_lab.acquire.importers import _decode_stream, parse_brdf_json
+
+    parse_brdf_json(_decode_stream(mutate(rng, BRDF_JSON), "f.json"), "f.json", "m")
+
+
 PARSERS: dict[str, Callable[[random.Random], None]] = {
+    "brdf-json": brdf_json,
     "lab-toml": lab_toml,
     "cs1000a-ascii": cs1000_ascii, "cs1000a-binary": cs1000_binary,
     "cs2000a-ascii": cs2000_ascii, "cs2000a-hex": cs2000_hex, "zaber": zaber,
@@ -232,7 +246,7 @@ def run_fuzz(case: Callable[[random.Random], None], n: int, seed: int) -> Counte
             outcomes[type(exc).__name__] += 1
         except NormboxError as exc:
             outcomes[type(exc).__name__] += 1
-        except Exception as exc:  # noqa: BLE001 - the point of the test: nothing untyped
+        except Exception as exc:           # the point of the test: nothing untyped
             raise AssertionError(f"input {i} (seed {seed}): untyped {type(exc).__name__}: "
                                  f"{exc}") from exc
     return outcomes

@@ -98,3 +98,48 @@ def test_any_bytes_on_disk_give_data_or_a_data_error(tmp_path_factory, raw):
         load_brdf_json(path)
     except DataError as err:
         assert err.file == str(path)
+
+
+def _doc_of(geoms):
+    return [{"wavelengths": [400.0, 500.0]}] + [
+        {"thetaIn": ti, "phiIn": 0, "thetaOut": to, "phiOut": 0, "spectrum": [0.1, 0.2]}
+        for ti, to in geoms]
+
+
+def test_near_duplicate_geometry_is_refused_before_any_write(tmp_path):
+    path = tmp_path / "near.json"
+    path.write_text(json.dumps(_doc_of([(30, 10), (30, 20), (30, 20.01)])))
+    with pytest.raises(DataError, match="duplicates element 2"):
+        load_brdf_json(path)
+    with Store(tmp_path / "s.sqlite") as store:
+        assert store.runs() == []
+
+
+def test_failed_import_leaves_no_half_run(tmp_path):
+    from normbox_lab.acquire.importers import ImportedBrdf
+    from normbox_lab.core.errors import StoreError
+
+    bad = ImportedBrdf("m", np.array([400.0, 500.0]), np.array([30.0, 30.0]),
+                       np.array([20.0, 20.0]), np.ones((2, 2)))      # same key twice
+    with Store(tmp_path / "s.sqlite") as store:
+        with pytest.raises(StoreError):
+            store_brdf(store, bad)
+        assert store.runs() == []
+
+
+def test_geometry_count_is_refused_before_decoding(tmp_path, monkeypatch):
+    from normbox_lab.acquire import importers
+
+    monkeypatch.setattr(importers, "MAX_GEOMETRIES", 50)
+    path = tmp_path / "many.json"
+    path.write_text(json.dumps(_doc_of([(30, t / 10) for t in range(60)])))
+    with pytest.raises(DataError, match="refused before decoding"):
+        load_brdf_json(path)
+
+
+def test_huge_integer_is_a_data_error(tmp_path):
+    path = tmp_path / "big.json"
+    path.write_text('[{"wavelengths": [400, 500]}, {"thetaIn": 1' + "0" * 400 +
+                    ', "phiIn": 0, "thetaOut": 20, "phiOut": 0, "spectrum": [0.1, 0.2]}]')
+    with pytest.raises(DataError, match="out of range|finite"):
+        load_brdf_json(path)

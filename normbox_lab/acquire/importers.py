@@ -8,6 +8,12 @@ see [LOW12] in docs/references.md): a JSON array whose element 0 is
 
 In-plane angles are signed for the store: a direction at azimuth φ ≈ 180° (±90°) gets a
 negative θ, so (θ, φ=180) ≡ (−θ, φ=0).
+
+Hostile files: the size is checked before reading, the geometry count before decoding (a
+cheap count of ``"spectrum"`` keys) and again while decoding element by element; geometries
+that coincide at the store's 0.1° key resolution are refused as near-duplicates before
+anything is written; the run and all its readings are written in one transaction, so a failed
+import leaves nothing behind.
 """
 
 from __future__ import annotations
@@ -43,10 +49,62 @@ def _signed_theta(theta: float, phi: float) -> float:
 def _number(file: str, where: str, value: object) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise DataError(file, where, f"must be a number, got {type(value).__name__}")
-    v = float(value)
+    try:
+        v = float(value)
+    except OverflowError:
+        raise DataError(file, where, "number out of range") from None
     if not math.isfinite(v):
         raise DataError(file, where, "must be finite")
     return v
+
+
+def geometry_key(theta_i_deg: float, theta_o_deg: float) -> str:
+    """The store key part of one geometry (0.1° resolution)."""
+    return f"ti{theta_i_deg + 0.0:+.1f}/to{theta_o_deg + 0.0:+.1f}"
+
+
+def _decode_stream(raw: bytes, file: str) -> list[object]:
+    """The top-level JSON array, decoded element by element with the count checked as it
+    grows (and a cheap upper bound checked before any decoding)."""
+    if raw.count(b'"spectrum"') > MAX_GEOMETRIES + 1:
+        raise DataError(file, "top level", f"more than {MAX_GEOMETRIES} geometries "
+                        f"({raw.count(b'{')} objects); refused before decoding")
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        raise DataError(file, "JSON", f"not UTF-8: {exc}") from None
+    decoder = json.JSONDecoder()
+    ws = " \t\n\r"
+    i = len(text) - len(text.lstrip(ws))
+    if not text.startswith("[", i):
+        raise DataError(file, "top level", "must be a non-empty JSON array")
+    i += 1
+    out: list[object] = []
+    while True:
+        while i < len(text) and text[i] in ws:
+            i += 1
+        if i < len(text) and text[i] == "]" and not out:
+            i += 1
+            break
+        try:
+            item, i = decoder.raw_decode(text, i)
+        except (ValueError, RecursionError) as exc:
+            raise DataError(file, f"element {len(out)}", f"not valid JSON: {exc}") from None
+        out.append(item)
+        if len(out) - 1 > MAX_GEOMETRIES:
+            raise DataError(file, "top level", f"more than {MAX_GEOMETRIES} geometries")
+        while i < len(text) and text[i] in ws:
+            i += 1
+        if i < len(text) and text[i] == ",":
+            i += 1
+            continue
+        if i < len(text) and text[i] == "]":
+            i += 1
+            break
+        raise DataError(file, f"after element {len(out) - 1}", "expected ',' or ']'")
+    if text[i:].strip(ws):
+        raise DataError(file, "end", "extra data after the top-level array")
+    return out
 
 
 def parse_brdf_json(data: object, file: str = "<json>", material: str = "") -> ImportedBrdf:
@@ -73,7 +131,7 @@ def parse_brdf_json(data: object, file: str = "<json>", material: str = "") -> I
         raise DataError(file, "top level", "no measurements after the wavelengths element")
 
     ti, to, spectra = [], [], []
-    seen: set[tuple[float, float]] = set()
+    seen: dict[str, int] = {}
     for n, item in enumerate(data[1:], start=1):
         where = f"element {n}"
         if not isinstance(item, dict):
@@ -95,9 +153,11 @@ def parse_brdf_json(data: object, file: str = "<json>", material: str = "") -> I
         values = np.array([_number(file, f"{where}: spectrum[{i}]", v)
                            for i, v in enumerate(spec)])
         geom = (_signed_theta(t_in, p_in) + 0.0, _signed_theta(t_out, p_out) + 0.0)
-        if geom in seen:
-            raise DataError(file, where, f"duplicate geometry θi={geom[0]}°, θo={geom[1]}°")
-        seen.add(geom)
+        key = geometry_key(*geom)
+        if key in seen:
+            raise DataError(file, where, f"geometry θi={geom[0]}°, θo={geom[1]}° duplicates "
+                            f"element {seen[key]} at the store's 0.1° resolution ({key})")
+        seen[key] = n
         ti.append(geom[0])
         to.append(geom[1])
         spectra.append(values)
@@ -113,24 +173,23 @@ def load_brdf_json(path: str | Path, material: str | None = None) -> ImportedBrd
     if size > MAX_FILE_BYTES:
         raise DataError(str(path), "file", f"{size} bytes is over the {MAX_FILE_BYTES} limit")
     try:
-        data = json.loads(path.read_bytes())
-    except (UnicodeDecodeError, ValueError, RecursionError) as exc:
-        raise DataError(str(path), "JSON", f"not valid JSON: {exc}") from None
-    return parse_brdf_json(data, str(path), material or path.stem)
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise DataError(str(path), "file", f"cannot read: {exc}") from None
+    return parse_brdf_json(_decode_stream(raw, str(path)), str(path), material or path.stem)
 
 
 def store_brdf(store, imported: ImportedBrdf, tilt_deg: float = 0.0) -> int:
-    """Store as a run of protocol `import-brdf-json`, one `brdf` reading per geometry."""
-    run = store.create_run("import-brdf-json",
-                           parameters={"material": imported.material, "tilt_deg": tilt_deg},
-                           planned=len(imported.theta_i_deg), status="running")
-    for t_in, t_out, values in zip(imported.theta_i_deg, imported.theta_o_deg,
-                                   imported.brdf_per_sr):
-        store.add_reading(run.id, f"{imported.material}/ti{t_in:+.1f}/to{t_out:+.1f}", "brdf",
-                          {"wavelength_nm": imported.wavelength_nm, "brdf_per_sr": values},
-                          instrument="import", metadata={
-                              "material": imported.material, "theta_i_deg": float(t_in),
-                              "theta_o_deg": float(t_out), "tilt_deg": tilt_deg,
-                              "blocked": False})
-    store.set_run_status(run.id, "done")
+    """Store as a run of protocol `import-brdf-json`, one `brdf` reading per geometry, all in
+    one transaction (a failure leaves no run behind)."""
+    readings = [
+        (f"{imported.material}/{geometry_key(t_in, t_out)}", "brdf",
+         {"wavelength_nm": imported.wavelength_nm, "brdf_per_sr": values},
+         {"material": imported.material, "theta_i_deg": float(t_in),
+          "theta_o_deg": float(t_out), "tilt_deg": tilt_deg, "blocked": False})
+        for t_in, t_out, values in zip(imported.theta_i_deg, imported.theta_o_deg,
+                                       imported.brdf_per_sr, strict=True)]
+    run = store.create_complete_run(
+        "import-brdf-json", parameters={"material": imported.material, "tilt_deg": tilt_deg},
+        readings=readings, instrument="import")
     return run.id

@@ -273,6 +273,36 @@ class Store:
             run_id = cur.lastrowid
         return self.get_run(run_id)
 
+    def create_complete_run(self, protocol: str, *, parameters: Mapping[str, Any] | None = None,
+                            readings: list[tuple[str, str, Mapping[str, Any],
+                                                 Mapping[str, Any]]],
+                            instrument: str = "") -> RunRecord:
+        """A finished run (status ``done``) with all its readings (key, kind, arrays,
+        metadata), written in one transaction: either all of it is stored or nothing."""
+        now = self._wall_s()
+        with self._tx() as db:
+            cur = db.execute(
+                "INSERT INTO runs (uuid, protocol, parameters, lab_config, code_version, seeds,"
+                " status, planned, created_s, updated_s, finished_s)"
+                " VALUES (?,?,?,?,?,?,?,?,?,?,?)",
+                (str(uuidlib.uuid4()), protocol, _json(dict(parameters or {})), "",
+                 __version__, "{}", "done", len(readings), now, now, now))
+            run_id = int(cur.lastrowid)
+            for key, kind, arrays, metadata in readings:
+                try:
+                    rid = db.execute(
+                        "INSERT INTO readings (run_id, key, kind, instrument, time_s, metadata)"
+                        " VALUES (?,?,?,?,?,?)",
+                        (run_id, key, kind, instrument, now, _json(dict(metadata)))).lastrowid
+                except sqlite3.IntegrityError as exc:
+                    raise StoreError(f"reading {key!r} twice in one import: {exc}") from exc
+                db.executemany("INSERT INTO arrays (owner, owner_id, name, shape, data)"
+                               " VALUES ('reading',?,?,?,?)",
+                               [(rid, name, *_encode(arr)) for name, arr in arrays.items()])
+            db.execute("INSERT INTO run_events (run_id, time_s, kind, detail) VALUES (?,?,?,?)",
+                       (run_id, now, "status:done", _json({"readings": len(readings)})))
+        return self.get_run(run_id)
+
     def set_run_status(self, run_ref: int | str, status: str, *, planned: int | None = None,
                        detail: Mapping[str, Any] | None = None) -> None:
         if status not in RUN_STATUSES:
