@@ -80,6 +80,7 @@ STEPS_PER_DEG = 409600.0 / 3.0
 VELOCITY_SCALE = 53.68
 ACCELERATION_SCALE = 1.0 / 90.9
 DC_VELOCITY_DIVISOR = 2048.0
+INT32_MAX = 2**31 - 1
 UPDATE_PERIOD_S = 0.1
 KEEPALIVE_TIMEOUT_S = 5.0
 #: an endless run (velocity move, continuous jog) aims this far; a limit switch stops it first
@@ -155,11 +156,13 @@ class AptRotatorEmulator(core.Emulator):
     # --- units -----------------------------------------------------------------------------------
     @staticmethod
     def _v_apt(trap: Trapezoid) -> int:
-        return round(trap.max_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE)
+        """APT velocity units (a 32-bit field: ≈ 293 °/s at most)."""
+        return min(INT32_MAX, round(trap.max_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE))
 
     @staticmethod
     def _a_apt(trap: Trapezoid) -> int:
-        return round(trap.acceleration_deg_s2 * STEPS_PER_DEG * ACCELERATION_SCALE)
+        return min(INT32_MAX, round(trap.acceleration_deg_s2 * STEPS_PER_DEG
+                                    * ACCELERATION_SCALE))
 
     @staticmethod
     def _trapezoid(v_apt: int, a_apt: int) -> Trapezoid:
@@ -432,7 +435,7 @@ AptRotatorEmulator._REQUESTS = {
     0x043B: lambda e, now: (0x043C, _chan("<Hl", lambda e, n: e.backlash_steps)(e, now)),
     0x0441: lambda e, now: (0x0442, _chan(
         "<3Hll", lambda e, n: e.home_dir, lambda e, n: e.home_limit_switch,
-        lambda e, n: round(e.home_velocity_deg_s * STEPS_PER_DEG * VELOCITY_SCALE),
+        lambda e, n: e._v_apt(Trapezoid(e.home_velocity_deg_s, 1.0)),
         lambda e, n: e.home_offset_steps)(e, now)),
     0x0424: lambda e, now: (0x0425, struct.pack("<3HLLH", CHANNEL, *e.limit_params)),
     0x0446: lambda e, now: (0x0447, _chan("<Hl", lambda e, n: e.rel_distance_steps)(e, now)),
