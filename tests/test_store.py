@@ -125,3 +125,104 @@ def test_migration_from_empty_file_is_idempotent(tmp_path):
     with Store(path) as s:
         assert s.schema_version() == SCHEMA_VERSION
         s.create_run("x")
+
+
+# --- hostile and foreign files --------------------------------------------------------------------
+
+def test_a_foreign_sqlite_file_is_refused_untouched(tmp_path):
+    from normbox_lab.acquire.store import APPLICATION_ID
+
+    for i, ddl in enumerate(["CREATE TABLE photos (id INTEGER, name TEXT)",
+                             "CREATE TABLE runs (x TEXT)"]):          # a clashing `runs` table
+        path = tmp_path / f"other{i}.sqlite"
+        db = sqlite3.connect(path)
+        db.execute(ddl)
+        db.commit()
+        db.close()
+        before = path.read_bytes()
+        with pytest.raises(StoreError, match="not a normbox-lab store"):
+            Store(path)
+        assert path.read_bytes() == before
+    other = tmp_path / "app.sqlite"
+    db = sqlite3.connect(other)
+    db.execute("PRAGMA application_id=1234")
+    db.close()
+    with pytest.raises(StoreError, match="application id"):
+        Store(other)
+    with Store(tmp_path / "new.sqlite"):
+        pass
+    db = sqlite3.connect(tmp_path / "new.sqlite")
+    assert db.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
+    db.close()
+
+
+def test_newer_schema_in_rollback_journal_mode_is_refused_before_any_change(tmp_path):
+    path = tmp_path / "future.sqlite"
+    Store(path).close()
+    db = sqlite3.connect(path)
+    db.execute("PRAGMA journal_mode=DELETE")
+    db.execute(f"PRAGMA user_version={SCHEMA_VERSION + 1}")
+    db.close()
+    before = path.read_bytes()
+    with pytest.raises(StoreError, match="newer"):
+        Store(path)
+    assert path.read_bytes() == before            # header bytes 18/19 still say rollback
+    assert not (tmp_path / "future.sqlite-wal").exists()
+
+
+def test_store_without_application_id_is_adopted(tmp_path):
+    path = tmp_path / "old.sqlite"
+    with Store(path) as s:
+        s.create_run("x")
+    db = sqlite3.connect(path)
+    db.execute("PRAGMA application_id=0")
+    db.close()
+    with Store(path) as s:
+        assert [r.protocol for r in s.runs()] == ["x"]
+
+
+def test_like_wildcards_in_a_run_id_match_nothing(tmp_path):
+    with Store(tmp_path / "s.sqlite") as s:
+        s.create_run("x")
+        s.create_run("y")
+        for ref in ("%%%%", "____", "%", "a%b_", "\\\\%%"):
+            with pytest.raises(StoreError, match="no run"):
+                s.get_run(ref)
+        run = s.runs()[0]
+        assert s.get_run(run.uuid[:6]).id == run.id
+
+
+def test_a_damaged_store_is_a_store_error_in_every_command(tmp_path, capsys):
+    from normbox_lab.cli import main
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        run = s.create_run("x", planned=40)
+        for i in range(40):
+            s.add_reading(run.id, f"k{i}", "spectral", {"v": np.arange(2000.0)})
+    data = bytearray(path.read_bytes())
+    for off in range(4096 * 3, len(data), 4096 * 2):          # wreck every other page
+        data[off + 8: off + 200] = b"\xa5" * 192
+    path.write_bytes(bytes(data))
+    rc = main(["runs", "--store", str(path)])         # may not touch a damaged page
+    err = capsys.readouterr().err
+    assert "Traceback" not in err and (rc == 0 or "damaged" in err), err
+    for fmt in ("json", "csv"):
+        out = tmp_path / f"o.{fmt}"
+        rc = main(["export", "1", "--format", fmt, "-o", str(out), "--store", str(path)])
+        err = capsys.readouterr().err
+        assert rc != 0 and "Traceback" not in err and "damaged" in err, (fmt, err)
+        assert not out.exists()                         # nothing partial left behind
+
+
+def test_export_to_an_unwritable_path_is_a_clear_error(tmp_path, capsys):
+    from normbox_lab.cli import main
+
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        run = s.create_run("x", planned=1)
+        s.add_reading(run.id, "k", "spectral", {"v": np.arange(3.0)})
+    for target in (tmp_path / "no" / "such" / "dir" / "o.json", tmp_path):
+        rc = main(["export", "1", "--format", "json", "-o", str(target), "--store", str(path)])
+        err = capsys.readouterr().err
+        assert rc != 0 and "Traceback" not in err and "cannot write" in err, err

@@ -135,9 +135,29 @@ def export_json(store: Store, run_ref: int | str, path: Path) -> Path:
 
 
 def export_run(store: Store, run_ref: int | str, fmt: str, path: str | Path | None = None) -> Path:
+    """Export one run.  The store is checked first (a damaged store is refused, not exported
+    in part); the file is written next to its destination and renamed into place only when
+    complete, with as many readings as the store counts for the run."""
     if fmt not in FORMATS:
         raise StoreError(f"unknown export format {fmt!r}; choose {', '.join(FORMATS)}")
     run = store.get_run(run_ref)
+    problems = store.quick_check()
+    if problems:
+        raise StoreError(f"{store.path}: the store is damaged ({problems[0]}); nothing exported")
     out = Path(path) if path else Path(f"run-{run.id}-{run.protocol}{SUFFIX[fmt]}")
-    return {"netcdf": export_netcdf, "csv": export_csv, "json": export_json}[fmt](store, run.id,
-                                                                                 out)
+    if out.is_dir():
+        raise StoreError(f"cannot write {out}: it is a directory")
+    tmp = out.with_name(f".{out.stem}.partial{out.suffix}")
+    try:
+        exported = {"netcdf": export_netcdf, "csv": export_csv,
+                    "json": export_json}[fmt](store, run.id, tmp)
+        count = sum(1 for _ in store.readings(run.id))
+        if count != run.done:
+            raise StoreError(f"run {run.id}: {count} readings readable of {run.done} stored; "
+                             "the store is damaged; nothing exported")
+        exported.replace(out)
+    except OSError as exc:
+        raise StoreError(f"cannot write {out}: {exc.strerror or exc}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+    return out

@@ -16,10 +16,18 @@ Tables (schema version in ``PRAGMA user_version``; forward migrations in `MIGRAT
 
 Arrays are stored as little-endian float64 bytes with the shape as JSON: exact round trips,
 no pickle.
+
+A normbox-lab store is recognised by ``PRAGMA application_id`` (`APPLICATION_ID`, "NBOX");
+a store written before the id existed is recognised by its tables and adopted.  Any other
+SQLite file is refused without being touched (no tables added, no WAL conversion), and so is a
+store with a newer schema.  A damaged file surfaces as `StoreError` from every method, never
+as a raw sqlite3 traceback.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
 import json
 import sqlite3
 import threading
@@ -36,6 +44,10 @@ from normbox_lab.core.errors import StoreError
 from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
 
 DEFAULT_STORE = "normbox.sqlite"
+#: PRAGMA application_id of a normbox-lab store: "NBOX" as a big-endian 32-bit integer
+APPLICATION_ID = 0x4E424F58
+#: the tables by which a store from before the application id is recognised
+_CORE_TABLES = {"runs", "run_events", "readings", "arrays", "instruments", "artifacts"}
 
 MIGRATIONS: list[str] = [
     # version 1
@@ -168,7 +180,11 @@ def _encode(arr: Any) -> tuple[str, bytes]:
 
 
 def _decode(shape: str, data: bytes) -> np.ndarray:
-    return np.frombuffer(data, dtype="<f8").reshape(json.loads(shape)).copy()
+    try:
+        return np.frombuffer(data, dtype="<f8").reshape(json.loads(shape)).copy()
+    except (ValueError, TypeError) as exc:
+        raise StoreError(f"a stored array is damaged (shape {str(shape)[:40]!r}, "
+                         f"{len(data) if isinstance(data, bytes) else '?'} bytes): {exc}") from None
 
 
 def _json(obj: Any) -> str:
@@ -183,6 +199,34 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+def _damaged(path: Path, exc: Exception) -> StoreError:
+    return StoreError(f"{path}: the store is damaged or unreadable ({exc}); check it with "
+                      "`sqlite3 FILE 'PRAGMA integrity_check'` and restore a copy")
+
+
+def _typed_store_errors(cls: type) -> type:
+    """Every public method: a sqlite3 error (a damaged file) becomes `StoreError`."""
+    for name, fn in list(vars(cls).items()):
+        if name.startswith("_") or not inspect.isfunction(fn):
+            continue
+        if inspect.isgeneratorfunction(fn):
+            def wrapped_gen(self, *a, __fn=fn, **k):
+                try:
+                    yield from __fn(self, *a, **k)
+                except sqlite3.Error as exc:
+                    raise _damaged(self.path, exc) from exc
+            setattr(cls, name, functools.wraps(fn)(wrapped_gen))
+        else:
+            def wrapped(self, *a, __fn=fn, **k):
+                try:
+                    return __fn(self, *a, **k)
+                except sqlite3.Error as exc:
+                    raise _damaged(self.path, exc) from exc
+            setattr(cls, name, functools.wraps(fn)(wrapped))
+    return cls
+
+
+@_typed_store_errors
 class Store:
     """The SQLite store.  Safe to share between threads (one connection behind a lock)."""
 
@@ -195,23 +239,44 @@ class Store:
         try:
             self._db = sqlite3.connect(str(self.path), isolation_level=None,
                                        check_same_thread=False, timeout=30.0)
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
+        try:
+            self._recognise()                  # reads only: nothing is written to a refusal
             self._db.execute("PRAGMA journal_mode=WAL")
             self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
-        except sqlite3.DatabaseError as exc:
-            raise StoreError(f"{self.path}: not a normbox-lab store ({exc})") from exc
-        self._migrate()
+            self._migrate()
+        except sqlite3.Error as exc:
+            self._db.close()
+            raise StoreError(f"{self.path}: not a normbox-lab store, or unreadable ({exc})") from exc
+        except StoreError:
+            self._db.close()
+            raise
 
     # --- lifecycle -------------------------------------------------------------------------
+    def _recognise(self) -> None:
+        """Refuse a file that is not a normbox-lab store, or one with a newer schema, before
+        anything is written to it."""
+        db = self._db
+        app_id = int(db.execute("PRAGMA application_id").fetchone()[0])
+        version = int(db.execute("PRAGMA user_version").fetchone()[0])
+        tables = {r[0] for r in db.execute(
+            "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
+        if app_id not in (0, APPLICATION_ID):
+            raise StoreError(f"{self.path}: not a normbox-lab store (SQLite application id "
+                             f"{app_id:#010x}); refusing to touch it")
+        if app_id == 0 and tables and not (_CORE_TABLES <= tables and version >= 1):
+            raise StoreError(f"{self.path}: not a normbox-lab store (an SQLite file with "
+                             f"tables {', '.join(sorted(tables)[:6])}); refusing to touch it")
+        if version > SCHEMA_VERSION:
+            raise StoreError(f"{self.path}: schema version {version} is newer than this "
+                             f"normbox-lab ({SCHEMA_VERSION}); upgrade normbox-lab (the file "
+                             "was not changed)")
+
     def _migrate(self) -> None:
         with self._lock:
-            try:
-                version = self._db.execute("PRAGMA user_version").fetchone()[0]
-            except sqlite3.DatabaseError as exc:
-                raise StoreError(f"{self.path}: not a normbox-lab store ({exc})") from exc
-            if version > SCHEMA_VERSION:
-                raise StoreError(f"{self.path}: schema version {version} is newer than this "
-                                 f"normbox-lab ({SCHEMA_VERSION}); upgrade normbox-lab")
+            version = self._db.execute("PRAGMA user_version").fetchone()[0]
             for v in range(version, SCHEMA_VERSION):
                 self._db.execute("BEGIN IMMEDIATE")
                 try:
@@ -222,6 +287,8 @@ class Store:
                 except sqlite3.DatabaseError:
                     self._db.execute("ROLLBACK")
                     raise
+            if int(self._db.execute("PRAGMA application_id").fetchone()[0]) != APPLICATION_ID:
+                self._db.execute(f"PRAGMA application_id={APPLICATION_ID}")
 
     def close(self) -> None:
         with self._lock:
@@ -236,6 +303,12 @@ class Store:
     def schema_version(self) -> int:
         with self._lock:
             return int(self._db.execute("PRAGMA user_version").fetchone()[0])
+
+    def quick_check(self) -> list[str]:
+        """SQLite's quick check: [] when the file is sound, else its complaints."""
+        with self._lock:
+            rows = [str(r[0]) for r in self._db.execute("PRAGMA quick_check").fetchall()]
+        return [] if rows == ["ok"] else rows
 
     def integrity_check(self) -> str:
         with self._lock:
@@ -352,10 +425,13 @@ class Store:
             if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isdigit()):
                 rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
                                          (int(run_ref),)).fetchall()
-            if isinstance(run_ref, str) and len(run_ref) >= 4:
-                rows += [r for r in self._db.execute(self._RUN_SELECT + " WHERE r.uuid LIKE ?",
-                                                     (run_ref.lower() + "%",)).fetchall()
-                         if r not in rows]
+            prefix = run_ref.lower() if isinstance(run_ref, str) else ""
+            if len(prefix) >= 4 and all(c in "0123456789abcdef-" for c in prefix):
+                # (uuids are hex and dashes: nothing else can match, and no LIKE wildcard
+                # can reach the query)
+                rows += [r for r in self._db.execute(
+                    self._RUN_SELECT + " WHERE substr(r.uuid, 1, ?) = ?",
+                    (len(prefix), prefix)).fetchall() if r not in rows]
         if len(rows) != 1:
             what = "no run" if not rows else "more than one run"
             raise StoreError(f"{what} matches {run_ref!r} in {self.path}")
