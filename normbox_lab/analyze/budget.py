@@ -20,7 +20,9 @@ per sweep angle, per campaign), linearised where that is accurate:
 | fit | R · (d·err_d + (1 − d)·err_i) (the paper's error model, Fig. 12) | the fits' residuals |
 
 A source's contribution is the RMS over its draws of NRMSE(R, R + δ) (and the mean ΔE00(R, R + δ)):
-the NRMSE it alone would produce.  Independent sources add in quadrature: total² = Σ c².
+the NRMSE it alone would produce.  The total is the RMS over draws of the NRMSE of all sources'
+perturbations together (random ones drawn, fixed ones adding coherently), so it is not simply
+the quadrature sum where fixed sources share a sign.
 `significant`: the observed NRMSE (ΔE00) exceeds the 95th percentile of what the measurement
 sources (all but fit) produce together, i.e. the prediction's difference is beyond what the
 ground truth's own errors explain.  The observed NRMSE and ΔE00 get 95 % intervals from a
@@ -234,6 +236,7 @@ def compute_budget(x: BudgetInputs, errors: ErrorSources, *,
     colour = _Colour(x)
     names, c_nrmse, c_de, c_nse = [], [], [], []
     measurement = np.zeros((n_draws,) + R.shape)
+    fixed = np.zeros(R.shape)
     for name in sources:
         d = perturbations(name, errors, x, n_draws, rng)
         if d is None:
@@ -245,11 +248,14 @@ def compute_budget(x: BudgetInputs, errors: ErrorSources, *,
         with np.errstate(divide="ignore", invalid="ignore"):
             rel = np.where(R[None] != 0, d / R[None], 0.0)
         c_nse.append(np.sqrt(np.mean(rel ** 2, axis=(0, 1))))
-        if name != "fit":
-            measurement += d if len(d) == n_draws else d[:1]
+        if name == "fit":
+            fixed = fixed + d[0]
+        else:
+            measurement += d
     nrmse = np.array(c_nrmse) if c_nrmse else np.zeros((0,) + R.shape[:2])
     de = np.array(c_de) if c_de else np.zeros((0,) + R.shape[:2])
-    total = np.sqrt(np.sum(nrmse ** 2, axis=0))
+    # all sources together (fixed ones add coherently, random ones by their draws)
+    total = np.sqrt(np.mean(_nrmse(R[None], R[None] + measurement + fixed) ** 2, axis=0))
     observed = _nrmse(R, P)
     observed_de = colour.delta_e(P[None])[0]
     # the measurement sources together: what they alone produce, and the observed metric's
@@ -278,7 +284,7 @@ def _pivot(observed: np.ndarray, boot: np.ndarray) -> np.ndarray:
 # --- derivatives with the fast renderer -------------------------------------------------------
 def render_derivatives(patch_materials: Sequence[Any], wall: Any, angle_deg: Sequence[float],
                        wavelength_nm: np.ndarray, *, geometry: Any, lamp: Any = None,
-                       white: Any = None, n_paths: int = 1 << 15, seed: int = 11,
+                       white: Any = None, n_paths: int = 1 << 14, seed: int = 11,
                        with_geometry: bool = True,
                        progress: Callable[[str, int, int], None] | None = None
                        ) -> dict[str, Any]:
@@ -325,7 +331,7 @@ def render_derivatives(patch_materials: Sequence[Any], wall: Any, angle_deg: Seq
         for ai, a in enumerate(angles):
             s = config_seed(seed, f"{key}@{a:g}")
             up, down = (interp(b.render_view(patch=w, wall=wall, angle_deg=a, lamp=lamp,
-                                             n_paths=4 * n_paths, seed=s)) for b in boxes)
+                                             n_paths=2 * n_paths, seed=s)) for b in boxes)
             mid = 0.5 * (up + down)
             with np.errstate(divide="ignore", invalid="ignore"):
                 r[ai] = np.where(mid > 0, (up - down) / (2 * step) / mid, 0.0)
@@ -368,7 +374,7 @@ def _latest_run(store: Any, protocol: str) -> Any:
     return runs[-1] if runs else None
 
 
-def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 15,
+def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
                       with_geometry: bool = True,
                       progress: Callable[[str, int, int], None] | None = None
                       ) -> tuple[BudgetInputs, dict[str, float]]:
@@ -421,7 +427,7 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 15,
 
 
 def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
-               n_paths: int = 1 << 15, n_draws: int = 64,
+               n_paths: int = 1 << 14, n_draws: int = 64,
                progress: Callable[[str, int, int], None] | None = None) -> BudgetResult:
     """The error budget of a stored reference sweep; stored as artifact "error-budget"."""
     import time
@@ -443,3 +449,60 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
     result.timings_s = timings
     result.store(store, f"ref-run-{run.id}", run_ref=run.id)
     return result
+
+
+# --- validation on the virtual Normbox ---------------------------------------------------------
+def virtual_sweep(errors: ErrorSources | str, patches: Sequence[int], angles: Sequence[float],
+                  *, truth: str = "model", target_rel_se: float = 0.02,
+                  boxes: dict | None = None) -> np.ndarray:
+    """The virtual Normbox's reference sweep (angle-major, the world's 1 nm spectra) with the
+    given error sources, rendered by the fast renderer with the demo's per-configuration seeds
+    (so with every source off it equals `virtual_prediction` exactly)."""
+    from normbox_lab.demo import _FastRenderWorld
+    from normbox_lab.predict.fastrender import FastNormbox
+    from normbox_lab.sim.world import VirtualNormbox
+
+    boxes = boxes if boxes is not None else {}
+    world = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})(
+        truth=truth, errors=errors)
+    key = repr(world.geometry)
+    if key not in boxes:
+        boxes[key] = FastNormbox(world.geometry)
+    world.fast = boxes[key]
+    world.target_rel_se = target_rel_se
+    out = np.zeros((len(patches), len(angles), world.wavelength_nm.size))
+    for ai, a in enumerate(angles):
+        world.set_sample_angle(float(a))
+        for pi, p in enumerate(patches):
+            world.place_patch(int(p))
+            out[pi, ai] = world.radiance_in_view()[1]
+    return out
+
+
+def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
+                       truth: str = "model", target_rel_se: float = 0.02,
+                       boxes: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The prediction with the truth materials themselves (no fitting error), nominal
+    geometry, the world's seeds: (radiance, std_error) on the world's 1 nm grid."""
+    from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+    from normbox_lab.predict.fastrender import FastNormbox, config_seed
+    from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
+    from normbox_lab.predict.render import Lamp
+    from normbox_lab.predict.scene import as_geometry
+
+    boxes = boxes if boxes is not None else {}
+    g = as_geometry(None)
+    box = boxes.setdefault(repr(g), FastNormbox(g))
+    wl = RADIOMETER_WAVELENGTHS_NM
+    rad = np.zeros((len(patches), len(angles), wl.size))
+    se = np.zeros_like(rad)
+    wall = truth_wall(truth)
+    for ai, a in enumerate(angles):
+        for pi, p in enumerate(patches):
+            m = truth_patch(int(p), truth)
+            r = box.render_view(patch=m, wall=wall, holder=holder_material(),
+                                angle_deg=float(a), lamp=Lamp(), target_rel_se=target_rel_se,
+                                seed=config_seed(1, f"{m.name}@{float(a):g}"))
+            rad[pi, ai] = np.interp(wl, r.wavelength_nm, r.radiance)
+            se[pi, ai] = np.interp(wl, r.wavelength_nm, r.std_error)
+    return rad, se

@@ -22,8 +22,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sources", metavar="SPEC",
                    help="names (e.g. angle,cs1000,fit: only these, magnitudes kept) or a full "
                         "error spec (angle=1,cs1000=0.02; see docs/error-budget.md)")
-    p.add_argument("--paths", type=int, default=1 << 15,
-                   help="paths per derivative render (default 32768)")
+    p.add_argument("--paths", type=int, default=1 << 14,
+                   help="paths per derivative render (default 16384)")
     p.add_argument("--draws", type=int, default=64, help="draws per source (default 64)")
     add_store_argument(p)
     p.set_defaults(handler=_budget)
