@@ -73,3 +73,17 @@ def test_distributions_for_a_run():
     assert errors_for_run("", "lamp=+0.02").on_names() == ["lamp"]
     with pytest.raises(ConfigError, match="errors.bogus"):
         errors_for_run("", "bogus,cs1000")
+
+
+def test_budget_section_of_the_report(tmp_path):
+    from normbox_lab.analyze.angles import estimate_angle_offsets
+    from normbox_lab.analyze.report import ReportData, write_report
+
+    x = inputs()
+    off = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
+    b = compute_budget(x, parse_error_spec("cs1000=0.02,angle-offset=60:+0.5"), n_draws=16,
+                       angle_offsets=off)
+    html = write_report(tmp_path / "r.html",
+                        ReportData(budget=(b.to_arrays(), b.sources))).read_text()
+    assert "id='fig-budget'" in html or 'id="fig-budget"' in html
+    assert "tab-budget" in html and "angle-offset" in html and "cs1000" in html

@@ -506,3 +506,58 @@ def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
             rad[pi, ai] = np.interp(wl, r.wavelength_nm, r.radiance)
             se[pi, ai] = np.interp(wl, r.wavelength_nm, r.std_error)
     return rad, se
+
+
+# --- for the report ------------------------------------------------------------------------------
+def budget_figure(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> Any:
+    """Stacked budget per angle (the paper's Fig. 12 generalised to every source): each source's
+    share of the total NRMSE² stacked to the total, mean over patches, against the observed
+    NRMSE with its mean 95 % interval.  `arrays`: the stored "error-budget" artifact's."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    ang = np.asarray(arrays["angle_deg"])
+    c2 = np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1)            # [source, angle]
+    total = np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
+    parts = 100 * total * c2 / np.maximum(c2.sum(axis=0, keepdims=True), 1e-300)
+    fig = Figure(figsize=(7.5, 3.6))
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(ang.size)
+    bottom = np.zeros(ang.size)
+    cmap = matplotlib.colormaps["tab20"]
+    for k, s in enumerate(sources):
+        ax.bar(x, parts[k], bottom=bottom, color=cmap(k % 20), label=s)
+        bottom += parts[k]
+    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
+    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
+    ax.errorbar(x, obs, yerr=[obs - ci[0], ci[1] - obs], fmt="ko--", ms=4, capsize=2,
+                label="observed NRMSE (95 %)")
+    ax.set_xticks(x, [f"{v:g}" for v in ang], fontsize=7)
+    ax.set_xlabel("sample angle [°]", fontsize=8)
+    ax.set_ylabel("NRMSE [%] (mean over patches)", fontsize=8)
+    ax.legend(fontsize=6, ncol=3)
+    return fig
+
+
+def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> tuple[list, list]:
+    """(header, rows) per angle: each source's NRMSE contribution (%, RMS over patches), total,
+    observed with its interval, significant configurations, the angle offset."""
+    ang = np.asarray(arrays["angle_deg"])
+    by = 100 * np.sqrt(np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1))
+    tot = 100 * np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
+    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
+    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
+    sig = np.sum(arrays["significant_nrmse"], axis=0)
+    off = arrays.get("angle_offset_deg")
+    off_ci = arrays.get("angle_offset_ci95_deg")
+    header = ["angle", *sources, "total", "observed", "95 % interval", "significant",
+              "angle offset [°]"]
+    rows = []
+    for a in range(ang.size):
+        rows.append([f"{ang[a]:g}°", *[float(by[k, a]) for k in range(len(sources))],
+                     float(tot[a]), float(obs[a]), f"{ci[0, a]:.2f}–{ci[1, a]:.2f}",
+                     int(sig[a]),
+                     "" if off is None else f"{off[a]:+.2f} ± {off_ci[a]:.2f}"])
+    return header, rows

@@ -274,8 +274,10 @@ def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
     flags = qa.flags(store, run_id)
     if brdf_run is not None and store.get_run(brdf_run).id != run_id:
         flags += qa.flags(store, brdf_run)
+    budgets = store.artifacts("error-budget", f"ref-run-{run_id}")
+    budget = (budgets[-1].arrays, budgets[-1].metadata["sources"]) if budgets else None
     rd = ReportData(comparison=comparison, fits=fits, brdf_data=data, error_model=em,
-                    flags=flags,
+                    flags=flags, budget=budget,
                     title=f"Normbox validation report — reference run {run_id}",
                     polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
                     patch_fit_names=patch_fit_names, notes=list(notes), images=images,

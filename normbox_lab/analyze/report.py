@@ -46,6 +46,7 @@ class ReportData:
     fits: dict[str, MaterialFit] = field(default_factory=dict)
     brdf_data: dict[str, BrdfData] = field(default_factory=dict)
     error_model: ErrorModelResult | None = None
+    budget: tuple[dict[str, Any], list[str]] | None = None   # error-budget arrays, sources
     title: str = "Normbox validation report"
     polar_wavelength_nm: float = 730.0
     polar_materials: Sequence[str] | None = None   # default: patch08, patch18 (as the paper), wall
@@ -489,6 +490,19 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
         add_tab("tab-errormodel", "Error model per angle (means over patches)",
                 ["angle", "direct share", "d·err_d", "(1−d)·err_i", "simulated",
                  "observed NRMSE"], rows)
+    if d.budget is not None:
+        from normbox_lab.analyze.budget import budget_figure, budget_rows
+
+        arrays, sources = d.budget
+        parts.append("<h2>Error budget</h2>")
+        add_fig("fig-budget", "Error budget per angle (paper Fig. 12, every source)",
+                budget_figure(arrays, sources),
+                "Each source's share of the total NRMSE (stacked), propagated from its "
+                "distribution (normbox-lab budget), against the observed NRMSE with its 95 % "
+                "interval.")
+        header, rows = budget_rows(arrays, sources)
+        add_tab("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
+                "sample-angle offset", header, rows)
     if c is not None and d.fits:
         got = fig_nse_fit(c, d)
         if got is not None:
