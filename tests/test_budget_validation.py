@@ -21,7 +21,7 @@ from normbox_lab.sim.errors import parse_error_spec
 
 pytestmark = pytest.mark.slow
 
-PATCHES = [19, 13, 7, 24, 22, 2]
+PATCHES = [19, 13, 7, 24]
 ANGLES = [float(a) for a in range(30, 91, 5)]
 #: the paper's magnitudes; campaign-constant sources as a known realisation (+x), so that one
 #: campaign is a fair test of a budget that propagates the distribution it is given
