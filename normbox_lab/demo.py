@@ -156,12 +156,9 @@ def _truth_name(fit_name: str) -> str:
 
 def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
                  on_progress: Callable[[str, int, int], None]) -> Any:
-    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.engine import open_run
 
-    module = eng.load_protocol(protocol)
-    full = eng.resolve_parameters(module, lab.config.protocol_defaults(protocol), params)
-    plan = eng.build_plan(protocol, full, lab, module=module)
-    engine = eng.Engine(lab, store, plan)
+    engine = open_run(protocol, lab=lab, store=store, params=params).engine
 
     def on_event(ev: Any) -> None:
         if ev.kind == "progress":

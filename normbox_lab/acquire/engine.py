@@ -35,6 +35,7 @@ from normbox_lab.acquire.plan import (
 )
 from normbox_lab.acquire.retry import RetryPolicy
 from normbox_lab.acquire.runner import Engine, LabAccess
+from normbox_lab.acquire.session import OpenRun, open_run
 from normbox_lab.acquire.steps import (
     COMMIT_KINDS,
     KINDS,
@@ -57,6 +58,7 @@ __all__ = [
     "Engine",
     "EngineEvent",
     "LabAccess",
+    "OpenRun",
     "Operator",
     "Plan",
     "PlanError",
@@ -73,6 +75,7 @@ __all__ = [
     "load_protocol",
     "measure",
     "move",
+    "open_run",
     "prompt",
     "resolve_parameters",
     "wait_stable",

@@ -80,7 +80,7 @@ def sweep_once(store_path: str) -> dict:
     the instruments (driver + emulator), per reading."""
     import time
 
-    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.engine import open_run
     from normbox_lab.acquire.store import Store
 
     lab = _sim_lab()
@@ -90,8 +90,9 @@ def sweep_once(store_path: str) -> dict:
     store = Store(store_path)
     timed = _TimedStore(store, timer)
     try:
-        plan = eng.build_plan("reference-sweep", None, lab)
-        engine = eng.Engine(lab, timed, plan)
+        opened = open_run("reference-sweep", lab=lab, store=timed, lab_defaults=False)
+        plan = opened.plan
+        engine = opened.engine
         t0 = timer()
         result = engine.run()
         total_s = timer() - t0

@@ -68,85 +68,61 @@ def _load_lab_config(args: argparse.Namespace):
     return config
 
 
-def _parse_overrides(module, items: list[str]) -> dict:
-    from normbox_lab.acquire.engine import PlanError, coerce_param
+def _parse_overrides(protocol: str | None, items: list[str]) -> dict:
+    from normbox_lab.acquire.engine import PlanError, coerce_param, load_protocol
 
+    if not items:
+        return {}
+    if not protocol:
+        raise PlanError("--param needs a PROTOCOL")
+    parameters = load_protocol(protocol).PARAMETERS
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not key:
             raise PlanError(f"--param expects K=V, got {item!r}")
-        if key not in module.PARAMETERS:
-            raise PlanError(f"unknown parameter {key!r}; known: {', '.join(module.PARAMETERS)}")
-        out[key] = coerce_param(module.PARAMETERS[key], value)
+        if key not in parameters:
+            raise PlanError(f"unknown parameter {key!r}; known: {', '.join(parameters)}")
+        out[key] = coerce_param(parameters[key], value)
     return out
 
 
 def _run(args: argparse.Namespace) -> int:
     import signal
 
-    from normbox_lab.acquire import engine as eng
-    from normbox_lab.acquire.lab import build_lab
-    from normbox_lab.acquire.store import DEFAULT_STORE, Store
+    from normbox_lab.acquire.engine import PlanError, open_run
+    from normbox_lab.acquire.store import DEFAULT_STORE
 
-    store_path = args.store or DEFAULT_STORE
-    store = Store(store_path)
-    run_ref = None
-    if args.resume:
-        rec = store.get_run(args.resume)
-        protocol = rec.protocol
-        if args.protocol and args.protocol != protocol:
-            raise eng.PlanError(f"run {rec.uuid} ran {protocol!r}, not {args.protocol!r}")
-        if args.param:
-            raise eng.PlanError("--param cannot change a resumed run (its parameters are "
-                                "stored with it)")
-        module = eng.load_protocol(protocol)
-        params = eng.resolve_parameters(module, None, rec.parameters)
-        run_ref = rec.id
-        if args.world is None:
-            worlds = [d["world"] for _, k, d in store.events(rec.id)
-                      if k == "segment" and "world" in d]
-            args.world = worlds[-1] if worlds else None
-    else:
-        if not args.protocol:
-            raise eng.PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
-                                "repeatability, or a .py file), or --resume RUN_ID")
-        protocol = args.protocol
-        if protocol.endswith(".py"):
-            protocol = str(Path(protocol).resolve())   # a resume may start elsewhere
-        module = eng.load_protocol(protocol)
+    if args.resume and args.param:
+        raise PlanError("--param cannot change a resumed run (its parameters are stored with "
+                        "it)")
+    if not args.resume and not args.protocol:
+        raise PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
+                        "repeatability, or a .py file), or --resume RUN_ID")
+    overrides = _parse_overrides(args.protocol, args.param)
     config = _load_lab_config(args)
-    if not args.resume:
-        params = eng.resolve_parameters(module, config.protocol_defaults(Path(protocol).stem
-                                                                         if protocol.endswith(".py")
-                                                                         else protocol),
-                                        _parse_overrides(module, args.param))
-
-    world = (args.world or "normbox") if config.simulated else "none"
-    lab = build_lab(config, world=world, virtual_operator=args.virtual_operator,
-                    fault_policy=args.fault_policy)
     progress_ref: dict = {}
-    if lab.operator is None:
+
+    def terminal_operator(lab):
         from normbox_lab.acquire.operator import TerminalOperator
 
         def before() -> None:
             prog = progress_ref.get("progress")
             if prog is not None:
                 prog.stop()
-        lab.operator = TerminalOperator(before=before, world=lab.world)
-    plan = eng.build_plan(protocol, params, lab, module=module)
-    engine = eng.Engine(lab, store, plan, segment_info={"world": world, "lab": config.path})
-    try:
+        return TerminalOperator(before=before, world=lab.world)
+
+    with open_run(args.protocol, store=args.store or DEFAULT_STORE, config=config,
+                  params=overrides, resume=args.resume, world=args.world,
+                  virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
+                  make_operator=terminal_operator) as opened:
         if args.dry_run:
-            committed = store.keys(run_ref) if run_ref is not None else set()
-            for line in engine.dry_run(committed).lines():
+            for line in opened.dry_run().lines():
                 print(line)
             return 0
-        return _execute(engine, lab, store, run_ref, args, progress_ref, signal)
-    finally:
-        lab.close()
-        store.close()
+        return _execute(opened.engine, opened.lab, opened.store, opened.resume, args,
+                        progress_ref, signal)
 
 
 def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:

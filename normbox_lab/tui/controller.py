@@ -158,19 +158,19 @@ class Session:
         module = eng.load_protocol(protocol)
         return eng.resolve_parameters(module, self.config.protocol_defaults(protocol))
 
-    def make_engine(self, protocol: str, params: Mapping[str, Any]) -> Any:
-        from normbox_lab.acquire import engine as eng
+    def make_engine(self, protocol: str | None, params: Mapping[str, Any] | None = None, *,
+                    resume: int | None = None) -> Any:
+        from normbox_lab.acquire.engine import open_run
 
         lab = self.ensure_lab()
-        self.open_store()
-        plan = eng.build_plan(protocol, dict(params), lab)
         if lab.operator is not None:           # --virtual-operator: the simulation answers
             self.operator = None
             operator = lab.operator
         else:
             self.operator = ConsoleOperator(lab.world)
             operator = self.operator
-        engine = eng.Engine(lab, self.store, plan, operator=operator, wait_when_paused=True)
+        engine = open_run(protocol, lab=lab, store=self.open_store(), params=params,
+                          resume=resume, operator=operator, wait_when_paused=True).engine
         engine.subscribe(self._on_event)
         return engine
 
@@ -193,16 +193,12 @@ class Session:
 
     def resume_run(self, run_ref: int | str) -> None:
         """Continue an interrupted run with its stored protocol and parameters."""
-        from normbox_lab.acquire import engine as eng
-
         if self.busy:
             raise NormboxError("a run is already active")
         rec = self.open_store().get_run(run_ref)
         if rec.status == "done":
             raise NormboxError(f"run {rec.uuid[:8]} is done; nothing to resume")
-        module = eng.load_protocol(rec.protocol)
-        params = eng.resolve_parameters(module, None, rec.parameters)
-        self.engine = self.make_engine(rec.protocol, params)
+        self.engine = self.make_engine(None, resume=rec.id)
         self._launch(rec.id)
 
     def _launch(self, resume: int | None) -> None:

@@ -1,0 +1,155 @@
+"""`open_run`: the one way to start or resume a run — lab + store + plan + operator + engine.
+
+    with open_run("reference-sweep", config=load_config("lab.toml"), store="normbox.sqlite") as r:
+        print(r.dry_run().lines()[-1])
+        result = r.run()
+
+    with open_run(resume=run_uuid, config=config, store=store) as r:   # the stored protocol,
+        result = r.run()                                               # parameters and world
+
+The command line (`normbox-lab run`), the operator console, the demo and `bench engine` all
+call it, so parameters resolve one way (protocol defaults ← lab config `[protocols.NAME]` ←
+overrides; a resumed run keeps its stored ones), a resumed simulated run keeps its world, and
+the operator is the one the lab provides unless the caller brings one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Self
+
+from normbox_lab.acquire.estimate import DryRun
+from normbox_lab.acquire.events import Operator, RunResult
+from normbox_lab.acquire.plan import Plan, PlanError, build_plan, load_protocol, resolve_parameters
+from normbox_lab.acquire.runner import Engine
+from normbox_lab.core.errors import StoreError
+
+
+@dataclass
+class OpenRun:
+    """An engine ready to run (or resume) one run; closes what `open_run` opened."""
+
+    engine: Engine
+    lab: Any
+    store: Any
+    plan: Plan
+    resume: int | None                 # the run id to continue, None for a new run
+    _close: list[Callable[[], None]] = field(default_factory=list)
+
+    def dry_run(self) -> DryRun:
+        committed = self.store.keys(self.resume) if self.resume is not None else set()
+        return self.engine.dry_run(committed)
+
+    def run(self) -> RunResult:
+        return self.engine.run(resume=self.resume)
+
+    def close(self) -> None:
+        while self._close:
+            self._close.pop()()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
+                 tb: TracebackType | None) -> None:
+        self.close()
+
+
+def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab: Any = None,
+             params: Mapping[str, Any] | None = None, lab_defaults: bool = True,
+             resume: int | str | None = None, world: str | Any | None = None,
+             operator: Operator | None = None,
+             make_operator: Callable[[Any], Operator] | None = None,
+             virtual_operator: bool | None = None, fault_policy: str = "retry",
+             **engine_options: Any) -> OpenRun:
+    """Assemble a run.
+
+    protocol      a shipped name or a .py file (omit with `resume`)
+    store         a `Store`, or a path to open (and close with the run)
+    config, lab   the lab config to build a lab from (closed with the run), or a built lab
+    params        overrides of the protocol's parameters (not with `resume`)
+    lab_defaults  apply the lab config's `[protocols.NAME]` defaults (default True)
+    resume        a run id or uuid to continue with its stored protocol and parameters
+    world         a lab built here from a simulated config: "normbox" | "analytic" | "none";
+                  default the resumed run's world, else "normbox" (recorded with the segment)
+    operator      answers the engine's prompts; default the lab's operator
+    make_operator when the lab has no operator (a real lab, or `virtual_operator=False`):
+                  `make_operator(lab)` becomes the lab's operator (instruments ask it too, e.g.
+                  the gonio's white standard)
+    virtual_operator, fault_policy   for a lab built here (see `build_lab`)
+    engine_options  passed to `Engine` (wait_when_paused, retry, poll_s …)
+    """
+    from normbox_lab.acquire.store import Store
+
+    closers: list[Callable[[], None]] = []
+    if isinstance(store, (str, Path)):
+        store = Store(store)
+        closers.append(store.close)
+    try:
+        run_id = None
+        if resume is not None:
+            rec = store.get_run(resume)
+            if rec.status == "done":
+                raise StoreError(f"run {rec.uuid} is already done; nothing to resume")
+            if protocol is not None and protocol != rec.protocol:
+                raise PlanError(f"run {rec.uuid} ran {rec.protocol!r}, not {protocol!r}")
+            if params:
+                raise PlanError("parameters cannot change a resumed run (they are stored "
+                                "with it)")
+            protocol, run_id = rec.protocol, rec.id
+            module = load_protocol(protocol)
+            full = resolve_parameters(module, None, rec.parameters)
+            if world is None:
+                worlds = [d["world"] for _, k, d in store.events(rec.id)
+                          if k == "segment" and "world" in d]
+                world = worlds[-1] if worlds else None
+        else:
+            if not protocol:
+                raise PlanError("name a protocol (reference-sweep, brdf-inplane, light-map, "
+                                "repeatability, or a .py file), or resume a run")
+            if protocol.endswith(".py"):
+                protocol = str(Path(protocol).resolve())      # a resume may start elsewhere
+            module = load_protocol(protocol)
+            defaults = None
+            lab_config = config if config is not None else _config_of(lab)
+            if lab_defaults and lab_config is not None:
+                defaults = lab_config.protocol_defaults(
+                    Path(protocol).stem if protocol.endswith(".py") else protocol)
+            full = resolve_parameters(module, defaults, params)
+        info: dict[str, Any] = {}
+        if lab is None:
+            from normbox_lab.acquire.lab import build_lab
+
+            if config is None:
+                raise PlanError("open_run needs a lab config or a lab")
+            if world is not None and not isinstance(world, str):
+                raise PlanError("open_run builds its lab with a world kind; pass a lab built "
+                                "with a world object instead")
+            world = (world or "normbox") if config.simulated else "none"
+            lab = build_lab(config, world=world, virtual_operator=virtual_operator,
+                            fault_policy=fault_policy)
+            closers.append(lab.close)
+            info = {"world": world, "lab": config.path}
+        if lab.operator is None and make_operator is not None:
+            lab.operator = make_operator(lab)
+        plan = build_plan(protocol, full, lab, module=module)
+        info.update(engine_options.pop("segment_info", None) or {})
+        engine = Engine(lab, store, plan, operator=operator, segment_info=info,
+                        **engine_options)
+    except BaseException:
+        for close in reversed(closers):
+            close()
+        raise
+    return OpenRun(engine, lab, store, plan, run_id, closers)
+
+
+def _config_of(lab: Any) -> Any:
+    from normbox_lab.acquire.lab import Lab
+
+    return lab.config if isinstance(lab, Lab) else None
+
+
+__all__ = ["OpenRun", "open_run"]
