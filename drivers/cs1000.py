@@ -39,17 +39,16 @@ import struct
 from typing import Any
 
 import numpy as np
-from serial import SerialException
 
+from normbox_lab.core import transport
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     ConfigError,
     DeviceError,
-    InstrumentError,
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 from normbox_lab.drivers.radiometer_common import (
     KonicaMinoltaRadiometer,
@@ -124,17 +123,12 @@ class CS1000A(KonicaMinoltaRadiometer):
              data_format: str = "ascii", observer_deg: int = 2, command_timeout_s: float = 10.0,
              attempts: int = 3, reconnect_timeout_s: float = 10.0) -> CS1000A:
         """Open `url` (a device path, socket://, sim://cs1000a?…) at 8N1 without flow control.
-        Explicit keywords, so a lab config's extra options are filtered out, not fatal."""
-        from normbox_lab.sim.transport import open_port
-
+        Explicit keywords: any other option in the lab config is a ConfigError (lab.py)."""
         if int(baud) not in BAUD_RATES:
             raise ConfigError("<driver options>", 0, "baud",
                               f"CS-1000A baud must be one of {BAUD_RATES}, not {baud}")
-        try:
-            port = open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
-                             rtscts=False, timeout=1.0)
-        except (SerialException, OSError, ValueError) as exc:
-            raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
+        port = transport.open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
+                                   rtscts=False, timeout=1.0, instrument_id=instrument_id)
         return cls(port, clock, instrument_id=instrument_id, baud=int(baud),
                    data_format=data_format, observer_deg=observer_deg,
                    command_timeout_s=command_timeout_s, attempts=attempts,

@@ -32,6 +32,8 @@ from typing import Any
 
 from serial import SerialException
 
+from normbox_lab.core import transport
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     ConfigError,
@@ -40,7 +42,6 @@ from normbox_lab.core.errors import (
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
 from normbox_lab.drivers.radiometer_common import (
     KonicaMinoltaRadiometer,
@@ -123,14 +124,9 @@ class CS2000A(KonicaMinoltaRadiometer):
              delimiter: str = "\n", command_timeout_s: float = 10.0, attempts: int = 3,
              reconnect_timeout_s: float = 10.0) -> CS2000A:
         """Open `url` (device path, socket://, sim://cs2000a?…) at 8N1 with RTS/CTS.
-        Explicit keywords, so a lab config's extra options are filtered out, not fatal."""
-        from normbox_lab.sim.transport import open_port
-
-        try:
-            port = open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
-                             rtscts=True, timeout=1.0)
-        except (SerialException, OSError, ValueError) as exc:
-            raise InstrumentError(f"cannot open {url!r}: {exc}", instrument=instrument_id) from exc
+        Explicit keywords: any other option in the lab config is a ConfigError (lab.py)."""
+        port = transport.open_port(url, baudrate=int(baud), bytesize=8, parity="N", stopbits=1,
+                                   rtscts=True, timeout=1.0, instrument_id=instrument_id)
         return cls(port, clock, instrument_id=instrument_id, baud=int(baud),
                    data_format=data_format, delimiter=delimiter,
                    command_timeout_s=command_timeout_s, attempts=attempts,

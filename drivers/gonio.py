@@ -46,9 +46,9 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, NotReady
-from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, BrdfReading
 
 THETA_I_DEG = tuple(range(-80, 1, 10))

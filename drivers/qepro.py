@@ -7,8 +7,9 @@ no nonlinearity correction for the QE Pro — the driver then reports them as un
 seabreeze is imported only when a real device is opened, never at module import.
 
     open("usb:") / open("usb:QEP01234") / open("QEP01234")    a real QE Pro (seabreeze)
-    open("sim") / open("sim://qepro?seed=1&faults=disconnect@3")  the simulated one
-                                                                 (normbox_lab.sim.qepro)
+    open("sim") / open("sim://qepro?seed=1&faults=disconnect@3")  the simulated one, through
+                                          the backend a simulated lab registers with
+                                          `normbox_lab.core.transport`
 
 Device facts used: 1044 pixels, integration time 8 ms … 1600 s (`integration_time_micros`),
 18-bit counts (max 262143), electrically dark pixels (dark correction = subtract their mean),
@@ -24,16 +25,16 @@ retries the call once; if it stays away, `InstrumentError`.
 
 from __future__ import annotations
 
-import urllib.parse
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from normbox_lab.core import transport
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
-from normbox_lab.core.interfaces import InstrumentIdentity
 
 MIN_INTEGRATION_S = 8e-3
 MAX_INTEGRATION_S = 1600.0
@@ -62,6 +63,7 @@ class QEPro:
         self._errors = tuple(error_types) or (RuntimeError,)
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self.simulated = simulated
+        self._white_standard: Any = None     # set by the backend that opened the device
         self.integration_time_s = 0.1
         self._wavelengths = np.asarray(self.spec.wavelengths(), dtype=float)
         self.max_counts = float(self.spec.max_intensity)
@@ -77,8 +79,13 @@ class QEPro:
     def open(cls, serial_or_url: str, clock: Clock, *, world: Any = None,
              backend: str = "cseabreeze", **options: Any) -> QEPro:
         target = str(serial_or_url)
-        if target == "sim" or target.startswith("sim:"):
-            return cls._open_sim(target, clock, world=world, **options)
+        if transport.spectrometer_scheme(target) is not None:
+            # a registered backend (the simulated lab's `sim`): no seabreeze here
+            link = transport.open_spectrometer(target, clock, world=world)
+            inst = cls(link.device, clock, reopen=link.reopen, error_types=link.error_types,
+                       simulated=link.simulated, **options)
+            inst._white_standard = link.white_standard
+            return inst
         serial = target.removeprefix("usb:")
         serial = serial or None
         try:
@@ -99,34 +106,6 @@ class QEPro:
             raise InstrumentError(f"cannot open QE Pro {serial or '(first)'}: {exc}",
                                   instrument=options.get("instrument_id", "spectrometer")) from exc
         return cls(spec, clock, reopen=reopen, error_types=(SeaBreezeError,), **options)
-
-    @classmethod
-    def _open_sim(cls, url: str, clock: Clock, *, world: Any = None, **options: Any) -> QEPro:
-        from normbox_lab.sim import qepro as sim
-
-        parts = urllib.parse.urlsplit(url if "://" in url else "sim://qepro")
-        q = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
-        key = q.pop("key", "qepro")
-        dev_opts: dict[str, Any] = {"seed": int(q.pop("seed", "0")), "faults": q.pop("faults", "")}
-        for name in ("light_arm", "detector_arm"):
-            if name in q:
-                dev_opts[name] = q.pop(name)
-        for name in ("tilt_deg", "arm_clearance_deg"):
-            if name in q:
-                dev_opts[name] = float(q.pop(name))
-        if world is not None:
-            dev_opts["world"] = world
-        dev = sim.device(key, clock=clock, serial_number=q.pop("serial", "QEP-SIM-0001"),
-                         **dev_opts)
-        if world is not None:
-            dev.world = world
-        serial = dev.serial_number
-
-        def reopen() -> Any:
-            return sim.SimulatedSpectrometer.from_serial_number(serial)
-
-        return cls(reopen(), clock, reopen=reopen, error_types=(sim.SeaBreezeError,),
-                   simulated=True, **options)
 
     # --- plumbing -----------------------------------------------------------------------------
     def _features(self) -> dict[str, list[Any]]:
@@ -273,11 +252,7 @@ class QEPro:
 
     def white_standard(self) -> Any:
         """The simulated gonio's white-standard slide (None for a real device)."""
-        if not self.simulated:
-            return None
-        from normbox_lab.sim.qepro import WhiteStandardSlide
-
-        return WhiteStandardSlide(self.spec.simulated_device)
+        return self._white_standard
 
     def status(self) -> dict[str, Any]:
         return {"integration_time_s": self.integration_time_s,

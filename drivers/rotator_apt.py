@@ -41,9 +41,10 @@ from typing import Any
 import thorlabs_apt_protocol as apt
 from serial import SerialException
 
+from normbox_lab.core import transport
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, InstrumentError, InstrumentTimeout, ProtocolError
-from normbox_lab.core.interfaces import InstrumentIdentity
 from normbox_lab.drivers.rotation import RotationStageBase
 
 HOST = 0x01
@@ -103,14 +104,9 @@ class AptRotationStage(RotationStageBase):
 
     @classmethod
     def open(cls, url: str, clock: Clock, **options: Any) -> AptRotationStage:
-        from normbox_lab.sim.transport import open_port
-
-        try:
-            port = open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
-                             rtscts=True, timeout=0.05)
-        except (SerialException, OSError, ValueError) as exc:
-            raise InstrumentError(f"cannot open {url!r}: {exc}",
-                                  instrument=str(options.get("instrument_id", ""))) from exc
+        port = transport.open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
+                                   rtscts=True, timeout=0.05,
+                                   instrument_id=str(options.get("instrument_id", "")))
         return cls(port, clock, **options)
 
     # --- framing ------------------------------------------------------------------------------

@@ -39,6 +39,8 @@ from typing import Any
 import numpy as np
 from serial import SerialException
 
+from normbox_lab.core import transport
+from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     DeviceError,
@@ -47,7 +49,6 @@ from normbox_lab.core.errors import (
     NotReady,
     ProtocolError,
 )
-from normbox_lab.core.interfaces import InstrumentIdentity
 
 STATES = ("off", "settling", "stable", "error")
 
@@ -79,13 +80,9 @@ class SphereLightSource:
 
     @classmethod
     def open(cls, url: str, clock: Clock, **options: Any) -> SphereLightSource:
-        from normbox_lab.sim.transport import open_port
-
-        try:
-            port = open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1, timeout=0.05)
-        except (SerialException, OSError, ValueError) as exc:
-            raise InstrumentError(f"cannot open {url!r}: {exc}",
-                                  instrument=str(options.get("instrument_id", ""))) from exc
+        port = transport.open_port(url, baudrate=115200, bytesize=8, parity="N", stopbits=1,
+                                   timeout=0.05,
+                                   instrument_id=str(options.get("instrument_id", "")))
         return cls(port, clock, **options)
 
     # --- lines --------------------------------------------------------------------------------

@@ -45,13 +45,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"normbox-lab {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name in COMMAND_MODULES:
-        try:
-            module = importlib.import_module(f"normbox_lab.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name == f"normbox_lab.commands.{name}":
-                continue  # that feature has not landed: no stub pretends it exists
-            raise
-        module.register(sub)
+        importlib.import_module(f"normbox_lab.commands.{name}").register(sub)
     return parser
 
 

@@ -1,18 +1,59 @@
-"""Reaching an emulator in-process: the ``sim://`` pyserial URL scheme (a pty or a loopback TCP
-port: `normbox_lab.sim.serve`)."""
+"""Reaching an emulator in-process: the ``sim://`` pyserial URL scheme and the simulated
+seabreeze backend, registered with `normbox_lab.core.transport` (a pty or a loopback TCP port:
+`normbox_lab.sim.serve`)."""
 
 from __future__ import annotations
 
+import urllib.parse
+from typing import Any
+
 import serial
+
+from normbox_lab.core import transport
+from normbox_lab.core.clock import Clock
 
 
 def register_url_scheme() -> None:
-    """Make ``serial.serial_for_url("sim://cs1000a")`` reach the in-process emulators."""
-    if "normbox_lab.sim" not in serial.protocol_handler_packages:
-        serial.protocol_handler_packages.append("normbox_lab.sim")
+    """Make the neutral transport reach the in-process emulators: pyserial's
+    ``serial_for_url("sim://cs1000a")`` and the simulated seabreeze backend (``sim``,
+    ``sim://qepro?seed=1``).  `build_lab` calls it for a simulated lab."""
+    transport.register_serial_scheme("normbox_lab.sim")
+    transport.register_spectrometer_scheme("sim", open_simulated_spectrometer)
 
 
 def open_port(url: str, **kwargs) -> serial.SerialBase:
-    """Open a real port (/dev/ttyUSB0, COM3), socket://host:port, or sim://DEVICE."""
+    """pyserial's ``serial_for_url`` with ``sim://`` registered (tests and tools; pyserial's
+    own exceptions, where drivers get typed errors from `normbox_lab.core.transport`)."""
     register_url_scheme()
     return serial.serial_for_url(url, **kwargs)
+
+
+def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
+                                **_: Any) -> transport.SpectrometerLink:
+    """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…`` → the simulated
+    QE Pro (seabreeze's `Spectrometer` interface) behind the gonio's emulated arms."""
+    from normbox_lab.sim import qepro as sim
+
+    parts = urllib.parse.urlsplit(target if "://" in target else "sim://qepro")
+    q = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
+    key = q.pop("key", "qepro")
+    dev_opts: dict[str, Any] = {"seed": int(q.pop("seed", "0")), "faults": q.pop("faults", "")}
+    for name in ("light_arm", "detector_arm"):
+        if name in q:
+            dev_opts[name] = q.pop(name)
+    for name in ("tilt_deg", "arm_clearance_deg"):
+        if name in q:
+            dev_opts[name] = float(q.pop(name))
+    if world is not None:
+        dev_opts["world"] = world
+    dev = sim.device(key, clock=clock, serial_number=q.pop("serial", "QEP-SIM-0001"),
+                     **dev_opts)
+    if world is not None:
+        dev.world = world
+    serial_number = dev.serial_number
+
+    def reopen() -> Any:
+        return sim.SimulatedSpectrometer.from_serial_number(serial_number)
+
+    return transport.SpectrometerLink(reopen(), reopen, (sim.SeaBreezeError,), simulated=True,
+                                      white_standard=sim.WhiteStandardSlide(dev))

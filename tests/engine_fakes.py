@@ -323,8 +323,8 @@ class LampDriver(FakeLamp):
 
 
 FAKE_DRIVERS = {
-    "cs1000a": ("engine_fakes", ("RadiometerDriver",)),
-    "apt-k10cr1": ("engine_fakes", ("StageDriver",)),
-    "zaber": ("engine_fakes", ("StageDriver",)),
-    "sphere-scpi": ("engine_fakes", ("LampDriver",)),
+    "cs1000a": ("engine_fakes", "RadiometerDriver"),
+    "apt-k10cr1": ("engine_fakes", "StageDriver"),
+    "zaber": ("engine_fakes", "StageDriver"),
+    "sphere-scpi": ("engine_fakes", "LampDriver"),
 }

@@ -4,20 +4,26 @@
     lab.instrument("radiometer").measure()
 
 - Drivers are found by their config name (`DRIVERS`: name → module, class), imported lazily,
-  and opened on first use with ``Driver.open(port, clock, **options)``.
+  and opened on first use with ``Driver.open(port, clock, **options)``; an option the driver
+  does not take is a ConfigError naming it.
 - The role ``gonio`` is composed from ``gonio_light_arm``, ``gonio_detector_arm`` and
-  ``spectrometer`` by `normbox_lab.drivers.gonio` (when that module exists).
-- The clock is ``make_clock(config.time_scale)``; a simulated lab shares it (and the world)
-  with ``normbox_lab.sim.core.CONTEXT``, so every emulator runs on the lab's clock.
-- Worlds (simulated labs): ``"normbox"`` (the Mitsuba `VirtualNormbox`, slow: seconds per new
-  configuration), ``"analytic"`` (`sim/analytic_world.py`, closed form, milliseconds), or
-  ``"none"``.  The `VirtualOperator` answers prompts in simulated labs.
+  ``spectrometer`` by `normbox_lab.drivers.gonio`.
+- The clock is ``make_clock(config.time_scale)``.
+- A simulated lab (any ``sim://`` port) is wired by `normbox_lab.sim.labsim`: it registers the
+  ``sim://`` transports, shares the lab's clock and world with every emulator, gives the
+  expected luminance of each reading (for the radiometer's timing model) and, by default, the
+  `VirtualOperator`.  Worlds: ``"normbox"`` (the Mitsuba `VirtualNormbox`, slow: seconds per
+  new configuration), ``"analytic"`` (closed form, milliseconds), or ``"none"``.
+- A real lab imports no module of `normbox_lab.sim`; its ETAs use the luminance a protocol
+  step declares (``luminance_cd_m2``) or `REAL_LAB_LUMINANCE_CD_M2`, corrected during the run
+  by the engine from the readings' real durations.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import importlib
+import inspect
 from collections.abc import Mapping
 from typing import Any
 
@@ -26,74 +32,52 @@ from normbox_lab.core.capabilities import Closable, Identifiable
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
 
-#: config driver name → (module, class names to try, in order)
-DRIVERS: dict[str, tuple[str, tuple[str, ...]]] = {
-    "cs1000a": ("normbox_lab.drivers.cs1000", ("CS1000A", "CS1000", "Cs1000A")),
-    "cs2000a": ("normbox_lab.drivers.cs2000", ("CS2000A", "CS2000", "Cs2000A")),
-    "apt-k10cr1": ("normbox_lab.drivers.rotator_apt", ("AptRotationStage",)),
-    "zaber": ("normbox_lab.drivers.rotator_zaber", ("ZaberRotationStage",)),
-    "sphere-scpi": ("normbox_lab.drivers.sphere", ("SphereLightSource",)),
-    "qepro": ("normbox_lab.drivers.qepro", ("QEPro", "QePro", "QEProSpectrometer")),
+#: config driver name → (module, class)
+DRIVERS: dict[str, tuple[str, str]] = {
+    "cs1000a": ("normbox_lab.drivers.cs1000", "CS1000A"),
+    "cs2000a": ("normbox_lab.drivers.cs2000", "CS2000A"),
+    "apt-k10cr1": ("normbox_lab.drivers.rotator_apt", "AptRotationStage"),
+    "zaber": ("normbox_lab.drivers.rotator_zaber", "ZaberRotationStage"),
+    "sphere-scpi": ("normbox_lab.drivers.sphere", "SphereLightSource"),
+    "qepro": ("normbox_lab.drivers.qepro", "QEPro"),
 }
 GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
 WORLDS = ("normbox", "analytic", "none")
+#: a real lab's expected luminance of a reading when its step declares none (ETA only)
+REAL_LAB_LUMINANCE_CD_M2 = 20.0
 
 
 def driver_class(name: str) -> type:
     try:
-        module_name, class_names = DRIVERS[name]
+        module_name, class_name = DRIVERS[name]
     except KeyError:
         raise NormboxError(f"unknown driver {name!r}; known: {', '.join(DRIVERS)}") from None
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name == module_name:
-            raise NormboxError(f"driver {name!r}: module {module_name} is not installed") from exc
-        raise
-    for cls_name in class_names:
-        cls = getattr(module, cls_name, None)
-        if cls is not None:
-            return cls
-    raise NormboxError(f"driver {name!r}: {module_name} has none of {', '.join(class_names)}")
+    return getattr(importlib.import_module(module_name), class_name)
 
 
 def make_world(kind: str | Any, config: LabConfig | None = None) -> Any:
+    """A world for a simulated lab: a kind name, or an object used as it is."""
     if not isinstance(kind, str):
-        return kind                       # an object: used as it is
-    if kind == "none":
-        return None
-    if kind == "analytic":
-        from normbox_lab.sim.analytic_world import AnalyticWorld
+        return kind
+    if kind not in WORLDS:
+        raise NormboxError(f"unknown world {kind!r}; known: {', '.join(WORLDS)}")
+    from normbox_lab.sim import labsim
 
-        homog = config.geometry.panel_homogeneity_percent if config is not None else 3.0
-        return AnalyticWorld(panel_homogeneity_percent=homog)
-    if kind == "normbox":
-        from normbox_lab.sim.world import VirtualNormbox
-
-        return _construct_virtual_normbox(VirtualNormbox, config)
-    raise NormboxError(f"unknown world {kind!r}; known: {', '.join(WORLDS)}")
-
-
-def _construct_virtual_normbox(cls: type, config: LabConfig | None) -> Any:
-    if config is None:
-        return cls()
-    for kwargs in ({"config": config}, {"geometry": config.geometry}, {}):
-        try:
-            return cls(**kwargs)
-        except TypeError:
-            continue
-    return cls()
+    return labsim.make_world(kind, config)
 
 
 class Lab:
     """The assembled lab.  Instruments open on first use (`instrument(role)`)."""
 
     def __init__(self, config: LabConfig, clock: Clock, *, world: Any = None,
-                 operator: Any = None, instruments: Mapping[str, Any] | None = None) -> None:
+                 operator: Any = None, instruments: Mapping[str, Any] | None = None,
+                 simulation: Any = None) -> None:
         self.config = config
         self.clock = clock
         self.world = world
         self.operator = operator
+        #: the simulated lab's wiring (`normbox_lab.sim.labsim.Simulation`), None for a real lab
+        self.simulation = simulation
         self._open: dict[str, Any] = dict(instruments or {})
 
     @property
@@ -120,46 +104,24 @@ class Lab:
                                   "the protocol needs this instrument; add it to the lab "
                                   "config") from None
             cls = driver_class(cfg.driver)
-            options = {k: v for k, v in cfg.options.items()}
-            inst = _open_driver(cls, cfg.port, self.clock, options)
-            if cfg.simulated and self.world is not None:
-                self._attach_to_world(role, cfg.port)
+            inst = _open_driver(cls, cfg, self.config.path, self.clock)
+            if cfg.simulated and self.simulation is not None:
+                self.simulation.attach(role, cfg.port)
         self._open[role] = inst
         return inst
 
-    def _attach_to_world(self, role: str, url: str) -> None:
-        """The world reads the rotator's angle and the sphere's output from their emulators."""
-        emu = _emulator_for(url)
-        if emu is None:
-            return
-        if role == "rotator" and hasattr(emu, "angle_deg") and \
-                hasattr(self.world, "attach_rotator"):
-            self.world.attach_rotator(emu)
-        elif role == "sphere" and hasattr(emu, "relative_output") and \
-                hasattr(self.world, "attach_sphere"):
-            self.world.attach_sphere(emu)
-
     def _open_gonio(self) -> Any:
-        try:
-            gonio_mod = importlib.import_module("normbox_lab.drivers.gonio")
-        except ModuleNotFoundError as exc:
-            raise NormboxError("the gonioreflectometer driver (normbox_lab.drivers.gonio) is "
-                               "not installed") from exc
+        from normbox_lab.drivers.gonio import Gonioreflectometer, OperatorWhiteStandard
+
         parts = {r: self.instrument(r) for r in GONIO_ROLES}
-        cls = next((getattr(gonio_mod, n) for n in ("Gonioreflectometer", "InPlaneGonio",
-                                                    "Gonio") if hasattr(gonio_mod, n)), None)
-        if cls is None:
-            raise NormboxError("normbox_lab.drivers.gonio defines no Gonioreflectometer class")
-        build = getattr(cls, "from_parts", None) or cls
-        extra: dict[str, Any] = {}
-        white = getattr(gonio_mod, "OperatorWhiteStandard", None)
-        if not hasattr(parts["spectrometer"], "white_standard") and white is not None \
-                and self.operator is not None:
+        white = parts["spectrometer"].white_standard()
+        if white is None and self.operator is not None:
             # a real gonio: the operator places the Spectralon during `calibrate`
-            extra["white_standard"] = white(lambda message: self.ask_operator(
+            white = OperatorWhiteStandard(lambda message: self.ask_operator(
                 "gonio/white-standard", message, action="white_standard"))
-        return build(spectrometer=parts["spectrometer"], light_arm=parts["gonio_light_arm"],
-                     detector_arm=parts["gonio_detector_arm"], clock=self.clock, **extra)
+        return Gonioreflectometer.from_parts(
+            spectrometer=parts["spectrometer"], light_arm=parts["gonio_light_arm"],
+            detector_arm=parts["gonio_detector_arm"], clock=self.clock, white_standard=white)
 
     def ask_operator(self, key: str, message: str, **data: Any) -> str:
         """A prompt from inside an instrument (e.g. the gonio's white standard)."""
@@ -169,32 +131,15 @@ class Lab:
 
     # --- what the engine asks of a lab ----------------------------------------------------------
     def luminance_hint_cd_m2(self, step: Any) -> float:
-        """Expected luminance of a measurement, for the radiometer's timing model (ETA).
-
-        From the closed-form analytic world (the lab's own world when it is analytic, else one
-        built with the render table's lamp): cheap, where the Mitsuba world would render."""
+        """Expected luminance of a measurement, for the radiometer's timing model (ETA): what
+        the step declares, else (simulated lab) the simulation's closed-form estimate, else
+        `REAL_LAB_LUMINANCE_CD_M2`."""
         p = step.params
         if "luminance_cd_m2" in p:
             return float(p["luminance_cd_m2"])
-        est = self._estimator()
-        if "patch" in p:
-            return est.luminance_cd_m2(int(p["patch"]), float(p.get("angle_deg", 90.0)))
-        if "x_mm" in p and "y_mm" in p:
-            return est.panel_luminance_cd_m2(float(p["x_mm"]), float(p["y_mm"]))
-        return 20.0
-
-    def _estimator(self) -> Any:
-        from normbox_lab.sim.analytic_world import AnalyticWorld
-
-        if isinstance(self.world, AnalyticWorld):
-            return self.world
-        if getattr(self, "_est", None) is None:
-            r = self.config.render
-            self._est = AnalyticWorld(
-                lamp_cct_K=float(r.get("lamp_cct_K", 3100.0)),
-                panel_luminance_cd_m2=float(r.get("panel_luminance_cd_m2", 3000.0)),
-                panel_homogeneity_percent=self.config.geometry.panel_homogeneity_percent)
-        return self._est
+        if self.simulation is not None:
+            return self.simulation.luminance_hint_cd_m2(p)
+        return REAL_LAB_LUMINANCE_CD_M2
 
     def provenance(self) -> dict[str, Any]:
         """What a new run records about the lab."""
@@ -225,31 +170,18 @@ class Lab:
         self._open.clear()
 
 
-def _emulator_for(url: str) -> Any:
-    import urllib.parse
-
-    from normbox_lab.sim import core
-
-    parts = urllib.parse.urlsplit(url)
-    if parts.scheme != "sim":
-        return None
-    device = parts.netloc or parts.path.lstrip("/")
-    key = urllib.parse.parse_qs(parts.query).get("key", [None])[-1] or device
-    return core.CONTEXT.instances.get(key)
-
-
-def _open_driver(cls: type, port: str, clock: Clock, options: dict[str, Any]) -> Any:
-    try:
-        return cls.open(port, clock, **options)
-    except TypeError:
-        # options the driver does not take (limits used by the lab only): pass what it accepts
-        import inspect
-
-        sig = inspect.signature(cls.open)
-        if any(p.kind == p.VAR_KEYWORD for p in sig.parameters.values()):
-            raise
-        accepted = {k: v for k, v in options.items() if k in sig.parameters}
-        return cls.open(port, clock, **accepted)
+def _open_driver(cls: type, cfg: Any, config_path: str, clock: Clock) -> Any:
+    """``cls.open(port, clock, **options)``; an option `open` does not take (when it takes no
+    ``**options``) is a ConfigError that names it."""
+    params = inspect.signature(cls.open).parameters
+    if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
+        for key in cfg.options:
+            if key not in params:
+                accepted = [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+                raise ConfigError(config_path, 0, f"instruments.{cfg.role}.{key}",
+                                  f"not an option of driver {cfg.driver!r}; it takes "
+                                  f"{', '.join(accepted) or 'none'}")
+    return cls.open(cfg.port, clock, **cfg.options)
 
 
 def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock | None = None,
@@ -257,12 +189,12 @@ def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock |
               fault_policy: str = "retry", operator_response_s: float = 5.0) -> Lab:
     """Assemble a lab.  Simulated labs get `world` and (by default) the virtual operator."""
     clock = clock if clock is not None else make_clock(config.time_scale)
-    world_obj = None
+    simulation = None
     if config.simulated or any(i.simulated for i in config.instruments.values()):
-        from normbox_lab.sim import core
+        from normbox_lab.sim import labsim
 
-        world_obj = make_world(world, config)
-        core.CONTEXT.reset(clock=clock, world=world_obj)
+        simulation = labsim.Simulation(config, clock, make_world(world, config))
+    world_obj = simulation.world if simulation is not None else None
     if virtual_operator is None:
         virtual_operator = config.simulated and operator is None
     if operator is None and virtual_operator:
@@ -270,4 +202,4 @@ def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock |
 
         operator = VirtualOperator(world_obj, clock, fault_policy=fault_policy,
                                    response_s=operator_response_s)
-    return Lab(config, clock, world=world_obj, operator=operator)
+    return Lab(config, clock, world=world_obj, operator=operator, simulation=simulation)

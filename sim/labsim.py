@@ -1,0 +1,83 @@
+"""The simulated side of a lab: what `normbox_lab.acquire.lab.build_lab` asks of the simulator
+when a config has ``sim://`` ports (a real lab never imports this module).
+
+- registers the ``sim://`` transports (pyserial URL handler, simulated seabreeze backend) with
+  `normbox_lab.core.transport`;
+- resets `normbox_lab.sim.core.CONTEXT` to the lab's clock and world, so every emulator runs on
+  the lab's clock;
+- lets the world follow the emulated rotator's angle and sphere's output (`attach`);
+- gives the expected luminance of a reading for the radiometer's timing model (ETA), from the
+  closed-form analytic world — cheap where the Mitsuba world would render.
+"""
+
+from __future__ import annotations
+
+import urllib.parse
+from collections.abc import Mapping
+from typing import Any
+
+from normbox_lab.core.clock import Clock
+from normbox_lab.sim import core
+from normbox_lab.sim.analytic_world import AnalyticWorld
+from normbox_lab.sim.transport import register_url_scheme
+
+
+def make_world(kind: str, config: Any = None) -> Any:
+    """``"normbox"`` (Mitsuba `VirtualNormbox`), ``"analytic"`` or ``"none"``."""
+    if kind == "none":
+        return None
+    if kind == "analytic":
+        homog = config.geometry.panel_homogeneity_percent if config is not None else 3.0
+        return AnalyticWorld(panel_homogeneity_percent=homog)
+    if kind == "normbox":
+        from normbox_lab.sim.world import VirtualNormbox
+
+        return VirtualNormbox(config=config)
+    raise ValueError(f"unknown world {kind!r}")
+
+
+class Simulation:
+    def __init__(self, config: Any, clock: Clock, world: Any) -> None:
+        register_url_scheme()
+        core.CONTEXT.reset(clock=clock, world=world)
+        self.config = config
+        self.world = world
+        self._estimator: AnalyticWorld | None = world if isinstance(world, AnalyticWorld) \
+            else None
+
+    def attach(self, role: str, url: str) -> None:
+        """The world reads the rotator's angle and the sphere's output from their emulators."""
+        if self.world is None:
+            return
+        parts = urllib.parse.urlsplit(url)
+        if parts.scheme != "sim":
+            return
+        device = parts.netloc or parts.path.lstrip("/")
+        key = urllib.parse.parse_qs(parts.query).get("key", [None])[-1] or device
+        emulator = core.CONTEXT.instances.get(key)
+        if emulator is None:
+            return
+        if role == "rotator":
+            self.world.attach_rotator(emulator)
+        elif role == "sphere":
+            self.world.attach_sphere(emulator)
+
+    def luminance_hint_cd_m2(self, params: Mapping[str, Any]) -> float:
+        est = self._analytic()
+        if "patch" in params:
+            return est.luminance_cd_m2(int(params["patch"]), float(params.get("angle_deg", 90.0)))
+        if "x_mm" in params and "y_mm" in params:
+            return est.panel_luminance_cd_m2(float(params["x_mm"]), float(params["y_mm"]))
+        return 20.0
+
+    def _analytic(self) -> AnalyticWorld:
+        if self._estimator is None:
+            r = self.config.render
+            self._estimator = AnalyticWorld(
+                lamp_cct_K=float(r.get("lamp_cct_K", 3100.0)),
+                panel_luminance_cd_m2=float(r.get("panel_luminance_cd_m2", 3000.0)),
+                panel_homogeneity_percent=self.config.geometry.panel_homogeneity_percent)
+        return self._estimator
+
+
+__all__ = ["Simulation", "make_world"]
