@@ -27,7 +27,7 @@ import inspect
 from collections.abc import Mapping
 from typing import Any
 
-from normbox_lab.acquire.config import LabConfig
+from normbox_lab.acquire.config import _LAB_OPTIONS, LabConfig
 from normbox_lab.core.capabilities import Closable, Identifiable
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
@@ -43,6 +43,8 @@ DRIVERS: dict[str, tuple[str, str]] = {
 }
 GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
 WORLDS = ("normbox", "analytic", "none")
+#: options the config allows every instrument (used by the lab, passed on where a driver takes them)
+LAB_OPTIONS = frozenset(_LAB_OPTIONS)
 #: a real lab's expected luminance of a reading when its step declares none (ETA only)
 REAL_LAB_LUMINANCE_CD_M2 = 20.0
 
@@ -171,17 +173,23 @@ class Lab:
 
 
 def _open_driver(cls: type, cfg: Any, config_path: str, clock: Clock) -> Any:
-    """``cls.open(port, clock, **options)``; an option `open` does not take (when it takes no
-    ``**options``) is a ConfigError that names it."""
+    """``cls.open(port, clock, **options)``.  When `open` takes no ``**options``, the options
+    the config allows every instrument (`LAB_OPTIONS`: limits the lab uses) are left out if
+    `open` does not name them, and any other option it does not name is a ConfigError."""
     params = inspect.signature(cls.open).parameters
+    options = dict(cfg.options)
     if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
-        for key in cfg.options:
-            if key not in params:
-                accepted = [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
-                raise ConfigError(config_path, 0, f"instruments.{cfg.role}.{key}",
-                                  f"not an option of driver {cfg.driver!r}; it takes "
-                                  f"{', '.join(accepted) or 'none'}")
-    return cls.open(cfg.port, clock, **cfg.options)
+        for key in list(options):
+            if key in params:
+                continue
+            if key in LAB_OPTIONS:
+                del options[key]
+                continue
+            accepted = [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+            raise ConfigError(config_path, 0, f"instruments.{cfg.role}.{key}",
+                              f"not an option of driver {cfg.driver!r}; it takes "
+                              f"{', '.join(accepted) or 'none'}")
+    return cls.open(cfg.port, clock, **options)
 
 
 def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock | None = None,
