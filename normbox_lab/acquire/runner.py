@@ -32,6 +32,7 @@ from normbox_lab.acquire.retry import RetryPolicy, Skip, StopAtPrompt, run_with_
 from normbox_lab.acquire.steps import (
     KINDS,
     EstimateContext,
+    PlanError,
     Step,
     TimedOperator,
     require,
@@ -39,10 +40,13 @@ from normbox_lab.acquire.steps import (
 )
 from normbox_lab.core.capabilities import (
     Abortable,
+    BrdfReadable,
+    Calibratable,
     Homeable,
     Recoverable,
     RemoteControllable,
     Settling,
+    SpectrumReadable,
     Stoppable,
 )
 from normbox_lab.core.clock import Clock
@@ -298,6 +302,7 @@ class Engine:
                    planned=self.plan.planned, done=len(self._committed), eta_s=eta_s,
                    resumed=resume is not None)
         try:
+            self._check_preconditions()
             self._prepare()
             last_commit = self.plan.last_commit_index
             for i, step in enumerate(self.plan.steps):
@@ -513,9 +518,46 @@ class Engine:
             self._emit("warning", key, message=f"{flag.severity} {flag.gate}: {flag.message}",
                        flag=True, gate=flag.gate, severity=flag.severity)
 
-    def _unstable_suspend(self, step: Step, after: bool = False) -> bool:
-        """Suspender: a lamp this reading requires stable is not → wait, return True."""
+    def _check_preconditions(self) -> None:
+        """What a reading needs is the engine's to check, not the protocol's convention:
+        a reading from a Calibratable instrument must require the state that one of its own
+        calibrate steps sets (else `PlanError` naming the step, before anything moves)."""
+        cal_sets: dict[str, set[str]] = {}
+        for s in self.plan.steps:
+            if s.kind == "calibrate":
+                cal_sets.setdefault(s.role, set()).update(s.sets)
+        for s in self.plan.steps:
+            if not s.commits:
+                continue
+            inst = self.instrument(s.role)
+            if isinstance(inst, Calibratable) and isinstance(inst, BrdfReadable) and \
+                    not cal_sets.get(s.role, set()) & set(s.requires):
+                raise PlanError(f"step {s.key!r} reads {s.role!r}, a calibratable instrument, "
+                                f"without requiring one of its calibrate steps' states; add a "
+                                f"calibrate step (sets=...) and require it")
+
+    def _light_roles(self, step: Step) -> list[str]:
+        """Lamps that must be stable for this reading: those the step requires stable, and —
+        for a radiometer reading — every light source of the plan and the lab's ``sphere``,
+        whether the protocol declared it or not (warm-up is a precondition, not a habit)."""
         roles = [r for r, v in step.requires.items() if v == "stable"]
+        if not isinstance(self.instrument(step.role), SpectrumReadable):
+            return roles
+        for r in (*self.plan.roles, "sphere"):
+            if r in roles or r == step.role:
+                continue
+            try:
+                inst = self.instrument(r)
+            except (KeyError, NormboxError):
+                continue
+            if isinstance(inst, Settling):
+                roles.append(r)
+        return roles
+
+    def _unstable_suspend(self, step: Step, after: bool = False) -> bool:
+        """Suspender: a lamp this reading needs stable (`_light_roles`) is not → wait, return
+        True."""
+        roles = self._light_roles(step)
         for role in roles:
             lamp = require(self.instrument(role), Settling, role, step.key)
             if lamp.is_stable():
