@@ -275,7 +275,16 @@ class Engine:
     # --- running -----------------------------------------------------------------------------
     def run(self, resume: int | str | None = None) -> RunResult:
         """Execute the plan (a new run, or continue `resume`).  Returns when the run is done,
-        paused (unless `wait_when_paused`), or aborted."""
+        paused (unless `wait_when_paused`), or aborted.  The run's execution lock is held
+        throughout: a second process resuming the same run is refused at once."""
+        self._run_lock: Any = None
+        try:
+            return self._run_segment(resume)
+        finally:
+            if self._run_lock is not None:
+                self._run_lock.release()
+
+    def _run_segment(self, resume: int | str | None) -> RunResult:
         self._abort.clear()
         self._pause.clear()
         self._stop.clear()
@@ -366,6 +375,7 @@ class Engine:
             lab_config=prov.get("lab_config", ""), seeds=prov.get("seeds", {}),
             planned=self.plan.planned, status="running")
         self.run_id, self.run_uuid = rec.id, rec.uuid
+        self._run_lock = self.store.lock_run(rec.id)
         self._committed = set()
         self.segment = 1
         self._store_event("plan", fingerprint=self.plan.fingerprint(),
@@ -374,6 +384,8 @@ class Engine:
 
     def _reopen_run(self, resume: int | str) -> None:
         rec = self.store.get_run(resume)
+        self._run_lock = self.store.lock_run(rec.id)    # before anything is written
+        rec = self.store.get_run(rec.id)
         if rec.status == "done":
             raise StoreError(f"run {rec.uuid} is already done; nothing to resume")
         self.run_id, self.run_uuid = rec.id, rec.uuid

@@ -29,6 +29,7 @@ from __future__ import annotations
 import functools
 import inspect
 import json
+import os
 import sqlite3
 import threading
 import uuid as uuidlib
@@ -199,6 +200,63 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
+class RunLock:
+    """Who is executing a run: an exclusive `flock` on a sidecar file next to the store
+    (``STORE.RUN-UUID.lock``, holding the owner's pid for the message).  The kernel drops the
+    lock when its process dies, so `kill -9` cannot leave it stuck; the file is removed on
+    release.  Without `fcntl` (Windows) locking is skipped."""
+
+    def __init__(self, store_path: Path, run_uuid: str) -> None:
+        self.path = store_path.with_name(f"{store_path.name}.{run_uuid}.lock")
+        self.run_uuid = run_uuid
+        self._fh: Any = None
+
+    def acquire(self) -> Self:
+        try:
+            import fcntl
+        except ImportError:                      # pragma: no cover - not on POSIX
+            return self
+        while True:
+            fh = open(self.path, "a+", encoding="utf-8")  # noqa: SIM115 - held until release
+            try:
+                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                fh.seek(0)
+                holder = fh.read().strip()
+                fh.close()
+                raise StoreError(
+                    f"run {self.run_uuid} is being executed by another normbox-lab process"
+                    f"{f' (pid {holder})' if holder else ''}; wait for it to finish or pause "
+                    "it, then resume") from None
+            try:                                   # a releasing owner may have removed it
+                same = os.fstat(fh.fileno()).st_ino == os.stat(self.path).st_ino
+            except FileNotFoundError:
+                same = False
+            if same:
+                fh.seek(0)
+                fh.truncate()
+                fh.write(str(os.getpid()))
+                fh.flush()
+                self._fh = fh
+                return self
+            fh.close()
+
+    def release(self) -> None:
+        if self._fh is not None:
+            try:
+                os.unlink(self.path)
+            except OSError:
+                pass
+            self._fh.close()
+            self._fh = None
+
+    def __enter__(self) -> Self:
+        return self.acquire()
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+
 def _damaged(path: Path, exc: Exception) -> StoreError:
     return StoreError(f"{path}: the store is damaged or unreadable ({exc}); check it with "
                       "`sqlite3 FILE 'PRAGMA integrity_check'` and restore a copy")
@@ -303,6 +361,11 @@ class Store:
     def schema_version(self) -> int:
         with self._lock:
             return int(self._db.execute("PRAGMA user_version").fetchone()[0])
+
+    def lock_run(self, run_ref: int | str) -> RunLock:
+        """Take the run's execution lock (`RunLock`) or raise `StoreError` at once when
+        another process holds it.  Call `release()` (or use it as a context manager)."""
+        return RunLock(self.path, self.get_run(run_ref).uuid).acquire()
 
     def quick_check(self) -> list[str]:
         """SQLite's quick check: [] when the file is sound, else its complaints."""

@@ -1,0 +1,72 @@
+"""One process per run: a second `--resume` of a run that is executing is refused at once,
+and a `kill -9` of the owner never leaves the lock stuck."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+
+import pytest
+
+from normbox_lab.acquire.store import Store
+from normbox_lab.core.errors import StoreError
+
+
+def test_second_lock_is_refused_at_once_with_the_owner(tmp_path):
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("x")
+        lock = store.lock_run(run.id)
+        with Store(tmp_path / "s.sqlite") as other:
+            with pytest.raises(StoreError, match=f"another normbox-lab process \\(pid {os.getpid()}"):
+                other.lock_run(run.uuid)
+        lock.release()
+        store.lock_run(run.id).release()             # free again
+        assert not lock.path.exists()
+
+
+def test_resume_while_another_process_executes_the_run_is_refused(tmp_path):
+    from engine_fakes import FakeLab
+
+    from normbox_lab.acquire import engine as eng
+
+    path = tmp_path / "s.sqlite"
+    params = {"angles_deg": [30, 60], "patches": [1, 2]}
+    with Store(path) as store:
+        e = eng.Engine(FakeLab(), store, eng.build_plan("reference-sweep", params))
+        e.subscribe(lambda ev: e.pause() if ev.kind == "reading-stored" else None)
+        res = e.run()
+        assert res.status == "paused"
+        holder = store.lock_run(res.run_id)           # "the other process"
+        with pytest.raises(StoreError, match="being executed by another"):
+            eng.Engine(FakeLab(), store, eng.build_plan("reference-sweep", params)).run(
+                resume=res.run_id)
+        assert store.get_run(res.run_id).status == "paused"      # nothing was written
+        holder.release()
+        res2 = eng.Engine(FakeLab(), store, eng.build_plan("reference-sweep", params)).run(
+            resume=res.run_id)
+        assert res2.status == "done" and res2.done == 4
+
+
+def test_kill_9_of_the_owner_frees_the_lock(tmp_path):
+    path = tmp_path / "s.sqlite"
+    with Store(path) as store:
+        run = store.create_run("x")
+    child = subprocess.Popen(
+        [sys.executable, "-c",
+         "import sys; from normbox_lab.acquire.store import Store; "
+         f"lock = Store({str(path)!r}).lock_run({run.id}); print('locked', flush=True); "
+         "sys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline().strip() == "locked"
+        with Store(path) as store:
+            with pytest.raises(StoreError, match=f"pid {child.pid}"):
+                store.lock_run(run.id)
+            os.kill(child.pid, signal.SIGKILL)
+            child.wait(timeout=30)
+            store.lock_run(run.id).release()          # not stuck
+    finally:
+        if child.poll() is None:
+            child.kill()
