@@ -23,7 +23,14 @@ from typing import Any, Self
 
 from normbox_lab.acquire.estimate import DryRun
 from normbox_lab.acquire.events import Operator, RunResult
-from normbox_lab.acquire.plan import Plan, PlanError, build_plan, load_protocol, resolve_parameters
+from normbox_lab.acquire.plan import (
+    PROTOCOL_NAMES,
+    Plan,
+    PlanError,
+    build_plan,
+    load_protocol,
+    resolve_parameters,
+)
 from normbox_lab.acquire.runner import Engine
 from normbox_lab.core.errors import StoreError
 
@@ -56,6 +63,23 @@ class OpenRun:
     def __exit__(self, exc_type: type[BaseException] | None, exc: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def _check_resumed_protocol(run_uuid: str, stored: str, given: str | None) -> None:
+    """Trust boundary: a resume runs a shipped protocol, or a protocol file only when the
+    user names that file now (a store may come from someone else, and a protocol file is
+    Python code run with the user's rights)."""
+    if stored in PROTOCOL_NAMES:
+        if given is not None and given != stored:
+            raise PlanError(f"run {run_uuid} ran {stored!r}, not {given!r}")
+        return
+    if given is None:
+        raise PlanError(
+            f"run {run_uuid} was recorded with the protocol file {stored}; a protocol file is "
+            "Python code, so a resume runs it only when you name it on the command line: "
+            f"normbox-lab run {stored} --resume {run_uuid}")
+    if not given.endswith(".py") or str(Path(given).resolve()) != stored:
+        raise PlanError(f"run {run_uuid} ran {stored!r}, not {given!r}")
 
 
 def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab: Any = None,
@@ -94,8 +118,7 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
             rec = store.get_run(resume)
             if rec.status == "done":
                 raise StoreError(f"run {rec.uuid} is already done; nothing to resume")
-            if protocol is not None and protocol != rec.protocol:
-                raise PlanError(f"run {rec.uuid} ran {rec.protocol!r}, not {protocol!r}")
+            _check_resumed_protocol(rec.uuid, rec.protocol, protocol)
             if params:
                 raise PlanError("parameters cannot change a resumed run (they are stored "
                                 "with it)")

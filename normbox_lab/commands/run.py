@@ -113,6 +113,10 @@ def _run(args: argparse.Namespace) -> int:
                 prog.stop()
         return TerminalOperator(before=before, world=lab.world)
 
+    if args.protocol and args.protocol.endswith(".py"):
+        print(f"protocol file {args.protocol}: Python code, run with your rights because you "
+              "named it here (shipped protocols and files named on the command line are the "
+              "only protocols normbox-lab runs)", file=sys.stderr)
     with open_run(args.protocol, store=args.store or DEFAULT_STORE, config=config,
                   params=overrides, resume=args.resume, world=args.world,
                   virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
