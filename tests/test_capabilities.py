@@ -122,3 +122,32 @@ def test_a_new_step_kind_is_one_class(tmp_path, monkeypatch):
         assert lab.clock.now_s() - t0 == pytest.approx(dry.total_s)
     finally:
         store.close()
+
+
+def test_the_cached_isinstance_answers_as_typing_does():
+    """Capabilities decide isinstance from the type and cache it; an instance's own attributes
+    and `__getattr__` proxies still count, as with typing's runtime check."""
+    import typing
+
+    class Bare:
+        pass
+
+    class Proxy:
+        def __init__(self, inner):
+            self._inner = inner
+
+        def __getattr__(self, name):
+            return getattr(self._inner, name)
+
+    lab = FakeLab()
+    bare, patched = Bare(), Bare()
+    patched.recover = lambda: None
+    cases = [bare, patched, lab.rotator, lab.sphere, lab.radiometer, Proxy(lab.rotator),
+             Proxy(bare)]
+    for obj in cases:
+        for cap in caps.CAPABILITIES:
+            expected = all(hasattr(obj, n) for n in typing._get_protocol_attrs(cap))
+            assert isinstance(obj, cap) is expected, (obj, cap)
+            assert isinstance(obj, cap) is expected, (obj, cap)       # cached answer
+    assert isinstance(patched, caps.Recoverable) and not isinstance(bare, caps.Recoverable)
+    assert isinstance(Proxy(lab.rotator), caps.Movable)

@@ -49,36 +49,78 @@ class InstrumentIdentity:
     extra: dict[str, str] = field(default_factory=dict)
 
 
+# --- fast isinstance ----------------------------------------------------------------------------
+
+_ProtocolMeta = type(Protocol)
+_MEMBERS: dict[type, tuple[str, ...]] = {}
+_MISSING: dict[tuple[type, type], tuple[str, ...]] = {}
+
+
+def _members(proto: type) -> tuple[str, ...]:
+    names = _MEMBERS.get(proto)
+    if names is None:
+        names = set()
+        for base in proto.__mro__[:-1]:
+            if base.__name__ in ("Protocol", "Generic"):
+                continue
+            names.update(n for n in (*vars(base), *getattr(base, "__annotations__", {}))
+                         if not n.startswith("_"))
+        names = _MEMBERS[proto] = tuple(sorted(names))
+    return names
+
+
+class _CapabilityMeta(_ProtocolMeta):
+    """`isinstance(inst, Capability)` as typing answers it, decided from the type where the
+    type decides it (it has every member, or it has no ``__getattr__`` and the instance's own
+    ``__dict__`` has none of the missing members) and then cached per type: the engine asks a
+    few capabilities per reading, and typing's runtime check walks the MRO every time."""
+
+    def __instancecheck__(cls, instance: Any) -> bool:
+        if not cls.__dict__.get("_is_protocol", False):
+            return super().__instancecheck__(instance)
+        tp = type(instance)
+        key = (tp, cls)
+        missing = _MISSING.get(key)
+        if missing is None:
+            missing = _MISSING[key] = tuple(n for n in _members(cls) if not hasattr(tp, n))
+        if not missing:
+            return True
+        own = getattr(instance, "__dict__", None) or {}
+        if hasattr(tp, "__getattr__") or any(n in own for n in missing):
+            return super().__instancecheck__(instance)
+        return False
+
+
 # --- every instrument ---------------------------------------------------------------------------
 
 @runtime_checkable
-class Identifiable(Protocol):
+class Identifiable(Protocol, metaclass=_CapabilityMeta):
     def identify(self) -> InstrumentIdentity:
         """Model, serial number, firmware (recorded with every run segment)."""
         ...
 
 
 @runtime_checkable
-class Closable(Protocol):
+class Closable(Protocol, metaclass=_CapabilityMeta):
     def close(self) -> None: ...
 
 
 @runtime_checkable
-class HealthPollable(Protocol):
+class HealthPollable(Protocol, metaclass=_CapabilityMeta):
     def status(self) -> dict[str, Any]:
         """A cheap query of the instrument's state (the console's health poll)."""
         ...
 
 
 @runtime_checkable
-class RemoteControllable(Protocol):
+class RemoteControllable(Protocol, metaclass=_CapabilityMeta):
     def set_remote(self, on: bool) -> None:
         """Take (or give back) the front panel: the engine calls it before a run."""
         ...
 
 
 @runtime_checkable
-class Recoverable(Protocol):
+class Recoverable(Protocol, metaclass=_CapabilityMeta):
     def recover(self) -> None:
         """Bring the link back to a known state after a fault (resync, re-enter remote mode);
         the engine calls it before retrying a step that failed."""
@@ -88,7 +130,7 @@ class Recoverable(Protocol):
 # --- motion -------------------------------------------------------------------------------------
 
 @runtime_checkable
-class Movable(Protocol):
+class Movable(Protocol, metaclass=_CapabilityMeta):
     def move_to(self, angle_deg: float, wait: bool = True) -> None: ...
     def position_deg(self) -> float: ...
     def is_moving(self) -> bool: ...
@@ -96,21 +138,21 @@ class Movable(Protocol):
 
 
 @runtime_checkable
-class Homeable(Protocol):
+class Homeable(Protocol, metaclass=_CapabilityMeta):
     def home(self, wait: bool = True) -> None: ...
     def is_homed(self) -> bool: ...
     def estimate_home_time_s(self) -> float: ...
 
 
 @runtime_checkable
-class Stoppable(Protocol):
+class Stoppable(Protocol, metaclass=_CapabilityMeta):
     def stop(self) -> None:
         """Stop moving now (the engine's abort)."""
         ...
 
 
 @runtime_checkable
-class Abortable(Protocol):
+class Abortable(Protocol, metaclass=_CapabilityMeta):
     def abort(self) -> None:
         """Abandon the measurement or action in progress (the engine's abort)."""
         ...
@@ -119,7 +161,7 @@ class Abortable(Protocol):
 # --- readings -----------------------------------------------------------------------------------
 
 @runtime_checkable
-class SpectrumReadable(Protocol):
+class SpectrumReadable(Protocol, metaclass=_CapabilityMeta):
     def measure(self) -> SpectralReading:
         """One spectral radiance reading (W·sr⁻¹·m⁻²·nm⁻¹) with its colorimetry."""
         ...
@@ -130,7 +172,7 @@ class SpectrumReadable(Protocol):
 
 
 @runtime_checkable
-class BrdfReadable(Protocol):
+class BrdfReadable(Protocol, metaclass=_CapabilityMeta):
     def measure_brdf(self, theta_i_deg: float, theta_o_deg: float) -> BrdfReading:
         """One BRDF reading (sr⁻¹) at an in-plane geometry."""
         ...
@@ -142,7 +184,7 @@ class BrdfReadable(Protocol):
 
 
 @runtime_checkable
-class Calibratable(Protocol):
+class Calibratable(Protocol, metaclass=_CapabilityMeta):
     def calibrate(self) -> Mapping[str, np.ndarray] | None:
         """Take the instrument's references (e.g. dark and white); the arrays returned are
         stored with the run."""
@@ -152,7 +194,7 @@ class Calibratable(Protocol):
 
 
 @runtime_checkable
-class TemperatureReadable(Protocol):
+class TemperatureReadable(Protocol, metaclass=_CapabilityMeta):
     def tec_temperature_c(self) -> float:
         """Detector (TEC) temperature in °C."""
         ...
@@ -161,7 +203,7 @@ class TemperatureReadable(Protocol):
 # --- light --------------------------------------------------------------------------------------
 
 @runtime_checkable
-class Switchable(Protocol):
+class Switchable(Protocol, metaclass=_CapabilityMeta):
     def set_output(self, on: bool) -> None: ...
     def state(self) -> str:
         """"off", "settling" or "stable"."""
@@ -169,12 +211,12 @@ class Switchable(Protocol):
 
 
 @runtime_checkable
-class LampLevel(Protocol):
+class LampLevel(Protocol, metaclass=_CapabilityMeta):
     def set_level_percent(self, level_percent: float) -> None: ...
 
 
 @runtime_checkable
-class Settling(Protocol):
+class Settling(Protocol, metaclass=_CapabilityMeta):
     def is_stable(self) -> bool:
         """The output is within its regulation band (readings may be taken)."""
         ...
