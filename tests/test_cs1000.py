@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from serial import SerialException
 from wire import Exchange, ScriptedPort
 
+from normbox_lab.core.capabilities import Spectroradiometer
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import (
     ConfigError,
@@ -20,7 +21,6 @@ from normbox_lab.core.errors import (
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.core.interfaces import Spectroradiometer
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.drivers.radiometer_common import ybar_1nm

@@ -10,6 +10,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from wire import Exchange, ScriptedPort
 
+from normbox_lab.core.capabilities import Spectroradiometer
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import (
     ConfigError,
@@ -18,7 +19,6 @@ from normbox_lab.core.errors import (
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.core.interfaces import Spectroradiometer
 from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
 from normbox_lab.drivers.radiometer_common import ybar_1nm

@@ -195,8 +195,8 @@ def test_stop_halts_both_arms():
 
 
 def test_roles():
-    from normbox_lab.core.interfaces import Gonioreflectometer as GonioRole
-    from normbox_lab.core.interfaces import RotationStage, Spectrometer
+    from normbox_lab.core.capabilities import Gonioreflectometer as GonioRole
+    from normbox_lab.core.capabilities import RotationStage, Spectrometer
 
     gonio, _ = build()
     assert isinstance(gonio, GonioRole)

@@ -325,7 +325,7 @@ def test_served_on_a_pty_the_driver_drives_it_from_another_process():
 
 
 def test_implements_the_rotation_stage_role():
-    from normbox_lab.core.interfaces import RotationStage
+    from normbox_lab.core.capabilities import RotationStage
 
     stage, _ = scripted([])
     assert isinstance(stage, RotationStage)

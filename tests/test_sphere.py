@@ -223,7 +223,7 @@ def test_served_on_a_pty_for_outside_programs():
 
 
 def test_status_reset_abort_lines_and_role():
-    from normbox_lab.core.interfaces import LightSource
+    from normbox_lab.core.capabilities import LightSource
 
     lamp, port = scripted([
         Exchange(b"*RST\n", b"OK\n"),

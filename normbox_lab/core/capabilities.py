@@ -9,7 +9,7 @@ what it does (``estimate_move_time_s``, ``estimate_measure_time_s`` …): that i
 gets an exact ETA without knowing any instrument.
 
 The *roles* at the end (`Spectroradiometer`, `RotationStage`, `LightSource`, `Spectrometer`,
-`Gonioreflectometer`) are named bundles of capabilities, the interfaces of DESIGN §4.
+`Gonioreflectometer`) are named bundles of capabilities: the instrument interfaces of the design.
 
 Which driver has which capabilities (tests check each claim, both ways):
 
@@ -242,7 +242,7 @@ def capabilities_of(inst: object) -> tuple[str, ...]:
     return tuple(c.__name__ for c in CAPABILITIES if isinstance(inst, c))
 
 
-# --- roles: named bundles (DESIGN §4) -----------------------------------------------------------
+# --- roles: named bundles of capabilities --------------------------------------------------------
 
 @runtime_checkable
 class Instrument(Identifiable, Closable, Protocol):
