@@ -85,7 +85,7 @@ def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
     assert qa.run_status(store, run) == "completed with flags"
 
 
-def test_error_flags_refuse_the_fit_unless_accepted(tmp_path):
+def test_error_flags_refuse_the_fit_unless_accepted(tmp_path, capsys):
     from normbox_lab.analyze.pipeline import fit_run
 
     store, run = brdf_run(tmp_path, lab_with(qepro="dark-drift@8:-30000"),
@@ -93,6 +93,9 @@ def test_error_flags_refuse_the_fit_unless_accepted(tmp_path):
     with pytest.raises(DataError, match="error flag.*accept-flagged"):
         fit_run(store, run)
     assert store.artifacts("fit") == []
+    assert main(["fit", str(run), "--store", str(store.path)]) == 1
+    err = capsys.readouterr().err
+    assert "brdf-negative" in err and "--accept-flagged" in err
     fits = fit_run(store, run, accept_flagged=True)
     art = store.latest_artifact("fit", "p01")
     accepted = art.metadata["accepted_flags"]
