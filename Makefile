@@ -1,6 +1,7 @@
 # normbox-lab: the two commands of the contract are `make demo` and `make test`.
 # Each sets everything up on a fresh machine: .venv, the package with its dev extra, and
-# (as root, when missing) Debian's libllvm19 for Mitsuba's llvm_ad_spectral variant.
+# (as root, when missing) Debian's libllvm19 for Mitsuba's llvm_ad_spectral variant and
+# Debian's chromium for the report's headless-browser test.
 
 PYTHON ?= python3
 VENV   := .venv
@@ -20,6 +21,13 @@ $(STAMP): pyproject.toml setup.py
 	  || echo "WARNING: could not install libllvm19; Mitsuba will fall back to scalar_spectral (slow)"; \
 	elif ! ldconfig -p 2>/dev/null | grep -q 'libLLVM-19\|libLLVM.so.19'; then \
 	  echo "WARNING: libLLVM 19 not found and not root; Mitsuba may fall back to scalar_spectral (slow)"; \
+	fi
+	@if [ "$$(id -u)" = "0" ] && command -v apt-get >/dev/null 2>&1 \
+	    && ! command -v chromium >/dev/null 2>&1; then \
+	  echo ">> installing Debian chromium (the report's browser test reads the report headless)"; \
+	  DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 \
+	  || (apt-get update -q >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1) \
+	  || echo "WARNING: could not install chromium; the report's browser test will be skipped"; \
 	fi
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install -q --upgrade pip

@@ -182,3 +182,49 @@ def test_normbox_view_frames_the_box_and_figure1_of_identical_materials_is_zero(
     np.testing.assert_array_equal(fig.truth.radiance, fig.fitted.radiance)
     assert np.all(fig.delta_e00 == 0.0) and fig.delta_e00.shape == (30, 40)
     assert fig.truth_srgb.shape == (30, 40, 3) and fig.summary()["max"] == 0.0
+    # the converged region map is zero too; the noise floor (an independent second truth
+    # render) is not, and the summary reports it
+    conv = fig.noise_summary()
+    assert conv["max"] == 0.0 and conv["noise_p95"] > 0.0
+    assert conv["block_px"] in (2.0, 4.0, 8.0, 16.0)
+    on = fig.scene_mask
+    assert np.isfinite(fig.noise_floor_blocks[on]).all() and np.isnan(fig.noise_floor_blocks[~on]).all()
+
+
+def test_region_block_means_average_within_one_block_and_one_material():
+    from normbox_lab.images.figure1 import region_block_means
+
+    xyz = np.arange(4 * 4 * 3, dtype=float).reshape(4, 4, 3)
+    slot = np.array([[1, 1, 2, 2], [1, 2, 2, 2], [3, 3, 3, 3], [3, 3, 3, 3]])
+    mask = slot != 3
+    mask[0, 0] = True
+    out = region_block_means(xyz, slot, mask, 2)
+    # block (0, 0): slot 1 = pixels (0,0), (0,1), (1,0); slot 2 = (1,1) alone
+    np.testing.assert_array_equal(out[0, 0], xyz[[0, 0, 1], [0, 1, 0]].mean(axis=0))
+    np.testing.assert_array_equal(out[1, 0], out[0, 1])
+    np.testing.assert_array_equal(out[1, 1], xyz[1, 1])
+    np.testing.assert_array_equal(out[0, 2], xyz[0:2, 2:4].reshape(-1, 3).mean(axis=0))
+    assert np.isnan(out[2:]).all()
+    # the mean over the masked pixels is preserved (an unbiased region estimate)
+    np.testing.assert_allclose(out[mask].mean(axis=0), xyz[mask].mean(axis=0), rtol=1e-12)
+    np.testing.assert_allclose(region_block_means(xyz, slot, mask, 1)[mask], xyz[mask])
+
+
+def test_converged_maps_grow_blocks_until_the_noise_floor_is_below_target():
+    from normbox_lab.images.figure1 import converged_maps
+
+    rng = np.random.default_rng(3)
+    h, w = 48, 64
+    truth = np.ones((h, w, 3)) * np.array([0.30, 0.32, 0.20])
+    noisy = truth * (1.0 + 0.05 * rng.normal(size=(h, w, 1)))
+    fitted = truth * np.array([1.02, 1.0, 0.97])           # a real colour difference
+    slot = np.ones((h, w), dtype=int)
+    mask = np.ones((h, w), dtype=bool)
+    white = np.array([0.95, 1.0, 1.09])
+    b, de, nf = converged_maps(truth, fitted, noisy, slot, mask, white, 0.3)
+    assert b > 2
+    assert np.percentile(nf, 95) < 0.3
+    _b2, _de2, nf2 = converged_maps(truth, fitted, noisy, slot, mask, white, 0.3, (2,))
+    assert np.percentile(nf2, 95) > np.percentile(nf, 95)         # more pixels, less noise
+    assert np.median(de) > 3 * np.percentile(nf, 95)             # the real difference stands
+

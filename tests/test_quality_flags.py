@@ -250,9 +250,9 @@ def test_report_opens_with_the_qa_summary(tmp_path):
     found = qa.flags(store, run)
     html, _, tables = build_html(ReportData(flags=found))
     s = qa.summary(store, run)
+    # the report opens with its summary, whose first line is the QA count
     first_h2 = html.index("<h2>")
-    assert html[first_h2:].startswith("<h2>Quality</h2>")          # the report opens with it
-    assert f"<p class=\"qa-summary\">{s.line()}</p>" in html
+    assert html[first_h2:].startswith(f"<h2>Summary</h2><p class=\"qa-summary\">{s.line()}</p>")
     assert "tab-qa" in tables and "tec-off-setpoint" in html and found[0].key in html
     html, _, tables = build_html(ReportData())
     assert "0 flags: 0 errors, 0 warnings" in html and "tab-qa" not in tables

@@ -1,9 +1,11 @@
-"""The HTML report: self-contained, every figure and table present, numbers from the data."""
+"""The HTML report: self-contained, every figure and table present, numbers from the data, the
+summary first, both colour conventions, the data appendix."""
 
 import base64
 import re
 
 import numpy as np
+import pytest
 from report_fixtures import synthetic_report_data
 
 from normbox_lab.analyze.report import ReportData, build_html, write_report
@@ -14,39 +16,53 @@ TABLES = ["tab-rmse", "tab-nrmse", "tab-correlations", "tab-deltae", "tab-rating
           "tab-errormodel", "tab-nse-fit"]
 
 
-def test_report_is_self_contained_and_complete(tmp_path):
+@pytest.fixture(scope="module")
+def full_report(tmp_path_factory):
+    """One complete report (figure building dominates the run time: build it once)."""
     data = synthetic_report_data(step_nm=20.0, seed=1)
     data.polar_materials = ["patch08"]
-    path = write_report(tmp_path / "sub" / "report.html", data)
+    path = write_report(tmp_path_factory.mktemp("report") / "sub" / "report.html", data)
+    return data, path
+
+
+@pytest.fixture(scope="module")
+def comparison_report():
+    """A report of a comparison alone: (comparison, html, figure ids, table ids)."""
+    c = synthetic_report_data(step_nm=20.0, seed=2).comparison
+    text, figs, tabs = build_html(ReportData(comparison=c))
+    return c, text, figs, tabs
+
+
+def test_report_is_self_contained_and_complete(full_report):
+    data, path = full_report
     assert path.exists()
     text = path.read_text(encoding="utf-8")
     refs = re.findall(r"""(?:src|href)\s*=\s*["']([^"']*)["']""", text)
     assert refs
     for ref in refs:
-        assert ref.startswith(("data:image/png;base64,", "#")), ref
+        assert ref.startswith(("data:image/svg+xml;base64,", "data:text/csv;base64,", "#")), ref
     assert "<link" not in text and "<script" not in text and "url(" not in text
     for fid in FIGURES:
         m = re.search(rf'<figure id="{fid}">.*?base64,([^"]+)"', text, re.DOTALL)
         assert m, fid
-        assert base64.b64decode(m.group(1))[:8] == b"\x89PNG\r\n\x1a\n"
+        svg = base64.b64decode(m.group(1))
+        assert svg.startswith(b"<?xml") and b"<svg" in svg, fid
     for tid in TABLES:
         assert f'id="{tid}"' in text, tid
     # the ΔE00 table carries the comparison's numbers, 24 patch rows
     table = re.search(r'id="tab-deltae">.*?</table>', text, re.DOTALL).group(0)
     assert table.count("<tr>") == 25
-    assert f"{data.comparison.delta_e00[3, 4]:.4g}" in table
+    assert f">{data.comparison.delta_e00[3, 4]:.3g}<" in table
     fits = re.search(r'id="tab-fits">.*?</table>', text, re.DOTALL).group(0)
-    assert f"{data.fits['wall'].alpha:.4g}" in fits
+    assert f">{data.fits['wall'].alpha:.3g}<" in fits
 
 
-def test_report_with_comparison_only():
-    data = synthetic_report_data(step_nm=20.0, seed=2)
-    only = ReportData(comparison=data.comparison)
-    _html, figs, tabs = build_html(only)
+def test_report_with_comparison_only(comparison_report):
+    c, _html, figs, tabs = comparison_report
     assert "fig-deltae" in figs and "tab-deltae" in tabs
     assert not any(f.startswith("fig-polar") for f in figs)
     assert "fig-errormodel" not in figs
-    assert np.isfinite(data.comparison.delta_e00).all()
+    assert np.isfinite(c.delta_e00).all()
 
 
 def test_image_figures_survive_the_store_and_appear_in_the_report(tmp_path):
@@ -69,5 +85,117 @@ def test_image_figures_survive_the_store_and_appear_in_the_report(tmp_path):
     text, figs, _ = build_html(ReportData(images=[back]))
     assert figs == ["fig-camera"]
     m = re.search(r'<figure id="fig-camera">.*?base64,([^"]+)"', text, re.DOTALL)
-    assert m and base64.b64decode(m.group(1))[:8] == b"\x89PNG\r\n\x1a\n"
+    # the image panels are embedded inside the SVG at their own pixels
+    svg = base64.b64decode(m.group(1))
+    assert b"<svg" in svg and b"data:image/png;base64," in svg
     assert "caption text" in text
+
+
+def _section(text: str, sid: str) -> str:
+    return re.search(rf'<section id="{sid}">.*?</section>', text, re.DOTALL).group(0)
+
+
+def test_summary_comes_first_with_the_headline_numbers(comparison_report):
+    from normbox_lab.analyze.report import delta_e00_adapted
+
+    c, text, _figs, tabs = comparison_report
+    body = text[text.index("<body>"):]
+    # the summary is the first section, before the contents
+    assert body.index('<section id="summary">') < body.index("<nav id='contents'>")
+    assert body.index("<nav id='contents'>") < body.index('<section id="qa">')
+    summary = _section(text, "summary")
+    adapted = delta_e00_adapted(c)
+    assert f"{c.delta_e00[18, 0]:.2f}" in summary                     # white at 30°
+    assert f"adapted convention: {adapted[18, 0]:.2f}" in summary
+    assert f"{np.nanmean(c.delta_e00):.2f}" in summary
+    assert f"adapted convention: {np.nanmean(adapted):.2f}" in summary
+    assert f"{100 * np.nanmean(c.nrmse):.1f} %" in summary
+    # NRMSE by angle in percent, the worst configuration, the rating counts
+    nrmse_row = re.search(r'id="tab-nrmse-angle">.*?</table>', summary, re.DOTALL).group(0)
+    for a in range(c.angle_deg.size):
+        assert f">{100 * np.nanmean(c.nrmse[:, a]):.3g}<" in nrmse_row
+    p, a = np.unravel_index(np.nanargmax(c.delta_e00), c.delta_e00.shape)
+    worst = re.search(r'id="tab-worst">.*?</table>', summary, re.DOTALL).group(0)
+    assert re.search(rf"<th>{c.patch_names[p]}</th><td>{c.angle_deg[a]:g}°</td>"
+                     rf'<td class="r\d">{c.delta_e00[p, a]:.3g}</td>', worst)
+    counts = c.rating_counts()
+    assert f"{counts['below JND']}" in summary
+    assert "tab-nrmse-angle" in tabs and "tab-worst" in tabs
+    # the contents speak in titles, not ids
+    nav = re.search(r"<nav id='contents'>.*?</nav>", text, re.DOTALL).group(0)
+    for label in re.findall(r"<a href='#[^']+'>([^<]+)</a>", nav):
+        assert not re.fullmatch(r"(fig|tab)-[a-z0-9-]+", label), label
+    # no "inf" or "nan" anywhere in a table cell
+    for cell in re.findall(r"<t[dh][^>]*>([^<]*)</t[dh]>", text):
+        assert cell.strip().lower() not in ("inf", "nan", "-inf"), cell
+    # a report without flags says so
+    assert "No quality flags" in _section(text, "qa")
+
+
+def test_adapted_convention_is_cat02_to_d65_and_differs_from_the_paper_one(comparison_report):
+    import colour
+
+    from normbox_lab.analyze.compare import spectra_to_XYZ
+    from normbox_lab.analyze.report import delta_e00_adapted
+
+    c = comparison_report[0]
+    got = delta_e00_adapted(c)
+    # independent recomputation through colour-science's generic adaptation entry point
+    xyz_r = spectra_to_XYZ(c.reference, c.wavelength_nm)
+    xyz_p = spectra_to_XYZ(c.prediction, c.wavelength_nm)
+    yw = xyz_r[18, 0, 1]
+    white = xyz_r[18, 0] / yw
+    d65_xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+    d65 = colour.xy_to_XYZ(d65_xy)
+
+    def lab(x):
+        a = colour.chromatic_adaptation(x / yw, white, d65, method="Von Kries", transform="CAT02")
+        return colour.XYZ_to_Lab(a, d65_xy)
+
+    expect = colour.delta_E(lab(xyz_r), lab(xyz_p), method="CIE 2000")
+    np.testing.assert_allclose(got, expect, rtol=0, atol=1e-10)
+    # the measured white lands on the D65 white: L* = 100, a* = b* = 0
+    np.testing.assert_allclose(lab(xyz_r[18, 0]), [100.0, 0.0, 0.0], atol=1e-9)
+    # under the warm lamp the conventions disagree
+    assert np.max(np.abs(got - c.delta_e00)) > 1e-3
+
+
+def test_data_appendix_csv_carries_every_configuration_at_full_precision(comparison_report):
+    import csv
+    import io
+
+    from normbox_lab.analyze.report import delta_e00_adapted
+
+    c, text, _f, _t = comparison_report
+    m = re.search(r"<a download='normbox-metrics.csv' href='data:text/csv;base64,([^']+)'", text)
+    assert m
+    rows = list(csv.DictReader(io.StringIO(base64.b64decode(m.group(1)).decode("utf-8"))))
+    assert len(rows) == len(c.patch_names) * c.angle_deg.size
+    adapted = delta_e00_adapted(c)
+    for row in rows:
+        p = c.patch_names.index(row["patch"])
+        a = int(np.flatnonzero(np.isclose(c.angle_deg, float(row["angle_deg"])))[0])
+        assert float(row["delta_e00_paper"]) == c.delta_e00[p, a]
+        assert float(row["delta_e00_adapted"]) == adapted[p, a]
+        assert float(row["rmse_W_sr_m2_nm"]) == c.rmse[p, a]
+        assert float(row["nrmse_pct"]) == 100.0 * c.nrmse[p, a]
+
+
+def test_quality_flags_are_listed_with_their_severity():
+    from normbox_lab.analyze.qa import Flag
+
+    flags = [Flag(1, 1, None, "fit p07", "fit-error", "warning", 6.1, 5.0, "fit error high"),
+             Flag(2, 3, None, "a30/p07", "saturation", "error", 1.02, 1.0, "detector saturated")]
+    text, _f, tabs = build_html(ReportData(flags=flags))
+    qa = _section(text, "qa")
+    assert "tab-qa" in tabs
+    rows = re.findall(r"<tr>(.*?)</tr>", qa)
+    assert rows[1].startswith('<th class="sev-error">error</th><td>3</td><td>a30/p07</td>')
+    assert "detector saturated" in rows[1] and "fit error high" in rows[2]
+    summary = _section(text, "summary")
+    assert '<p class="qa-summary">2 flags: 1 errors, 1 warnings</p>' in summary
+    assert "No QA data" not in qa
+    text, _f, _t = build_html(ReportData(flags=[]))
+    assert "No quality flags" in _section(text, "qa")
+    text, _f, _t = build_html(ReportData(flags=None))
+    assert "No QA data" in _section(text, "qa")

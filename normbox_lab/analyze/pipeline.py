@@ -250,40 +250,12 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
 
 def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
                brdf_run: int | str | None = None, notes: Iterable[str] = ()) -> Path:
-    from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
-    from normbox_lab.analyze.report import ImageFigure, ReportData, write_report
+    """The HTML report of a reference run (`analyze.report_store` gathers its data)."""
+    from normbox_lab.analyze.report import write_report
+    from normbox_lab.analyze.report_store import report_data_from_store
 
-    run_id = store.get_run(ref_run).id
-    comparison = ComparisonResult.from_artifact(
-        store.latest_artifact("comparison", f"ref-run-{run_id}"))
-    em = None
-    found = store.artifacts("error-model", f"ref-run-{run_id}")
-    if found:
-        em = ErrorModelResult(**{k: np.asarray(v) for k, v in found[-1].arrays.items()})
-    fits = latest_fits(store)
-    data = {}
-    if brdf_run is not None:
-        from normbox_lab.analyze.fit import data_from_store_run
-
-        data = data_from_store_run(store, brdf_run)
-    patch_fit_names = [fit_key(n.split()[0]) for n in comparison.patch_names]
-    latest_images = {a.name: a for a in store.artifacts("image-figure", run_ref=run_id)}
-    images = [ImageFigure.from_artifact(a) for a in latest_images.values()]
-    from normbox_lab.analyze import qa
-
-    flags = qa.flags(store, run_id)
-    if brdf_run is not None and store.get_run(brdf_run).id != run_id:
-        flags += qa.flags(store, brdf_run)
-    budgets = store.artifacts("error-budget", f"ref-run-{run_id}")
-    budget = (budgets[-1].arrays, budgets[-1].metadata["sources"]) if budgets else None
-    rd = ReportData(comparison=comparison, fits=fits, brdf_data=data, error_model=em,
-                    flags=flags, budget=budget,
-                    title=f"Normbox validation report — reference run {run_id}",
-                    polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
-                    patch_fit_names=patch_fit_names, notes=list(notes), images=images,
-                    metadata={"store": str(store.path), "reference_run": run_id,
-                              "brdf_run": brdf_run})
-    out = Path(path) if path else Path(f"report-run-{run_id}.html")
+    rd = report_data_from_store(store, ref_run, brdf_run, notes)
+    out = Path(path) if path else Path(f"report-run-{store.get_run(ref_run).id}.html")
     return write_report(out, rd)
 
 
@@ -352,20 +324,34 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
             stats[f"{region}_region"] = float(delta_e00_map(
                 fig.truth_XYZ[m].mean(axis=0), fig.fitted_XYZ[m].mean(axis=0), fig.white_XYZ))
     where = f"patch {patch} at {float(angle_deg):g}°, {width}×{height} px, {fig.truth.spp} spp"
+    conv = fig.noise_summary()
+    stats.update({f"converged_{k}": v for k, v in conv.items()})
+    de_map = fig.delta_e00_blocks if fig.delta_e00_blocks is not None else fig.delta_e00
+    nf_map = (fig.noise_floor_blocks if fig.noise_floor_blocks is not None
+              else np.full(de_map.shape, np.nan))
+    finite = de_map[np.isfinite(de_map)]
+    vmax = max(1.0, float(np.percentile(finite, 99.0))) if finite.size else 5.0
     figures = [
         ImageFigure("fig-camera", "Virtual camera: truth vs prediction (paper Fig. 1)",
-                    f"The Normbox seen from its open side, {where}: left with the truth "
-                    "materials, middle with the fitted ones (same lamp, same random numbers), "
-                    "right the per-pixel ΔE00 (XYZ normalised by the white patch at 30° as in "
-                    f"the tables; Lab D65). ΔE00 over the box surfaces: mean "
-                    f"{stats['mean']:.2f}, median {stats['median']:.2f}, 95th percentile "
-                    f"{stats['p95']:.2f}, max {stats['max']:.2f} (per pixel, with Monte-Carlo "
-                    f"noise); of the region means: patch {stats.get('patch_region', np.nan):.2f}, "
-                    f"wall {stats.get('wall_region', np.nan):.2f}. Previews white-balanced by "
+                    f"The Normbox seen from its open side, {where}: truth materials, fitted "
+                    "materials (same lamp, same random numbers), the ΔE00 between them and, "
+                    "beside it, the Monte-Carlo noise floor on the same scale. Both maps are "
+                    f"unbiased region means ({conv['block_px']:.0f}×{conv['block_px']:.0f} px "
+                    "blocks, averaged within one material only; XYZ normalised by the white "
+                    "patch at 30° as in the tables, Lab D65). The noise floor is measured: "
+                    "ΔE00 between the truth and an independent second truth render, median "
+                    f"{conv['noise_median']:.2f}, 95th percentile {conv['noise_p95']:.2f}. "
+                    "Differences well above it are real: over the box surfaces ΔE00 mean "
+                    f"{conv['mean']:.2f}, 95th percentile {conv['p95']:.2f}, max "
+                    f"{conv['max']:.2f}; {100 * conv['share_above_noise']:.0f} % of the "
+                    "surface exceeds 3× the noise floor. Region means: patch "
+                    f"{stats.get('patch_region', np.nan):.2f}, wall "
+                    f"{stats.get('wall_region', np.nan):.2f}. Previews white-balanced by "
                     f"Wilkie & Weidlich (w = {w:g}) from the truth image.",
-                    [ImagePanel("truth", balanced[0]), ImagePanel("prediction (fits)",
-                                                                   balanced[1]),
-                     ImagePanel("ΔE00", fig.delta_e00, vmax=5.0, unit="ΔE00")]),
+                    [ImagePanel("truth", balanced[0]),
+                     ImagePanel("prediction (fits)", balanced[1]),
+                     ImagePanel("ΔE00, region means", de_map, vmax=vmax, unit="ΔE00"),
+                     ImagePanel("noise floor", nf_map, vmax=vmax, unit="ΔE00")]),
         ImageFigure("fig-whitebalance", "Wilkie & Weidlich white balance of the truth image",
                     f"Left: the raw rendering (scaled to the white patch, no adaptation: the "
                     f"lamp's colour shows); middle: the 1−Chroma weights from the CWNI image "

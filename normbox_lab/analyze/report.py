@@ -1,27 +1,36 @@
-"""Self-contained HTML validation report (figures as inline base64 PNG; no external files).
+"""Self-contained HTML validation report: inline SVG figures, no scripts, no external files.
 
-`write_report(path, ReportData(...))` renders, from plain arrays / fits / comparison results,
-the equivalents of the Normbox paper's figures and the tables behind them:
+`write_report(path, ReportData(...))` renders, from plain arrays / fits / comparison results
+(the pipeline fills them from the store: `analyze.report_store`), in this order:
 
-    id                 content                                                paper
-    fig-reference      reference spectra, every patch × sample angle           (data of Figs. 5-7)
-    fig-prediction     prediction vs reference spectra per angle, some patches (Fig. 1 / 13 data)
-    fig-rmse           RMSE per patch × angle; radiance vs RMSE, 30–60° / 65–90° Fig. 5 a-c
-    fig-nrmse          NRMSE per patch × angle; radiance vs NRMSE               Fig. 6 a-c
-    fig-deltae         ΔE00 heat map patches × angles on the rating scale       Fig. 7
-    fig-polar-*        BRDF polar plots, fits vs measured data                  Figs. 10/11
-    fig-errormodel     simulated error d·err_d + (1−d)·err_i vs NRMSE per angle Fig. 12
-    fig-nse            NSE spectra per sample angle for one patch              Fig. 13
-    fig-nse-fit        NSE vs BRDF fitting error (direct: patch, 90°: wall)     Fig. 14
-    tab-fits, tab-deltae, tab-nrmse, tab-rmse, tab-correlations, tab-rating, tab-errormodel
+    section          content                                                     paper
+    summary          verdict, ΔE00 of white at 30°, mean ΔE00 in both colour
+                     conventions, NRMSE by angle, rating counts, worst configurations
+    qa               quality flags of the runs (or "no QA data")
+    reference        fig-reference, fig-prediction: spectra per patch × angle      Figs. 5–7 data
+    physical         fig-rmse / fig-nrmse (+ tables): per patch × angle, scatter
+                     against radiance with Pearson r                              Figs. 5, 6
+    perceptual       fig-deltae: ΔE00 heat maps on the rating scale, both colour
+                     conventions; tab-deltae, tab-rating                          Fig. 7
+    nse              fig-nse: NSE per sample angle for one patch                  Fig. 13
+    images           virtual-camera figures (truth | prediction | ΔE00 | noise)   Fig. 1
+    fits             tab-fits, fig-polar-*: BRDF fits vs measured data            Figs. 10/11
+    errormodel       fig-errormodel: d·err_d + (1−d)·err_i vs NRMSE per angle     Fig. 12
+    nsefit           fig-nse-fit: NSE vs BRDF fitting error                       Fig. 14
+    methods          instruments (serials, calibration dates), software, seeds, render
+                     quality and Monte-Carlo error
+    appendix         per-configuration metrics as a CSV (data: link)
 
-matplotlib is imported lazily and used through `matplotlib.figure.Figure` (Agg canvas, no pyplot
-state), so the module imports fast and works headless.
+Units: radiance and RMSE in W·sr⁻¹·m⁻²·nm⁻¹; NRMSE, NSE and fit errors in percent; ΔE00
+(CIE 2000, kL = kC = kH = 1) in two conventions (see `delta_e00_adapted`).  Sections appear only
+when their inputs are given.  matplotlib is imported lazily (figures: `report_figures`, style:
+`report_style`).
 """
 
 from __future__ import annotations
 
 import base64
+import csv
 import html
 import io
 from collections.abc import Sequence
@@ -32,10 +41,9 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
-from normbox_lab.analyze.fit import BrdfData, fit_error_at, polar_plot
+from normbox_lab.analyze.fit import BrdfData
+from normbox_lab.analyze.report_style import RADIANCE_UNIT, RATING_COLOURS, RATING_TEXT
 from normbox_lab.predict.brdf_model import MaterialFit
-
-RATING_COLOURS = ("#2e7d32", "#9ccc65", "#ffb300", "#c62828")
 
 
 @dataclass
@@ -46,7 +54,6 @@ class ReportData:
     fits: dict[str, MaterialFit] = field(default_factory=dict)
     brdf_data: dict[str, BrdfData] = field(default_factory=dict)
     error_model: ErrorModelResult | None = None
-    budget: tuple[dict[str, Any], list[str]] | None = None   # error-budget arrays, sources
     title: str = "Normbox validation report"
     polar_wavelength_nm: float = 730.0
     polar_materials: Sequence[str] | None = None   # default: patch08, patch18 (as the paper), wall
@@ -59,7 +66,17 @@ class ReportData:
     notes: list[str] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)
     images: list[ImageFigure] = field(default_factory=list)   # virtual-camera figures
-    flags: list[Any] = field(default_factory=list)   # quality flags (`analyze.qa.Flag`)
+    #: the campaign: one dict per run (id, protocol, status, readings, started, finished)
+    runs: list[dict[str, Any]] = field(default_factory=list)
+    #: instruments: one dict per instrument (role, model, serial, firmware, calibration)
+    instruments: list[dict[str, Any]] = field(default_factory=list)
+    #: quality flags (`analyze.qa.Flag`: severity, run_id, key, gate, value, limit, message);
+    #: None = no QA data available for these runs
+    flags: list[Any] | None = field(default_factory=list)
+    #: error budget (`analyze.budget`): (arrays, sources) of the latest error-budget artifact
+    budget: tuple[dict[str, Any], list[str]] | None = None
+    #: methods: name → value rows (software versions, seeds, render quality, MC error)
+    methods: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
@@ -103,264 +120,189 @@ class ImageFigure:
         return cls(a.name, m["title"], m["caption"], panels)
 
 
-# -- helpers ---------------------------------------------------------------------------------
+# -- colour conventions ------------------------------------------------------------------------
 
-def _png(fig: Any) -> str:
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=72)
-    return base64.b64encode(buf.getvalue()).decode("ascii")
+def delta_e00_adapted(c: ComparisonResult) -> np.ndarray:
+    """ΔE00 [patch, angle] in the adapted convention: both spectra's XYZ divided by the Y of the
+    reference white patch at 30°, adapted from that measured white to D65 with the CAT02 von
+    Kries transform (colour-science), then Lab with D65, CIE 2000 (kL = kC = kH = 1).
 
+    The paper's convention (`ComparisonResult.delta_e00`) takes Lab with a D65 white directly,
+    so under the ~3100 K lamp every colour sits on the warm side of Lab, where the same spectral
+    error gives a different ΔE00 than for an observer adapted to the box's light."""
+    import colour
 
-def _figure_html(fid: str, title: str, fig: Any, caption: str) -> str:
-    return (f'<figure id="{fid}"><h3>{html.escape(title)}</h3>'
-            f'<img alt="{html.escape(title)}" src="data:image/png;base64,{_png(fig)}">'
-            f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+    from normbox_lab.analyze.compare import XYZ_to_Lab_D65, delta_e00, spectra_to_XYZ
 
+    xyz_ref = spectra_to_XYZ(c.reference, c.wavelength_nm)
+    xyz_pred = spectra_to_XYZ(c.prediction, c.wavelength_nm)
+    wa = int(np.flatnonzero(np.isclose(c.angle_deg, c.white_angle_deg))[0])
+    white = xyz_ref[c.white_patch, wa] / xyz_ref[c.white_patch, wa, 1]
+    d65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
 
-def _table_html(tid: str, title: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
-                cell_class: Any = None) -> str:
-    out = [f'<div class="table" id="{tid}"><h3>{html.escape(title)}</h3><table><thead><tr>']
-    out += [f"<th>{html.escape(str(h))}</th>" for h in header]
-    out.append("</tr></thead><tbody>")
-    for i, row in enumerate(rows):
-        out.append("<tr>")
-        for j, v in enumerate(row):
-            cls = cell_class(i, j, v) if cell_class else ""
-            txt = f"{v:.4g}" if isinstance(v, float | np.floating) else str(v)
-            out.append(f'<td{f" class={chr(34)}{cls}{chr(34)}" if cls else ""}>'
-                       f"{html.escape(txt)}</td>")
-        out.append("</tr>")
-    out.append("</tbody></table></div>")
-    return "".join(out)
+    def adapt(xyz: np.ndarray) -> np.ndarray:
+        n = xyz / xyz_ref[c.white_patch, wa, 1]
+        return colour.adaptation.chromatic_adaptation_VonKries(n, white, d65, transform="CAT02")
+
+    return delta_e00(XYZ_to_Lab_D65(adapt(xyz_ref)), XYZ_to_Lab_D65(adapt(xyz_pred)))
 
 
-def _new_fig(w: float, h: float) -> Any:
-    from matplotlib.figure import Figure
+# -- headline numbers ----------------------------------------------------------------------------
 
-    return Figure(figsize=(w, h))
+@dataclass
+class Headline:
+    """The numbers of the report's first screen."""
 
-
-def _angle_colours(n: int) -> list[Any]:
-    from matplotlib import colormaps
-
-    cmap = colormaps["viridis"]
-    return [cmap(k / max(n - 1, 1)) for k in range(n)]
-
-
-# -- figures ---------------------------------------------------------------------------------
-
-def fig_reference(c: ComparisonResult) -> Any:
-    n_p = len(c.patch_names)
-    ncol = 6
-    nrow = int(np.ceil(n_p / ncol))
-    fig = _new_fig(2.2 * ncol, 1.7 * nrow)
-    cols = _angle_colours(c.angle_deg.size)
-    for p in range(n_p):
-        ax = fig.add_subplot(nrow, ncol, p + 1)
-        for a in range(c.angle_deg.size):
-            ax.plot(c.wavelength_nm, c.reference[p, a], color=cols[a], lw=0.8)
-        ax.set_title(c.patch_names[p], fontsize=7)
-        ax.tick_params(labelsize=5)
-    fig.suptitle("Reference spectral radiance [W sr⁻¹ m⁻² nm⁻¹]; colour = sample angle "
-                 f"{c.angle_deg[0]:g}° (dark) … {c.angle_deg[-1]:g}° (light)", fontsize=9)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig
+    white_delta_e00: float           # white patch at the white angle, paper convention
+    white_delta_e00_adapted: float
+    mean_delta_e00: float
+    mean_delta_e00_adapted: float
+    max_delta_e00: float
+    nrmse_mean_pct: float
+    nrmse_by_angle_pct: np.ndarray   # [angle] mean over patches
+    rating_counts: list[int]         # per RATING_SCALE class (paper convention)
+    rating_counts_adapted: list[int]
+    worst: list[tuple[str, float, float, float, float]]   # patch, angle, ΔE00, ΔE00 adapted, NRMSE %
+    verdict: str
 
 
-def fig_prediction(c: ComparisonResult, patches: Sequence[int]) -> Any:
-    patches = [p for p in patches if 0 <= p < len(c.patch_names)]
-    fig = _new_fig(3.6 * len(patches), 3.0)
-    cols = _angle_colours(c.angle_deg.size)
-    for k, p in enumerate(patches):
-        ax = fig.add_subplot(1, len(patches), k + 1)
-        for a in range(c.angle_deg.size):
-            ax.plot(c.wavelength_nm, c.reference[p, a], "-", color=cols[a], lw=0.9)
-            ax.plot(c.wavelength_nm, c.prediction[p, a], "--", color=cols[a], lw=0.9)
-        ax.set_title(f"{c.patch_names[p]}: reference (—) vs prediction (--)", fontsize=7)
-        ax.set_xlabel("wavelength [nm]", fontsize=7)
-        ax.tick_params(labelsize=6)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig
-
-
-def _bars_and_scatter(c: ComparisonResult, values: np.ndarray, label: str,
-                      key_small: str, key_large: str) -> Any:
-    from normbox_lab.analyze.compare import LARGE_ANGLES_DEG, SMALL_ANGLES_DEG
-
-    fig = _new_fig(12, 3.4)
-    gs = fig.add_gridspec(1, 4)
-    ax = fig.add_subplot(gs[0, :2])
-    n_p, n_a = values.shape
-    cols = _angle_colours(n_a)
-    width = 0.8 / n_a
-    x = np.arange(n_p)
-    for a in range(n_a):
-        ax.bar(x + (a - n_a / 2) * width, values[:, a], width, color=cols[a],
-               label=f"{c.angle_deg[a]:g}°")
-    ax.set_xticks(x, [str(n) for n in c.patch_names], fontsize=5, rotation=90)
-    ax.set_ylabel(label, fontsize=7)
-    ax.legend(fontsize=5, ncol=7)
-    for k, (rng, key) in enumerate(((SMALL_ANGLES_DEG, key_small), (LARGE_ANGLES_DEG, key_large))):
-        sel = (c.angle_deg >= rng[0] - 1e-9) & (c.angle_deg <= rng[1] + 1e-9)
-        axs = fig.add_subplot(gs[0, 2 + k])
-        axs.scatter(c.radiance_mean[:, sel].ravel(), values[:, sel].ravel(), s=6)
-        r = c.correlations.get(key, float("nan"))
-        axs.set_title(f"{rng[0]:g}–{rng[1]:g}°: r = {r:.2f}", fontsize=8)
-        axs.set_xlabel("mean radiance", fontsize=7)
-        axs.set_ylabel(label, fontsize=7)
-        axs.tick_params(labelsize=6)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig
-
-
-def fig_deltae(c: ComparisonResult) -> Any:
-    from matplotlib.colors import BoundaryNorm, ListedColormap
-
+def headline(c: ComparisonResult, adapted: np.ndarray, n_worst: int = 5) -> Headline:
     from normbox_lab.analyze.compare import rating_index
 
-    fig = _new_fig(8, 7)
-    ax = fig.add_subplot(1, 1, 1)
-    bounds = [0.0] + [b for b, _ in RATING_SCALE[:-1]] + [max(10.0, float(np.nanmax(
-        c.delta_e00)) + 1)]
-    cmap = ListedColormap(RATING_COLOURS)
-    im = ax.imshow(c.delta_e00, aspect="auto", cmap=cmap, norm=BoundaryNorm(bounds, cmap.N))
-    for p in range(c.delta_e00.shape[0]):
-        for a in range(c.delta_e00.shape[1]):
-            v = c.delta_e00[p, a]
-            dark = np.isfinite(v) and int(rating_index(v)) in (0, 3)
-            ax.text(a, p, f"{v:.1f}", ha="center", va="center", fontsize=5,
-                    color="white" if dark else "black")
-    ax.set_xticks(range(c.angle_deg.size), [f"{v:g}" for v in c.angle_deg], fontsize=6)
-    ax.set_yticks(range(len(c.patch_names)), c.patch_names, fontsize=6)
-    ax.set_xlabel("sample angle [°]", fontsize=8)
-    cb = fig.colorbar(im, ax=ax, ticks=[(bounds[k] + bounds[k + 1]) / 2 for k in range(4)])
-    cb.ax.set_yticklabels([f"{lab}" for _, lab in RATING_SCALE], fontsize=6)
-    ax.set_title("ΔE00 (CIE 2000, kL = kC = kH = 1)", fontsize=9)
-    return fig
+    wa = int(np.flatnonzero(np.isclose(c.angle_deg, c.white_angle_deg))[0])
+    de = c.delta_e00
+    idx, idx_a = rating_index(de), rating_index(adapted)
+    counts = [int(np.sum(idx == k)) for k in range(len(RATING_SCALE))]
+    counts_a = [int(np.sum(idx_a == k)) for k in range(len(RATING_SCALE))]
+    order = np.argsort(np.nan_to_num(de, nan=-1.0), axis=None)[::-1][:n_worst]
+    worst = []
+    for flat in order:
+        p, a = np.unravel_index(flat, de.shape)
+        worst.append((c.patch_names[p], float(c.angle_deg[a]), float(de[p, a]),
+                      float(adapted[p, a]), 100.0 * float(c.nrmse[p, a])))
+    n = int(np.isfinite(de).sum())
+    within = counts[0] + counts[1]
+    mean_de = float(np.nanmean(de))
+    p_w, a_w, de_w = worst[0][0], worst[0][1], worst[0][2]
+    verdict = (f"The prediction is within ΔE00 ≤ 2 (not discernible side by side) for {within} "
+               f"of {n} patch × angle configurations (mean ΔE00 {mean_de:.2f}, paper "
+               f"convention) with a mean spectral error (NRMSE) of "
+               f"{100.0 * float(np.nanmean(c.nrmse)):.1f} %; the largest difference is patch "
+               f"{p_w} at {a_w:g}° (ΔE00 {de_w:.2f}).")
+    return Headline(float(de[c.white_patch, wa]), float(adapted[c.white_patch, wa]), mean_de,
+                    float(np.nanmean(adapted)), float(np.nanmax(de)),
+                    100.0 * float(np.nanmean(c.nrmse)), 100.0 * np.nanmean(c.nrmse, axis=0),
+                    counts, counts_a, worst, verdict)
 
 
-def fig_error_model(em: ErrorModelResult, nrmse: np.ndarray | None) -> Any:
-    fig = _new_fig(7, 3.4)
-    ax = fig.add_subplot(1, 1, 1)
-    x = np.arange(em.angle_deg.size)
-    cd = np.nanmean(em.contribution_d, axis=0)
-    ci = np.nanmean(em.contribution_i, axis=0)
-    ax.bar(x, cd, color="tab:blue", label="d·err_d (patch fit)")
-    ax.bar(x, ci, bottom=cd, color="tab:red", label="(1 − d)·err_i (wall fit)")
-    ax.plot(x, np.nanmean(em.simulated_nrmse, axis=0), "k^-", ms=4, label="simulated (RMS)")
-    obs = em.observed_nrmse if em.observed_nrmse is not None else nrmse
-    if obs is not None:
-        ax.plot(x, np.nanmean(np.atleast_2d(obs), axis=0), "ko--", ms=4, label="observed NRMSE")
-    ax.set_xticks(x, [f"{v:g}" for v in em.angle_deg], fontsize=7)
-    ax.set_xlabel("sample angle [°]", fontsize=8)
-    ax.set_ylabel("normalised error (mean over patches)", fontsize=8)
-    ax.legend(fontsize=7)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig
+def metrics_csv(c: ComparisonResult, adapted: np.ndarray) -> str:
+    """The per-configuration metrics as CSV text (the report's data appendix)."""
+    from normbox_lab.analyze.compare import rate_delta_e
+
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(["patch", "angle_deg", "mean_radiance_W_sr_m2_nm", "rmse_W_sr_m2_nm",
+                "nrmse_pct", "nrmse_range_pct", "delta_e00_paper", "delta_e00_adapted",
+                "rating_paper"])
+    for p, name in enumerate(c.patch_names):
+        for a, ang in enumerate(c.angle_deg):
+            w.writerow([name, f"{ang:g}", repr(float(c.radiance_mean[p, a])),
+                        repr(float(c.rmse[p, a])), repr(100.0 * float(c.nrmse[p, a])),
+                        repr(100.0 * float(c.nrmse_range[p, a])),
+                        repr(float(c.delta_e00[p, a])), repr(float(adapted[p, a])),
+                        rate_delta_e(float(c.delta_e00[p, a]))])
+    return buf.getvalue()
 
 
-def fig_nse(c: ComparisonResult, patch: int) -> Any:
-    n_a = c.angle_deg.size
-    ncol = 5
-    nrow = int(np.ceil(n_a / ncol))
-    fig = _new_fig(2.4 * ncol, 1.8 * nrow)
-    lim = np.nanmax(np.abs(c.nse[patch])) if np.isfinite(c.nse[patch]).any() else 1.0
-    for a in range(n_a):
-        ax = fig.add_subplot(nrow, ncol, a + 1)
-        ax.plot(c.wavelength_nm, c.nse[patch, a], lw=0.8)
-        ax.axhline(0.0, color="0.6", lw=0.5)
-        ax.set_ylim(-1.05 * lim - 1e-12, 1.05 * lim + 1e-12)
-        ax.set_title(f"{c.angle_deg[a]:g}°", fontsize=7)
-        ax.tick_params(labelsize=5)
-    fig.suptitle(f"NSE (prediction − reference)/reference of {c.patch_names[patch]}", fontsize=9)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig
+# -- HTML pieces ---------------------------------------------------------------------------------
+
+def _esc(x: Any) -> str:
+    return html.escape(str(x))
 
 
-def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]]] | None:
-    """Paper Fig. 14: NSE at the smallest angle vs patch fit error at the direct geometry;
-    NSE at the largest angle vs the wall's fit error at a grazing geometry."""
-    from normbox_lab.analyze.compare import direct_light_geometry
-
-    names = list(d.patch_fit_names) if d.patch_fit_names is not None else list(c.patch_names)
-    pairs = [(p, names[p]) for p in d.nse_fit_patches
-             if p < len(names) and names[p] in d.fits and names[p] in d.brdf_data]
-    have_wall = d.wall_name in d.fits and d.wall_name in d.brdf_data
-    if not pairs and not have_wall:
-        return None
-    fig = _new_fig(10, 5)
-    rows: list[list[Any]] = []
-    ti, to = direct_light_geometry(c.angle_deg[0])
-    ax1 = fig.add_subplot(2, 2, 1)
-    ax3 = fig.add_subplot(2, 2, 3)
-    for k, (p, name) in enumerate(pairs):
-        ax1.plot(c.wavelength_nm, c.nse[p, 0], color=f"C{k}", lw=0.8, label=c.patch_names[p])
-        err = fit_error_at(d.fits[name], d.brdf_data[name], float(ti), float(to))
-        ax3.plot(d.brdf_data[name].wavelength_nm, err, color=f"C{k}", lw=0.8, label=name)
-        rows.append([c.patch_names[p], f"{c.angle_deg[0]:g}°",
-                     float(np.sqrt(np.nanmean(c.nse[p, 0] ** 2))),
-                     f"patch fit at θi={float(ti):g}°, θo={float(to):g}°",
-                     float(np.sqrt(np.nanmean(err ** 2)))])
-    ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}°", fontsize=8)
-    ax3.set_title("fitting error, direct-light geometry", fontsize=8)
-    ax2 = fig.add_subplot(2, 2, 2)
-    ax4 = fig.add_subplot(2, 2, 4)
-    ax2.plot(c.wavelength_nm, np.nanmean(c.nse[:, -1], axis=0), lw=0.8, label="mean of patches")
-    ax2.set_title(f"(b) NSE at {c.angle_deg[-1]:g}° (mean over patches)", fontsize=8)
-    if have_wall:
-        wti, wto = d.wall_geometry_deg
-        werr = fit_error_at(d.fits[d.wall_name], d.brdf_data[d.wall_name], wti, wto)
-        ax4.plot(d.brdf_data[d.wall_name].wavelength_nm, werr, color="tab:red", lw=0.8)
-        ax4.set_title(f"wall fitting error at θi={wti:g}°, θo={wto:g}°", fontsize=8)
-        rows.append(["all (mean)", f"{c.angle_deg[-1]:g}°",
-                     float(np.sqrt(np.nanmean(np.nanmean(c.nse[:, -1], axis=0) ** 2))),
-                     f"wall fit at θi={wti:g}°, θo={wto:g}°",
-                     float(np.sqrt(np.nanmean(werr ** 2)))])
-    for ax in (ax1, ax2, ax3, ax4):
-        ax.axhline(0.0, color="0.6", lw=0.5)
-        ax.tick_params(labelsize=6)
-    for ax in (ax1, ax3):
-        if ax.get_legend_handles_labels()[0]:
-            ax.legend(fontsize=6)
-    fig.subplots_adjust(left=0.06, right=0.98, bottom=0.12, top=0.88, wspace=0.35, hspace=0.6)
-    return fig, rows
+def _fmt(v: Any, digits: int = 4) -> str:
+    """Table text of a value: floats with `digits` significant digits; no "inf"/"nan"."""
+    if isinstance(v, float | np.floating):
+        if np.isnan(v):
+            return "—"
+        if np.isinf(v):
+            return "∞" if v > 0 else "−∞"
+        return f"{float(v):.{digits}g}"
+    return str(v)
 
 
-def fig_images(f: ImageFigure) -> Any:
-    """The panels side by side at their pixel aspect; maps with a colour bar."""
-    n = len(f.panels)
-    h, w = np.asarray(f.panels[0].data).shape[:2]
-    fig = _new_fig(min(4.2 * n, 16.0), min(4.2 * n, 16.0) / n * h / w + 0.6)
-    for k, p in enumerate(f.panels):
-        ax = fig.add_subplot(1, n, k + 1)
-        data = np.asarray(p.data)
-        if data.ndim == 3:
-            ax.imshow(data if data.dtype == np.uint8 else np.clip(data, 0.0, 1.0))
-        else:
-            finite = data[np.isfinite(data)]
-            vmax = p.vmax if p.vmax is not None else (
-                float(np.percentile(finite, 99)) if finite.size else 1.0)
-            im = ax.imshow(data, cmap="magma", vmin=0.0, vmax=max(vmax, 1e-12))
-            cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
-            cb.ax.tick_params(labelsize=6)
-            if p.unit:
-                cb.set_label(p.unit, fontsize=7)
-        ax.set_title(p.label, fontsize=8)
-        ax.set_axis_off()
-    fig.subplots_adjust(left=0.01, right=0.97, bottom=0.02, top=0.9, wspace=0.08)
-    return fig
+def _class_range(k: int) -> str:
+    lo = 0.0 if k == 0 else RATING_SCALE[k - 1][0]
+    hi = RATING_SCALE[k][0]
+    if not np.isfinite(hi):
+        return f"> {lo:g}"
+    return f"≤ {hi:g}" if k == 0 else f"{lo:g} – {hi:g}"
 
 
-# -- the report ------------------------------------------------------------------------------
+class _Doc:
+    """Collects sections, figures and tables with their human titles (for the contents)."""
 
-_CSS = """
-body{font-family:sans-serif;max-width:1200px;margin:1em auto;color:#222}
-h1{font-size:1.5em} h2{border-bottom:1px solid #ccc;font-size:1.2em} h3{font-size:1em}
-figure{margin:1em 0} img{max-width:100%} figcaption{font-size:.85em;color:#555}
-table{border-collapse:collapse;font-size:.75em} td,th{border:1px solid #ccc;padding:2px 5px;
-text-align:right} th{background:#eee} .r0{background:#c8e6c9} .r1{background:#f1f8e9}
-.r2{background:#ffe082} .r3{background:#ef9a9a} .note{font-size:.9em;color:#444}
-"""
+    def __init__(self) -> None:
+        self.parts: list[str] = []
+        self.sections: list[tuple[str, str, list[tuple[str, str]]]] = []
+        self.figs: list[str] = []
+        self.tabs: list[str] = []
+
+    def section(self, sid: str, title: str, intro: str = "") -> None:
+        if self.sections:
+            self.parts.append("</section>")
+        self.sections.append((sid, title, []))
+        self.parts.append(f'<section id="{sid}"><h2>{_esc(title)}</h2>'
+                          + (f"<p>{intro}</p>" if intro else ""))
+
+    def html(self, text: str) -> None:
+        self.parts.append(text)
+
+    def figure(self, fid: str, title: str, fig: Any, caption: str) -> None:
+        from normbox_lab.analyze.report_style import svg_data_uri
+
+        uri, w_px, h_px = svg_data_uri(fig)
+        self.parts.append(
+            f'<figure id="{fid}"><h3>{_esc(title)}</h3>'
+            f'<img alt="{_esc(title)}" width="{w_px:.0f}" height="{h_px:.0f}" src="{uri}">'
+            f"<figcaption>{_esc(caption)}</figcaption></figure>")
+        self.figs.append(fid)
+        self.sections[-1][2].append((fid, title))
+
+    def table(self, tid: str, title: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
+              cell_class: Any = None, caption: str = "", digits: int = 4) -> None:
+        out = [f'<div class="table" id="{tid}"><h3>{_esc(title)}</h3>']
+        if caption:
+            out.append(f'<p class="caption">{_esc(caption)}</p>')
+        out.append("<div class='scroll'><table><thead><tr>")
+        out += [f"<th>{_esc(h)}</th>" for h in header]
+        out.append("</tr></thead><tbody>")
+        for i, row in enumerate(rows):
+            out.append("<tr>")
+            for j, v in enumerate(row):
+                cls = cell_class(i, j, v) if cell_class else ""
+                attr = f' class="{cls}"' if cls else ""
+                tag = "th" if j == 0 else "td"
+                out.append(f"<{tag}{attr}>{_esc(_fmt(v, digits))}</{tag}>")
+            out.append("</tr>")
+        out.append("</tbody></table></div></div>")
+        self.parts.append("".join(out))
+        self.tabs.append(tid)
+        self.sections[-1][2].append((tid, title))
+
+    def contents(self) -> str:
+        out = ["<nav id='contents'><h2>Contents</h2><ol>"]
+        for sid, title, items in self.sections:
+            out.append(f"<li><a href='#{sid}'>{_esc(title)}</a>")
+            if items:
+                out.append("<ul>" + "".join(f"<li><a href='#{i}'>{_esc(t)}</a></li>"
+                                            for i, t in items) + "</ul>")
+            out.append("</li>")
+        out.append("</ol></nav>")
+        return "".join(out)
+
+    def body(self) -> str:
+        return "".join(self.parts) + ("</section>" if self.sections else "")
 
 
 def _rating_class(_i: int, j: int, v: Any) -> str:
@@ -371,155 +313,375 @@ def _rating_class(_i: int, j: int, v: Any) -> str:
     return f"r{int(rating_index(v))}"
 
 
-def _qa_html(flags: Sequence[Any], max_rows: int = 200) -> str:
-    """The QA summary the report opens with: counts, then one row per flag (errors first)."""
-    errors = sum(1 for f in flags if f.severity == "error")
-    head = (f'<section id="qa"><h2>Quality</h2><p class="qa-summary">{len(flags)} flags: '
-            f"{errors} errors, {len(flags) - errors} warnings</p>")
-    if not flags:
-        return head + "</section>"
-    ordered = sorted(flags, key=lambda f: (f.severity != "error", f.run_id or 0, f.key))
-    rows = [[f.severity, str(f.run_id or ""), f.key or "(run)", f.gate,
-             "" if f.value is None else float(f.value),
-             "" if f.limit is None else float(f.limit), f.message]
-            for f in ordered[:max_rows]]
-    more = (f"<p>… and {len(flags) - max_rows} more (normbox-lab qa RUN_ID)</p>"
-            if len(flags) > max_rows else "")
-    return head + _table_html("tab-qa", "Quality flags",
-                              ["severity", "run", "reading / artifact", "gate", "value",
-                               "limit", "message"], rows) + more + "</section>"
+_CSS = """
+:root{--ink:#1a1a1a;--muted:#4a4a4a;--rule:#c8c8c8}
+html{font-size:16px}
+body{font-family:system-ui,"DejaVu Sans",Arial,sans-serif;line-height:1.45;max-width:1200px;
+margin:0 auto;padding:1rem 1.5rem;color:var(--ink)}
+h1{font-size:1.7rem;margin:.2rem 0} h2{font-size:1.35rem;border-bottom:2px solid var(--rule);
+margin-top:2rem;padding-bottom:.2rem} h3{font-size:1.05rem;margin:.8rem 0 .3rem}
+p,li{max-width:75ch}
+.subtitle{color:var(--muted);margin:.2rem 0 1rem}
+.verdict{font-size:1.1rem;border-left:5px solid #0072B2;background:#eef5fb;padding:.6rem .9rem;
+max-width:none}
+.cards{display:grid;grid-template-columns:repeat(auto-fit,minmax(220px,1fr));gap:.7rem;
+margin:.8rem 0}
+.card{border:1px solid var(--rule);border-radius:6px;padding:.5rem .7rem}
+.card .k{font-size:.85rem;color:var(--muted)} .card .v{font-size:1.45rem;font-weight:600}
+.card .s{font-size:.8rem;color:var(--muted)}
+.two{display:grid;grid-template-columns:repeat(auto-fit,minmax(480px,1fr));gap:1rem;
+align-items:start}
+figure{margin:1rem 0} figure img{max-width:100%;height:auto;display:block}
+figcaption,.caption{font-size:.9rem;color:var(--muted);max-width:none}
+.scroll{overflow-x:auto}
+table{border-collapse:collapse;font-size:.8rem;font-variant-numeric:tabular-nums}
+td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right}
+thead th{background:#eeeeee;text-align:center} tbody th{text-align:left;background:#f7f7f7;
+font-weight:600}
+.r0{background:RC0;color:RT0} .r1{background:RC1;color:RT1} .r2{background:RC2;color:RT2}
+.r3{background:RC3;color:RT3}
+.sev-error{color:#b00020;font-weight:600} .sev-warning{color:#8a5a00}
+.note{font-size:.9rem;color:var(--muted)}
+nav#contents ol{columns:2;column-gap:2rem} nav#contents ul{font-size:.9rem}
+a{color:#0060a0}
+@page{size:A4;margin:14mm}
+@media print{
+ html{font-size:10pt} body{max-width:none;padding:0}
+ section{break-before:page} section#summary{break-before:auto}
+ figure,.table,.card,.verdict{break-inside:avoid} h2,h3{break-after:avoid}
+ .scroll{overflow:visible} a{color:inherit;text-decoration:none}
+ nav#contents{break-after:page}
+}
+"""
 
+
+def _css() -> str:
+    out = _CSS
+    for k in range(4):
+        out = out.replace(f"RC{k}", RATING_COLOURS[k]).replace(f"RT{k}", RATING_TEXT[k])
+    return out
+
+
+def _card(key: str, value: str, sub: str = "") -> str:
+    return (f"<div class='card'><div class='k'>{_esc(key)}</div><div class='v'>{_esc(value)}"
+            f"</div>" + (f"<div class='s'>{_esc(sub)}</div>" if sub else "") + "</div>")
+
+
+def _campaign_line(d: ReportData) -> str:
+    if not d.runs:
+        return ""
+    dates = sorted({str(r.get("date", "")) for r in d.runs if r.get("date")})
+    span = (dates[0] if len(dates) == 1 else f"{dates[0]} – {dates[-1]}") if dates else ""
+    runs = ", ".join(f"{r['protocol']} (run {r['id']}, {r.get('readings', '?')} readings)"
+                     for r in d.runs)
+    inst = ", ".join(f"{i.get('model', i.get('role', '?'))}" for i in d.instruments)
+    return (f"Campaign{': ' + span if span else ''} — {runs}."
+            + (f" Instruments: {inst}." if inst else ""))
+
+
+# -- the report ----------------------------------------------------------------------------------
 
 def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     """(html, figure ids, table ids)."""
-    parts: list[str] = []
-    figs: list[str] = []
-    tabs: list[str] = []
+    from normbox_lab.analyze import report_figures as rf
 
-    def add_fig(fid: str, title: str, fig: Any, caption: str) -> None:
-        parts.append(_figure_html(fid, title, fig, caption))
-        figs.append(fid)
-
-    def add_tab(tid: str, *args: Any, **kw: Any) -> None:
-        parts.append(_table_html(tid, *args, **kw))
-        tabs.append(tid)
-
-    parts.append(_qa_html(d.flags))
-    if d.flags:
-        tabs.append("tab-qa")
+    doc = _Doc()
     c = d.comparison
-    if c is not None:
-        ang_hdr = ["patch"] + [f"{v:g}°" for v in c.angle_deg]
-        parts.append("<h2>Reference and prediction</h2>")
-        add_fig("fig-reference", "Reference spectra", fig_reference(c),
-                "Measured spectral radiance of every patch at every sample angle.")
-        add_fig("fig-prediction", "Prediction vs reference per angle",
-                fig_prediction(c, d.prediction_patches),
-                "Solid: reference; dashed: prediction; colour: sample angle.")
-        parts.append("<h2>Physical comparison</h2>")
-        add_fig("fig-rmse", "RMSE and its correlation with radiance (paper Fig. 5)",
-                _bars_and_scatter(c, c.rmse, "RMSE [W sr⁻¹ m⁻² nm⁻¹]",
-                                  "radiance_rmse_small", "radiance_rmse_large"),
-                "RMSE over wavelengths per patch and angle; scatter of mean reference "
-                "radiance against RMSE for small and large sample angles with Pearson r.")
-        add_fig("fig-nrmse", "NRMSE per angle (paper Fig. 6)",
-                _bars_and_scatter(c, c.nrmse, "NRMSE", "radiance_nrmse_small",
-                                  "radiance_nrmse_large"),
-                "RMSE divided by the mean reference spectrum.")
-        add_tab("tab-rmse", "RMSE [W sr⁻¹ m⁻² nm⁻¹]", ang_hdr,
-                [[n, *map(float, c.rmse[p])] for p, n in enumerate(c.patch_names)])
-        add_tab("tab-nrmse", "NRMSE", ang_hdr,
-                [[n, *map(float, c.nrmse[p])] for p, n in enumerate(c.patch_names)])
-        add_tab("tab-correlations", "Correlation of radiance with RMSE / NRMSE",
-                ["pair", "Pearson r"], [[k, float(v)] for k, v in c.correlations.items()])
-        parts.append("<h2>Perceptual comparison</h2>")
-        add_fig("fig-deltae", "ΔE00 heat map (paper Fig. 7)", fig_deltae(c),
-                f"XYZ normalised by the reference white ({c.patch_names[c.white_patch]}) at "
-                f"{c.white_angle_deg:g}°, Lab with D65; classes: "
-                + "; ".join(f"≤ {b:g}: {lab}" if np.isfinite(b) else f"> 5: {lab}"
-                            for b, lab in RATING_SCALE))
-        add_tab("tab-deltae", "ΔE00", ang_hdr,
-                [[n, *map(float, c.delta_e00[p])] for p, n in enumerate(c.patch_names)],
-                cell_class=_rating_class)
-        counts = c.rating_counts()
-        add_tab("tab-rating", "Rating scale", ["class", "ΔE00 up to", "count"],
-                [[lab, f"{b:g}", counts[lab]] for b, lab in RATING_SCALE])
-        add_fig("fig-nse", f"NSE per sample angle (paper Fig. 13), {c.patch_names[d.nse_patch]}"
-                if d.nse_patch < len(c.patch_names) else "NSE per sample angle",
-                fig_nse(c, min(d.nse_patch, len(c.patch_names) - 1)),
-                "Normalised spectral error (prediction − reference)/reference.")
+    adapted = delta_e00_adapted(c) if c is not None else None
+    hl = headline(c, adapted) if c is not None and adapted is not None else None
+    labels = [lab for _, lab in RATING_SCALE]
+
+    # ---- summary (first screen) -----------------------------------------------------------
+    doc.section("summary", "Summary")
+    doc.html(f'<p class="qa-summary">{_esc(_qa_line(d.flags))}</p>')
+    if hl is not None and c is not None:
+        n_cfg = int(np.isfinite(c.delta_e00).sum())
+        doc.html(f"<p class='verdict'>{_esc(hl.verdict)}</p>")
+        white_name = c.patch_names[c.white_patch]
+        qa_txt, qa_sub = _qa_card(d.flags)
+        doc.html("<div class='cards'>"
+                 + _card(f"ΔE00 of white (patch {white_name}) at {c.white_angle_deg:g}°",
+                         f"{hl.white_delta_e00:.2f}",
+                         f"adapted convention: {hl.white_delta_e00_adapted:.2f}")
+                 + _card("mean ΔE00 (paper convention)", f"{hl.mean_delta_e00:.2f}",
+                         f"adapted convention: {hl.mean_delta_e00_adapted:.2f}; "
+                         f"max {hl.max_delta_e00:.2f}")
+                 + _card("mean NRMSE", f"{hl.nrmse_mean_pct:.1f} %",
+                         "RMSE / mean reference radiance, in percent")
+                 + _card("configurations", f"{n_cfg}",
+                         f"{len(c.patch_names)} patches × {c.angle_deg.size} sample angles")
+                 + _card("quality flags", qa_txt, qa_sub)
+                 + "</div>")
+        doc.html("<div class='two'>")
+        doc.figure("fig-summary-rating", "ΔE00 on the rating scale",
+                   rf.fig_rating_counts(hl.rating_counts, labels,
+                                        "paper convention (D65 white)"),
+                   "How many patch × angle configurations fall in each class of the rating "
+                   "scale (ΔE00 ≤ 1 below the just-noticeable difference; ≤ 2 not discernible "
+                   "side by side; ≤ 5 discernible side by side; > 5 easily perceived). "
+                   f"Adapted convention: {', '.join(map(str, hl.rating_counts_adapted))}.")
+        doc.figure("fig-summary-nrmse", "NRMSE by sample angle", rf.fig_nrmse_by_angle(c),
+                   "NRMSE in percent per sample angle: median and mean over the patches, "
+                   "band = the range. At small angles direct light dominates (patch fit "
+                   "error), at large angles indirect light (wall fit error).")
+        doc.html("</div>")
+        doc.table("tab-nrmse-angle", "NRMSE by sample angle [%] (mean over patches)",
+                  ["sample angle", *[f"{a:g}°" for a in c.angle_deg]],
+                  [["NRMSE [%]", *map(float, hl.nrmse_by_angle_pct)]], digits=3)
+        doc.table("tab-worst", "Worst configurations (largest ΔE00)",
+                  ["patch", "sample angle", "ΔE00 (paper)", "ΔE00 (adapted)", "NRMSE [%]"],
+                  [[p, f"{a:g}°", de, dea, nr] for p, a, de, dea, nr in hl.worst],
+                  cell_class=lambda i, j, v: _rating_class(i, j, v) if j in (2, 3) else "",
+                  digits=3)
+    else:
+        doc.html("<p>No comparison in this report: the summary needs a comparison of "
+                 "predictions with reference readings.</p>")
+    campaign = _campaign_line(d)
+    if campaign:
+        doc.html(f"<p class='note'>{_esc(campaign)}</p>")
+    for n in d.notes:
+        doc.html(f"<p class='note'>{_esc(n)}</p>")
+
+    # ---- quality flags ----------------------------------------------------------------------
+    doc.section("qa", "Quality flags")
+    if d.flags is None:
+        doc.html("<p>No QA data: nothing recorded whether the readings, calibrations or fits "
+                 "of these runs passed the quality gates.</p>")
+    elif not d.flags:
+        doc.html("<p>No quality flags: every quality gate passed on the runs of this "
+                 "report.</p>")
+    else:
+        max_rows = 200
+        ordered = sorted(d.flags, key=lambda f: (f.severity != "error", f.run_id or 0, f.key))
+        doc.table("tab-qa", "Quality flags (errors first)",
+                  ["severity", "run", "reading / artifact", "gate", "value", "limit",
+                   "message"],
+                  [[f.severity, str(f.run_id or ""), f.key or "(run)", f.gate,
+                    "" if f.value is None else float(f.value),
+                    "" if f.limit is None else float(f.limit), f.message]
+                   for f in ordered[:max_rows]],
+                  cell_class=lambda i, j, v: f"sev-{v}" if j == 0 else "")
+        if len(ordered) > max_rows:
+            doc.html(f"<p>… and {len(ordered) - max_rows} more: <code>normbox-lab qa "
+                     "RUN_ID</code> lists them all.</p>")
+
+    if c is not None and adapted is not None:
+        ang_hdr = ["patch", *[f"{v:g}°" for v in c.angle_deg]]
+        doc.section("reference", "Reference and prediction spectra")
+        doc.figure("fig-reference", "Reference spectra of every patch", rf.fig_reference(c),
+                   "Measured spectral radiance of each ColorChecker patch at each sample angle "
+                   "(colour bar). Look at how the level falls as the sample turns from the "
+                   "light (30°) towards the radiometer (90°).")
+        doc.figure("fig-prediction", "Prediction vs reference",
+                   rf.fig_prediction(c, d.prediction_patches),
+                   "Solid: reference; dashed: prediction; colour: sample angle. Where the "
+                   "dashed line leaves the solid one, the BRDF fit or the wall misses light.")
+        doc.section("physical", "Physical comparison: RMSE and NRMSE")
+        doc.figure("fig-rmse", "RMSE per patch and its correlation with radiance (paper Fig. 5)",
+                   rf.fig_metric(c, c.rmse, f"RMSE [{RADIANCE_UNIT}]", "radiance_rmse_small",
+                                 "radiance_rmse_large"),
+                   "Top: RMSE over wavelengths per patch and sample angle. Bottom: mean "
+                   "reference radiance against RMSE at small and large sample angles with "
+                   "Pearson r: a strong correlation means the absolute error scales with "
+                   "the light.")
+        doc.figure("fig-nrmse", "NRMSE per patch and its correlation with radiance (paper Fig. 6)",
+                   rf.fig_metric(c, 100.0 * c.nrmse, "NRMSE [%]", "radiance_nrmse_small",
+                                 "radiance_nrmse_large"),
+                   "NRMSE = RMSE / mean reference spectrum, in percent. Dark patches have "
+                   "large relative errors on little light.")
+        doc.table("tab-rmse", f"RMSE [{RADIANCE_UNIT}]", ang_hdr,
+                  [[n, *map(float, c.rmse[p])] for p, n in enumerate(c.patch_names)], digits=3)
+        doc.table("tab-nrmse", "NRMSE [%]", ang_hdr,
+                  [[n, *map(float, 100.0 * c.nrmse[p])] for p, n in enumerate(c.patch_names)],
+                  digits=3)
+        doc.table("tab-correlations", "Correlation of radiance with RMSE / NRMSE",
+                  ["pair", "Pearson r"],
+                  [[_corr_label(k), float(v)] for k, v in c.correlations.items()], digits=3)
+        doc.section("perceptual", "Perceptual comparison: ΔE00",
+                    _esc(_convention_text(c, hl)))
+        doc.figure("fig-deltae", "ΔE00 per patch and angle on the rating scale (paper Fig. 7)",
+                   rf.fig_deltae(c, adapted),
+                   "Each cell is one patch at one sample angle, coloured by its class on the "
+                   "rating scale. Left: the paper's convention; right: adapted to the measured "
+                   "white. Compare the columns: differences grow where indirect light "
+                   "dominates.")
+        doc.table("tab-deltae", "ΔE00, paper convention (D65 white)", ang_hdr,
+                  [[n, *map(float, c.delta_e00[p])] for p, n in enumerate(c.patch_names)],
+                  cell_class=_rating_class, digits=3)
+        doc.table("tab-deltae-adapted", "ΔE00, adapted convention (CAT02 to D65)", ang_hdr,
+                  [[n, *map(float, adapted[p])] for p, n in enumerate(c.patch_names)],
+                  cell_class=_rating_class, digits=3)
+        doc.table("tab-rating", "Rating scale: configurations per class",
+                  ["class", "ΔE00", "count (paper)", "count (adapted)"],
+                  [[lab, _class_range(k), hl.rating_counts[k] if hl else 0,
+                    hl.rating_counts_adapted[k] if hl else 0]
+                   for k, (_, lab) in enumerate(RATING_SCALE)],
+                  cell_class=lambda i, j, v: f"r{i}" if j == 0 else "")
+        doc.table("tab-deltae-means", "Mean ΔE00 per sample angle",
+                  ["convention", *[f"{v:g}°" for v in c.angle_deg], "all"],
+                  [["paper (D65 white)", *map(float, np.nanmean(c.delta_e00, 0)),
+                    float(np.nanmean(c.delta_e00))],
+                   ["adapted (CAT02)", *map(float, np.nanmean(adapted, 0)),
+                    float(np.nanmean(adapted))]], digits=3)
+        nse_patch = min(d.nse_patch, len(c.patch_names) - 1)
+        doc.section("nse", "Spectral error per angle (NSE)")
+        doc.figure("fig-nse", f"NSE per sample angle of patch {c.patch_names[nse_patch]} "
+                   "(paper Fig. 13)", rf.fig_nse(c, nse_patch),
+                   "Normalised spectral error (prediction − reference)/reference in percent, "
+                   "one panel per sample angle. A tilt across the spectrum points to a "
+                   "colour error; an offset to a level error.")
     if d.images:
-        parts.append("<h2>Images (virtual camera)</h2>")
+        doc.section("images", "Images (virtual camera)")
         for f in d.images:
-            add_fig(f.fid, f.title, fig_images(f), f.caption)
+            doc.figure(f.fid, f.title, rf.fig_images(f), f.caption)
     if d.fits:
-        parts.append("<h2>BRDF fits</h2>")
-        add_tab("tab-fits", "Fitted parameters", ["material", "α", "η", "c [sr⁻¹]", "w",
-                                                   "fit error %", "Löw cost"],
-                [[n, f.alpha, f.eta, f.c, f.w, f.fit_error_pct, f.cost]
-                 for n, f in d.fits.items()])
+        doc.section("fits", "BRDF fits")
+        doc.table("tab-fits", "Fitted parameters", ["material", "α (roughness)", "η",
+                                                   "c [sr⁻¹]", "w (cos^w weight)",
+                                                   "fit error [%]", "Löw cost"],
+                  [[n, f.alpha, f.eta, f.c, f.w, f.fit_error_pct, f.cost]
+                   for n, f in d.fits.items()], digits=3)
         names = list(d.polar_materials) if d.polar_materials is not None else (
             [n for n in ("patch08", "patch18") if n in d.fits]
             or [n for n in d.fits if n != d.wall_name][:1])
         names += [d.wall_name] if d.polar_materials is None and d.wall_name in d.fits else []
+        from normbox_lab.analyze.fit import polar_plot
+
         for n in names:
             if n not in d.fits:
                 continue
-            fig = polar_plot(d.brdf_data.get(n), {n: d.fits[n]}, d.polar_wavelength_nm)
-            add_fig(f"fig-polar-{n}", f"BRDF polar plot of {n} at {d.polar_wavelength_nm:g} nm "
-                    "(paper Figs. 10/11)", fig,
-                    "Points: measured in-plane BRDF; line: fit (tilted geometry); one panel "
-                    "per incident angle, θo on the polar axis, dotted ray = light direction.")
+            fig = rf.in_style(lambda n=n: polar_plot(d.brdf_data.get(n), {n: d.fits[n]},
+                                                      d.polar_wavelength_nm))
+            doc.figure(f"fig-polar-{n}", f"BRDF of {n} at {d.polar_wavelength_nm:g} nm "
+                       "(paper Figs. 10/11)", fig,
+                       "Points: measured in-plane BRDF [sr⁻¹]; line: the fit (tilted geometry); "
+                       "one panel per incident angle θi, θo on the polar axis, dotted ray = "
+                       "light direction. Look for points the line misses near grazing angles.")
     if d.error_model is not None:
         em = d.error_model
-        parts.append("<h2>Error model</h2>")
-        add_fig("fig-errormodel", "Error model vs NRMSE (paper Fig. 12)",
-                fig_error_model(em, c.nrmse if c is not None else None),
-                "Simulated normalised error from the direct-light share d per angle, the patch "
-                "fit error err_d and the wall fit error err_i, against the observed NRMSE.")
+        doc.section("errormodel", "Error model")
+        doc.figure("fig-errormodel", "Error model vs NRMSE (paper Fig. 12)",
+                   rf.fig_error_model(em, c.nrmse if c is not None else None),
+                   "Bars: the simulated error from the direct-light share d per angle times "
+                   "the patch fit error err_d, plus (1 − d) times the wall fit error err_i; "
+                   "lines: simulated and observed NRMSE. Where the lines agree, the fit errors "
+                   "explain the prediction error.")
         obs = em.observed_nrmse if em.observed_nrmse is not None else (
             c.nrmse if c is not None else None)
         rows = []
         for a, ang in enumerate(em.angle_deg):
             rows.append([f"{ang:g}°", float(np.nanmean(em.direct_share[:, a])),
-                         float(np.nanmean(em.contribution_d[:, a])),
-                         float(np.nanmean(em.contribution_i[:, a])),
-                         float(np.nanmean(em.simulated_nrmse[:, a])),
-                         float(np.nanmean(np.atleast_2d(obs)[:, a])) if obs is not None
+                         100.0 * float(np.nanmean(em.contribution_d[:, a])),
+                         100.0 * float(np.nanmean(em.contribution_i[:, a])),
+                         100.0 * float(np.nanmean(em.simulated_nrmse[:, a])),
+                         100.0 * float(np.nanmean(np.atleast_2d(obs)[:, a])) if obs is not None
                          else float("nan")])
-        add_tab("tab-errormodel", "Error model per angle (means over patches)",
-                ["angle", "direct share", "d·err_d", "(1−d)·err_i", "simulated",
-                 "observed NRMSE"], rows)
+        doc.table("tab-errormodel", "Error model per angle (means over patches)",
+                  ["angle", "direct share d", "d·err_d [%]", "(1−d)·err_i [%]",
+                   "simulated [%]", "observed NRMSE [%]"], rows, digits=3)
     if d.budget is not None:
         from normbox_lab.analyze.budget import budget_figure, budget_rows
 
         arrays, sources = d.budget
-        parts.append("<h2>Error budget</h2>")
-        add_fig("fig-budget", "Error budget per angle (paper Fig. 12, every source)",
-                budget_figure(arrays, sources),
-                "Each source's share of the total NRMSE (stacked), propagated from its "
-                "distribution (normbox-lab budget), against the observed NRMSE with its 95 % "
-                "interval.")
+        doc.section("budget", "Error budget")
+        doc.figure("fig-budget", "Error budget per angle (paper Fig. 12, every source)",
+                   rf.in_style(lambda: budget_figure(arrays, sources)),
+                   "Each source's share of the total NRMSE (stacked), propagated from its "
+                   "distribution (normbox-lab budget), against the observed NRMSE with its "
+                   "95 % interval.")
         header, rows = budget_rows(arrays, sources)
-        add_tab("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
-                "sample-angle offset", header, rows)
+        doc.table("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
+                  "sample-angle offset", header, rows, digits=3)
     if c is not None and d.fits:
-        got = fig_nse_fit(c, d)
+        got = rf.fig_nse_fit(c, d)
         if got is not None:
             fig, rows = got
-            add_fig("fig-nse-fit", "NSE vs fitting error (paper Fig. 14)", fig,
-                    "Top: NSE at the smallest and largest sample angle; bottom: relative BRDF "
-                    "fitting error at the matching geometry (patch: direct light; wall: grazing).")
-            add_tab("tab-nse-fit", "NSE vs fitting error (RMS over wavelengths)",
-                    ["patch", "angle", "RMS NSE", "fit error at", "RMS fit error"], rows)
-    head = (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(d.title)}"
-            f"</title><style>{_CSS}</style></head><body><h1>{html.escape(d.title)}</h1>")
-    meta = "".join(f"<li>{html.escape(str(k))}: {html.escape(str(v))}</li>"
-                   for k, v in d.metadata.items())
-    notes = "".join(f"<p class='note'>{html.escape(n)}</p>" for n in d.notes)
-    toc = "<ul>" + "".join(f"<li><a href='#{i}'>{i}</a></li>" for i in figs + tabs) + "</ul>"
-    body = head + (f"<ul>{meta}</ul>" if meta else "") + notes + toc + "".join(parts)
-    return body + "</body></html>", figs, tabs
+            doc.section("nsefit", "NSE vs BRDF fitting error")
+            doc.figure("fig-nse-fit", "NSE vs fitting error (paper Fig. 14)", fig,
+                       "Top: NSE at the smallest and largest sample angle; bottom: relative "
+                       "BRDF fitting error at the matching geometry (patch: direct light; "
+                       "wall: grazing). Similar shapes mean the fit error carries through.")
+            doc.table("tab-nse-fit", "NSE vs fitting error (RMS over wavelengths)",
+                      ["patch", "angle", "RMS NSE [%]", "fit error at", "RMS fit error [%]"],
+                      rows, digits=3)
+
+    # ---- methods and appendix --------------------------------------------------------------
+    if d.instruments or d.methods or d.runs or d.metadata:
+        doc.section("methods", "Methods")
+        if d.runs:
+            doc.table("tab-runs", "Runs", ["run", "protocol", "status", "readings", "started",
+                                          "finished", "seeds"],
+                      [[r["id"], r["protocol"], r.get("status", ""), r.get("readings", ""),
+                        r.get("started", ""), r.get("finished", ""), r.get("seeds", "")]
+                       for r in d.runs])
+        if d.instruments:
+            doc.table("tab-instruments", "Instruments",
+                      ["role", "model", "serial", "firmware", "calibration", "runs"],
+                      [[i.get("role", ""), i.get("model", ""), i.get("serial", ""),
+                        i.get("firmware", ""), i.get("calibration", ""), i.get("runs", "")]
+                       for i in d.instruments])
+        rows = [[k, v] for k, v in d.methods.items()] + [[str(k), str(v)]
+                                                        for k, v in d.metadata.items()]
+        if rows:
+            doc.table("tab-methods", "Software, seeds, rendering", ["item", "value"], rows)
+    if c is not None and adapted is not None:
+        doc.section("appendix", "Data appendix")
+        text = metrics_csv(c, adapted)
+        uri = "data:text/csv;base64," + base64.b64encode(text.encode("utf-8")).decode("ascii")
+        doc.html(f"<p id='data-csv'><a download='normbox-metrics.csv' href='{uri}'>"
+                 f"Download the per-configuration metrics (CSV, {len(c.patch_names)} × "
+                 f"{c.angle_deg.size} rows)</a>: patch, sample angle, mean radiance and RMSE "
+                 f"[{RADIANCE_UNIT}], NRMSE and NRMSE by range [%], ΔE00 in both conventions, "
+                 "rating class. Numbers at full double precision.</p>")
+
+    head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<meta name='viewport' content='width=device-width, initial-scale=1'>"
+            f"<title>{_esc(d.title)}</title><style>{_css()}</style></head><body>"
+            f"<header><h1>{_esc(d.title)}</h1>")
+    sub = _campaign_line(d)
+    head += (f"<p class='subtitle'>{_esc(sub)}</p>" if sub else "") + "</header>"
+    body = doc.body()
+    # the summary first, then the contents, then the rest
+    first, rest = (body.split("</section>", 1) + [""])[:2]
+    text = head + first + "</section>" + doc.contents() + rest + "</body></html>"
+    return text, doc.figs, doc.tabs
+
+
+def _qa_line(flags: Sequence[Any] | None) -> str:
+    """The count line of `normbox-lab qa`: "N flags: E errors, W warnings"."""
+    if flags is None:
+        return "No QA data for these runs."
+    errors = sum(f.severity == "error" for f in flags)
+    return f"{len(flags)} flags: {errors} errors, {len(flags) - errors} warnings"
+
+
+def _qa_card(flags: Sequence[Any] | None) -> tuple[str, str]:
+    if flags is None:
+        return "no QA data", "nothing recorded for these runs"
+    errors = sum(f.severity == "error" for f in flags)
+    if not flags:
+        return "none", "every quality gate passed"
+    return f"{len(flags)}", f"{errors} errors, {len(flags) - errors} warnings (see Quality flags)"
+
+
+def _corr_label(key: str) -> str:
+    metric = "NRMSE" if "nrmse" in key else "RMSE"
+    rng = "30–60°" if key.endswith("small") else "65–90°"
+    return f"mean radiance vs {metric}, sample angles {rng}"
+
+
+def _convention_text(c: ComparisonResult, hl: Headline | None) -> str:
+    means = (f" Mean ΔE00: {hl.mean_delta_e00:.2f} (paper) and {hl.mean_delta_e00_adapted:.2f} "
+             "(adapted)." if hl is not None else "")
+    return ("Two colour conventions, both with XYZ (CIE 1931 2°) divided by the Y of the "
+            f"reference white patch ({c.patch_names[c.white_patch]}) at "
+            f"{c.white_angle_deg:g}° and CIE 2000 with kL = kC = kH = 1. Paper convention "
+            "(comparable with the published figures): Lab with the D65 white. Adapted "
+            "convention: the colours first adapted from the measured white to D65 (CAT02 von "
+            "Kries), as an observer adapted to the box's light would see them. They differ "
+            "because the lamp is about 3100 K, not D65: without adaptation every colour sits "
+            "on the warm side of Lab, where the same spectral error maps to a different "
+            "ΔE00." + means)
 
 
 def write_report(path: str | Path, data: ReportData) -> Path:

@@ -1,7 +1,20 @@
 """The Normbox paper's Fig. 1, virtually: the box rendered with the truth materials and with the
-fitted ones (common random numbers), and the per-pixel ΔE00 between them.
+fitted ones (common random numbers), the ΔE00 between them, and the Monte-Carlo noise floor.
 
-Public API: figure1(truth, fitted, angle_deg, ...) -> Figure1
+Per-pixel ΔE00 at a few hundred samples per pixel is mostly Monte-Carlo noise.  The converged
+map is unbiased per region: the image is cut into square blocks, and within each block the
+pixels of one material slot (patch, wall, holder…) are averaged before ΔE00 is taken, so each
+value is the ΔE00 of that region's mean colour (the mean of unbiased pixel estimates is an
+unbiased estimate of the region's mean radiance; nothing is smoothed across a material edge).
+The block size grows (2, 4, 8, 16 px) until the measured noise floor is below the target
+(0.3 ΔE00 at the 95th percentile over the box surfaces) or the largest block is reached.
+
+The noise floor is measured, not modelled: the truth rendered a second time with an
+independent seed, and the same block ΔE00 between the two truth renders — what noise alone
+produces between two images of identical materials.  The truth-vs-fitted map uses common
+random numbers, so its noise is at most that.
+
+Public API: figure1(truth, fitted, angle_deg, ...) -> Figure1; region_block_means(...)
 """
 
 from __future__ import annotations
@@ -36,6 +49,28 @@ class Figure1:
     white_XYZ: np.ndarray          # absolute XYZ (cd/m²) of the white reference
     white_source: str
     scene_mask: np.ndarray         # (H, W) pixels on a box surface (not the light, not a miss)
+    block_px: int = 1              # block size of the converged maps
+    delta_e00_blocks: np.ndarray | None = None    # (H, W) ΔE00 of block × slot means, NaN off
+    noise_floor_blocks: np.ndarray | None = None  # (H, W) same, truth vs an independent truth
+    target_noise_delta_e: float = 0.3
+
+    def noise_summary(self) -> dict[str, float]:
+        """The converged maps over the box surfaces: block size, noise floor (median, 95th
+        percentile, max), block ΔE00 (mean, p95, max) and the share of surface pixels whose
+        block ΔE00 exceeds three times the noise floor's 95th percentile."""
+        keys = ("block_px", "noise_median", "noise_p95", "noise_max", "mean", "p95", "max",
+                "share_above_noise")
+        if self.delta_e00_blocks is None or self.noise_floor_blocks is None:
+            return dict.fromkeys(keys, float("nan"))
+        m = self.scene_mask & np.isfinite(self.delta_e00_blocks)
+        de, nf = self.delta_e00_blocks[m], self.noise_floor_blocks[m]
+        if de.size == 0:
+            return dict.fromkeys(keys, float("nan"))
+        p95 = float(np.percentile(nf, 95.0))
+        return {"block_px": float(self.block_px), "noise_median": float(np.median(nf)),
+                "noise_p95": p95, "noise_max": float(np.max(nf)), "mean": float(np.mean(de)),
+                "p95": float(np.percentile(de, 95.0)), "max": float(np.max(de)),
+                "share_above_noise": float(np.mean(de > 3.0 * p95))}
 
     def summary(self) -> dict[str, float]:
         """ΔE00 statistics over the box surfaces (mean, median, 95th percentile, max)."""
@@ -65,6 +100,50 @@ class Figure1:
                 "delta_e00": write_png(d / f"{stem}-delta-e00.png", self.delta_e_rgb())}
 
 
+def region_block_means(XYZ: np.ndarray, slot_id: np.ndarray, mask: np.ndarray,
+                       block_px: int) -> np.ndarray:
+    """(H, W, 3): each masked pixel replaced by the mean XYZ of the masked pixels of its
+    `block_px` × `block_px` block that hit the same material slot; NaN outside `mask`."""
+    h, w = slot_id.shape
+    b = max(int(block_px), 1)
+    rows, cols = np.nonzero(mask)
+    key = ((rows // b) * ((w + b - 1) // b) + cols // b) * (int(slot_id.max()) + 2) \
+        + slot_id[rows, cols] + 1
+    _, inv = np.unique(key, return_inverse=True)
+    count = np.bincount(inv).astype(np.float64)
+    out = np.full((h, w, 3), np.nan)
+    vals = np.asarray(XYZ, dtype=np.float64)[rows, cols]
+    for k in range(3):
+        out[rows, cols, k] = (np.bincount(inv, weights=vals[:, k]) / count)[inv]
+    return out
+
+
+def converged_maps(truth_XYZ: np.ndarray, fitted_XYZ: np.ndarray, noise_XYZ: np.ndarray,
+                   slot_id: np.ndarray, mask: np.ndarray, white_XYZ: np.ndarray,
+                   target_noise_delta_e: float = 0.3,
+                   blocks_px: tuple[int, ...] = (2, 4, 8, 16)
+                   ) -> tuple[int, np.ndarray, np.ndarray]:
+    """(block_px, ΔE00 map, noise-floor map) at the smallest block size whose noise floor's
+    95th percentile over `mask` is below `target_noise_delta_e` (else the largest)."""
+    from normbox_lab.images.color import delta_e00_map
+
+    result: tuple[int, np.ndarray, np.ndarray] | None = None
+    for b in blocks_px:
+        t = region_block_means(truth_XYZ, slot_id, mask, b)
+        f = region_block_means(fitted_XYZ, slot_id, mask, b)
+        n = region_block_means(noise_XYZ, slot_id, mask, b)
+        ok = mask & np.isfinite(t[..., 1])
+        de = np.full(mask.shape, np.nan)
+        nf = np.full(mask.shape, np.nan)
+        de[ok] = delta_e00_map(t[ok], f[ok], white_XYZ)
+        nf[ok] = delta_e00_map(t[ok], n[ok], white_XYZ)
+        result = (int(b), de, nf)
+        if ok.any() and float(np.percentile(nf[ok], 95.0)) < float(target_noise_delta_e):
+            break
+    assert result is not None
+    return result
+
+
 def _white_patch_like(patch: Any) -> Any:
     """The truth world's white patch (19) of the same truth kind as `patch` ("default" unless
     its metadata says "model")."""
@@ -77,7 +156,8 @@ def _white_patch_like(patch: Any) -> Any:
 def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: float, *,
             lamp: Any = None, geometry: Any = None, width: int = 320, height: int = 240,
             spp: int = NORMBOX_DEFAULT_SPP, seed: int = 0, white_XYZ: Any = None,
-            white_patch: Any = None) -> Figure1:
+            white_patch: Any = None, noise_floor: bool = True,
+            target_noise_delta_e: float = 0.3) -> Figure1:
     """The Normbox paper's Fig. 1, virtually: the box with the truth materials and with the
     fitted ones (`{"patch": Material, "wall": Material, "holder": Material (optional)}` each),
     rendered with the same seed, and the per-pixel ΔE00 between them.
@@ -88,7 +168,10 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     (`white_reference_XYZ`; the white patch is `white_patch`, else `truth["white"]`, else
     ColorChecker 19 of the truth patch's kind), i.e. the normalisation of the comparison
     tables, so image and tables speak the same ΔE.  The sRGB previews use the same white for scale (no white
-    balance: the 3100 K lamp shows warm)."""
+    balance: the 3100 K lamp shows warm).
+
+    With `noise_floor` the truth is rendered once more with an independent seed and the
+    converged region maps are made (see the module docstring, `converged_maps`)."""
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map
 
     nc = normbox_camera_renderer(geometry)
@@ -111,6 +194,15 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     white_Y = float(white[1])
     scene_mask = np.isfinite(img_t.depth_m) & (img_t.slot_id > 0) & \
         (img_t.slot_id != img_t.slot_names.index("panel"))
-    return Figure1(float(angle_deg), img_t, img_f, xyz_t, xyz_f,
-                   XYZ_to_srgb(xyz_t, white_Y), XYZ_to_srgb(xyz_f, white_Y),
-                   delta_e00_map(xyz_t, xyz_f, white), white, source, scene_mask)
+    fig = Figure1(float(angle_deg), img_t, img_f, xyz_t, xyz_f,
+                  XYZ_to_srgb(xyz_t, white_Y), XYZ_to_srgb(xyz_f, white_Y),
+                  delta_e00_map(xyz_t, xyz_f, white), white, source, scene_mask,
+                  target_noise_delta_e=float(target_noise_delta_e))
+    if noise_floor:
+        kw_noise = {**kw, "seed": int(seed) + 7919}          # an independent stream
+        img_n = nc.render(patch=truth["patch"], wall=truth["wall"],
+                          holder=truth.get("holder"), **kw_noise)
+        fig.block_px, fig.delta_e00_blocks, fig.noise_floor_blocks = converged_maps(
+            xyz_t, xyz_f, img_n.XYZ(), img_t.slot_id, scene_mask, white,
+            target_noise_delta_e)
+    return fig

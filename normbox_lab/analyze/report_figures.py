@@ -1,0 +1,386 @@
+"""The report's figures (matplotlib, no pyplot state), all in `report_style`'s style: labelled
+axes with units, colour-blind-safe colours, text at print size.
+
+Each function returns a `matplotlib.figure.Figure`; `report.py` embeds it as inline SVG.
+Error metrics are shown in percent (NRMSE, NSE, fit errors), ΔE00 as is.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from functools import wraps
+from typing import TYPE_CHECKING, Any, TypeVar
+
+import numpy as np
+
+from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
+from normbox_lab.analyze.fit import fit_error_at
+from normbox_lab.analyze.report_style import (
+    FONT_PT,
+    RADIANCE_UNIT,
+    RATING_COLOURS,
+    RATING_TEXT,
+    SEQUENTIAL_CMAP,
+    angle_colours,
+    new_figure,
+    rc,
+)
+
+if TYPE_CHECKING:
+    from normbox_lab.analyze.report import ImageFigure, ReportData
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def styled(func: F) -> F:
+    """Run a figure function inside the report's rcParams (axes read them when created)."""
+
+    @wraps(func)
+    def inner(*args: Any, **kwargs: Any) -> Any:
+        import matplotlib
+
+        with matplotlib.rc_context(rc()):
+            return func(*args, **kwargs)
+
+    return inner  # type: ignore[return-value]
+
+
+def _angle_colourbar(fig: Any, axes: Any, angle_deg: np.ndarray) -> None:
+    """A discrete colour bar for the sample angle (instead of a 13-entry legend)."""
+    from matplotlib.cm import ScalarMappable
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    cols = angle_colours(angle_deg.size)
+    step = float(angle_deg[1] - angle_deg[0]) if angle_deg.size > 1 else 1.0
+    bounds = np.concatenate([angle_deg - step / 2, [angle_deg[-1] + step / 2]])
+    sm = ScalarMappable(norm=BoundaryNorm(bounds, len(cols)), cmap=ListedColormap(cols))
+    if fig.get_layout_engine() is None:                  # a hand-placed grid: own axes
+        cax = fig.add_axes([0.925, 0.15, 0.012, 0.7])
+        cb = fig.colorbar(sm, cax=cax)
+    else:
+        cb = fig.colorbar(sm, ax=axes, fraction=0.025, pad=0.01, aspect=30)
+    ticks = angle_deg if angle_deg.size <= 7 else angle_deg[::2]
+    cb.set_ticks(ticks, labels=[f"{v:g}°" for v in ticks])
+    cb.set_label("sample angle")
+
+
+@styled
+def fig_reference(c: ComparisonResult) -> Any:
+    """Every patch's reference spectra, one panel per patch, colour = sample angle."""
+    n_p = len(c.patch_names)
+    ncol = 6
+    nrow = int(np.ceil(n_p / ncol))
+    height_in = 1.75 * nrow + 0.9
+    fig = new_figure(12.0, height_in, layout=None)
+    fig.subplots_adjust(left=0.075, right=0.9, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
+                        wspace=0.38, hspace=0.45)
+    cols = angle_colours(c.angle_deg.size)
+    axes = fig.subplots(nrow, ncol, sharex=True, squeeze=False)
+    for p in range(nrow * ncol):
+        ax = axes.flat[p]
+        if p >= n_p:
+            ax.set_visible(False)
+            continue
+        for a in range(c.angle_deg.size):
+            ax.plot(c.wavelength_nm, c.reference[p, a], color=cols[a], lw=0.9)
+        ax.set_title(c.patch_names[p], fontsize=FONT_PT["annotation"] + 1, pad=2)
+        ax.set_xticks([400, 550, 700])
+        ax.locator_params(axis="y", nbins=3)
+        ax.tick_params(labelsize=FONT_PT["annotation"])
+    fig.supxlabel("wavelength [nm]")
+    fig.supylabel(f"spectral radiance [{RADIANCE_UNIT}]")
+    _angle_colourbar(fig, axes, c.angle_deg)
+    return fig
+
+
+@styled
+def fig_prediction(c: ComparisonResult, patches: Sequence[int]) -> Any:
+    """Reference (solid) and prediction (dashed) spectra of some patches at every angle."""
+    from matplotlib.lines import Line2D
+
+    patches = [p for p in patches if 0 <= p < len(c.patch_names)]
+    fig = new_figure(12.0, 3.6)
+    cols = angle_colours(c.angle_deg.size)
+    axes = fig.subplots(1, max(len(patches), 1), squeeze=False)[0]
+    for k, p in enumerate(patches):
+        ax = axes[k]
+        for a in range(c.angle_deg.size):
+            ax.plot(c.wavelength_nm, c.reference[p, a], "-", color=cols[a], lw=1.0)
+            ax.plot(c.wavelength_nm, c.prediction[p, a], "--", color=cols[a], lw=1.0)
+        ax.set_title(f"patch {c.patch_names[p]}")
+        ax.set_xlabel("wavelength [nm]")
+        ax.locator_params(axis="y", nbins=4)
+    axes[0].set_ylabel(f"radiance [{RADIANCE_UNIT}]")
+    axes[0].legend([Line2D([], [], color="0.2", ls="-"), Line2D([], [], color="0.2", ls="--")],
+                   ["reference", "prediction"], loc="upper left")
+    _angle_colourbar(fig, axes, c.angle_deg)
+    return fig
+
+
+@styled
+def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: str,
+               key_large: str) -> Any:
+    """The metric per patch (bars, colour = angle) and its scatter against the mean
+    radiance for the small (30–60°) and large (65–90°) sample angles, with Pearson r."""
+    from matplotlib.ticker import MaxNLocator
+
+    from normbox_lab.analyze.compare import LARGE_ANGLES_DEG, SMALL_ANGLES_DEG
+
+    fig = new_figure(12.0, 7.0)
+    gs = fig.add_gridspec(2, 2, height_ratios=[1.0, 1.0])
+    ax = fig.add_subplot(gs[0, :])
+    n_p, n_a = values.shape
+    cols = angle_colours(n_a)
+    width = 0.84 / n_a
+    x = np.arange(n_p)
+    for a in range(n_a):
+        ax.bar(x + (a - (n_a - 1) / 2) * width, values[:, a], width, color=cols[a])
+    ax.set_xticks(x, [str(n) for n in c.patch_names])
+    ax.set_xlim(-0.6, n_p - 0.4)
+    ax.set_xlabel("ColorChecker patch")
+    ax.set_ylabel(label)
+    ax.grid(axis="x", visible=False)
+    _angle_colourbar(fig, ax, c.angle_deg)
+    for k, (rng, key) in enumerate(((SMALL_ANGLES_DEG, key_small), (LARGE_ANGLES_DEG, key_large))):
+        sel = (c.angle_deg >= rng[0] - 1e-9) & (c.angle_deg <= rng[1] + 1e-9)
+        axs = fig.add_subplot(gs[1, k])
+        xs = c.radiance_mean[:, sel]
+        ys = values[:, sel]
+        for j, a in enumerate(np.flatnonzero(sel)):
+            axs.scatter(xs[:, j], ys[:, j], s=14, color=cols[a], edgecolor="none")
+        r = c.correlations.get(key, float("nan"))
+        axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°: Pearson r = {r:.2f}")
+        axs.set_xlabel(f"mean reference radiance [{RADIANCE_UNIT}]")
+        axs.set_ylabel(label)
+        axs.xaxis.set_major_locator(MaxNLocator(nbins=5, min_n_ticks=3))
+    return fig
+
+
+@styled
+def fig_deltae(c: ComparisonResult, adapted: np.ndarray | None = None) -> Any:
+    """ΔE00 heat map(s) patches × angles on the rating scale: the paper's convention and,
+    when given, the adapted one."""
+    from matplotlib.colors import BoundaryNorm, ListedColormap
+
+    from normbox_lab.analyze.compare import rating_index
+
+    maps = [("paper convention (D65 white)", c.delta_e00)]
+    if adapted is not None:
+        maps.append(("adapted to the measured white (CAT02)", adapted))
+    fig = new_figure(6.0 * len(maps), 8.0)
+    axes = fig.subplots(1, len(maps), squeeze=False)[0]
+    cmap = ListedColormap(RATING_COLOURS)
+    top = max(10.0, float(np.nanmax([np.nanmax(m) for _, m in maps])) + 1.0)
+    bounds = [0.0] + [b for b, _ in RATING_SCALE[:-1]] + [top]
+    norm = BoundaryNorm(bounds, cmap.N)
+    im = None
+    for ax, (title, de) in zip(axes, maps, strict=True):
+        im = ax.imshow(de, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
+        for p in range(de.shape[0]):
+            for a in range(de.shape[1]):
+                v = de[p, a]
+                if not np.isfinite(v):
+                    continue
+                ax.text(a, p, f"{v:.1f}", ha="center", va="center",
+                        fontsize=FONT_PT["annotation"] - 1,
+                        color=RATING_TEXT[int(rating_index(v))])
+        ax.set_xticks(range(c.angle_deg.size), [f"{v:g}" for v in c.angle_deg])
+        ax.set_yticks(range(len(c.patch_names)), c.patch_names)
+        ax.set_xlabel("sample angle [°]")
+        ax.set_title(title)
+        ax.grid(False)
+    axes[0].set_ylabel("ColorChecker patch")
+    cb = fig.colorbar(im, ax=axes, ticks=[(bounds[k] + bounds[k + 1]) / 2 for k in range(4)],
+                      fraction=0.04, pad=0.02)
+    cb.ax.set_yticklabels([f"{lab}\n(ΔE00 {_class_range(k)})"
+                           for k, (_, lab) in enumerate(RATING_SCALE)])
+    return fig
+
+
+def _class_range(k: int) -> str:
+    lo = 0.0 if k == 0 else RATING_SCALE[k - 1][0]
+    hi = RATING_SCALE[k][0]
+    return f"> {lo:g}" if not np.isfinite(hi) else (f"≤ {hi:g}" if k == 0 else f"{lo:g}–{hi:g}")
+
+
+@styled
+def fig_rating_counts(counts: Sequence[int], labels: Sequence[str], title: str) -> Any:
+    """One horizontal bar split into the four rating classes, with the counts written in."""
+    from matplotlib.patches import Patch
+
+    fig = new_figure(6.0, 2.6)
+    ax = fig.add_subplot(1, 1, 1)
+    total = max(sum(counts), 1)
+    left = 0.0
+    for k, n in enumerate(counts):
+        ax.barh(0, n, left=left, height=0.8, color=RATING_COLOURS[k])
+        if n / total > 0.04:
+            ax.text(left + n / 2, 0, str(n), ha="center", va="center", color=RATING_TEXT[k],
+                    fontsize=FONT_PT["label"] + 1, fontweight="bold")
+        left += n
+    ax.set_xlim(0, total)
+    ax.set_ylim(-0.5, 0.5)
+    ax.set_yticks([])
+    ax.set_xlabel("patch × angle configurations")
+    ax.set_title(title, loc="left")
+    ax.grid(False)
+    fig.legend([Patch(color=col) for col in RATING_COLOURS],
+               [f"{lab}: {n}" for lab, n in zip(labels, counts, strict=True)],
+               loc="outside lower center", ncol=2, frameon=False)
+    return fig
+
+
+@styled
+def fig_nrmse_by_angle(c: ComparisonResult) -> Any:
+    """NRMSE [%] per sample angle: median over the patches with the full range."""
+    fig = new_figure(6.0, 3.0)
+    ax = fig.add_subplot(1, 1, 1)
+    pct = 100.0 * c.nrmse
+    ax.fill_between(c.angle_deg, np.nanmin(pct, 0), np.nanmax(pct, 0), color="#56B4E9",
+                    alpha=0.35, lw=0, label="range over patches")
+    ax.plot(c.angle_deg, np.nanmedian(pct, 0), "o-", color="#0072B2", ms=4, label="median")
+    ax.plot(c.angle_deg, np.nanmean(pct, 0), "s--", color="#D55E00", ms=3.5, label="mean")
+    ax.set_xticks(c.angle_deg[::2])
+    ax.set_xlabel("sample angle [°]")
+    ax.set_ylabel("NRMSE [%]")
+    ax.set_ylim(bottom=0)
+    ax.legend(loc="upper left")
+    return fig
+
+
+@styled
+def fig_error_model(em: ErrorModelResult, nrmse: np.ndarray | None) -> Any:
+    """Stacked simulated error contributions per angle against the observed NRMSE [%]."""
+    fig = new_figure(8.0, 3.8)
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.asarray(em.angle_deg, dtype=float)
+    cd = 100.0 * np.nanmean(em.contribution_d, axis=0)
+    ci = 100.0 * np.nanmean(em.contribution_i, axis=0)
+    width = 0.7 * (x[1] - x[0]) if x.size > 1 else 1.0
+    ax.bar(x, cd, width, color="#0072B2", label="d·err_d (patch fit)")
+    ax.bar(x, ci, width, bottom=cd, color="#E69F00", label="(1 − d)·err_i (wall fit)")
+    ax.plot(x, 100.0 * np.nanmean(em.simulated_nrmse, axis=0), "^-", color="#000000", ms=5,
+            label="simulated (RMS)")
+    obs = em.observed_nrmse if em.observed_nrmse is not None else nrmse
+    if obs is not None:
+        ax.plot(x, 100.0 * np.nanmean(np.atleast_2d(obs), axis=0), "o--", color="#D55E00",
+                ms=5, label="observed NRMSE")
+    ax.set_xticks(x[::2] if x.size > 7 else x)
+    ax.set_xlabel("sample angle [°]")
+    ax.set_ylabel("error, mean over patches [%]")
+    ax.legend(loc="upper left", ncol=2)
+    return fig
+
+
+@styled
+def fig_nse(c: ComparisonResult, patch: int) -> Any:
+    """NSE [%] spectra of one patch, one panel per sample angle, shared axes."""
+    n_a = c.angle_deg.size
+    ncol = 5
+    nrow = int(np.ceil(n_a / ncol))
+    height_in = 1.9 * nrow + 0.8
+    fig = new_figure(12.0, height_in, layout=None)
+    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
+                        wspace=0.12, hspace=0.35)
+    axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
+    pct = 100.0 * c.nse[patch]
+    lim = float(np.nanmax(np.abs(pct))) if np.isfinite(pct).any() else 1.0
+    for k in range(nrow * ncol):
+        ax = axes.flat[k]
+        if k >= n_a:
+            ax.set_visible(False)
+            continue
+        ax.axhline(0.0, color="0.5", lw=0.7)
+        ax.plot(c.wavelength_nm, pct[k], lw=1.1, color="#0072B2")
+        ax.set_ylim(-1.05 * lim - 1e-12, 1.05 * lim + 1e-12)
+        ax.set_title(f"{c.angle_deg[k]:g}°", pad=2)
+        ax.set_xticks([400, 550, 700])
+    fig.supxlabel("wavelength [nm]")
+    fig.supylabel("NSE (prediction − reference)/reference [%]")
+    return fig
+
+
+@styled
+def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]]] | None:
+    """Paper Fig. 14: NSE at the smallest angle vs the patch fit error at the direct geometry;
+    NSE at the largest angle vs the wall's fit error at a grazing geometry."""
+    from normbox_lab.analyze.compare import direct_light_geometry
+
+    names = list(d.patch_fit_names) if d.patch_fit_names is not None else list(c.patch_names)
+    pairs = [(p, names[p]) for p in d.nse_fit_patches
+             if p < len(names) and names[p] in d.fits and names[p] in d.brdf_data]
+    have_wall = d.wall_name in d.fits and d.wall_name in d.brdf_data
+    if not pairs and not have_wall:
+        return None
+    fig = new_figure(12.0, 6.5)
+    axes = fig.subplots(2, 2, sharex=True)
+    (ax1, ax2), (ax3, ax4) = axes
+    rows: list[list[Any]] = []
+    ti, to = direct_light_geometry(c.angle_deg[0])
+    for k, (p, name) in enumerate(pairs):
+        ax1.plot(c.wavelength_nm, 100.0 * c.nse[p, 0], color=f"C{k}", lw=1.1,
+                 label=f"patch {c.patch_names[p]}")
+        err = fit_error_at(d.fits[name], d.brdf_data[name], float(ti), float(to))
+        ax3.plot(d.brdf_data[name].wavelength_nm, 100.0 * err, color=f"C{k}", lw=1.1,
+                 label=f"patch {c.patch_names[p]}")
+        rows.append([c.patch_names[p], f"{c.angle_deg[0]:g}°",
+                     100.0 * float(np.sqrt(np.nanmean(c.nse[p, 0] ** 2))),
+                     f"patch fit at θi = {float(ti):g}°, θo = {float(to):g}°",
+                     100.0 * float(np.sqrt(np.nanmean(err ** 2)))])
+    ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}° (direct light dominates)")
+    ax3.set_title(f"patch fitting error at θi = {float(ti):g}°, θo = {float(to):g}°")
+    ax2.plot(c.wavelength_nm, 100.0 * np.nanmean(c.nse[:, -1], axis=0), lw=1.1, color="C0",
+             label="mean of patches")
+    ax2.set_title(f"(b) NSE at {c.angle_deg[-1]:g}°, mean over patches (indirect light)")
+    if have_wall:
+        wti, wto = d.wall_geometry_deg
+        werr = fit_error_at(d.fits[d.wall_name], d.brdf_data[d.wall_name], wti, wto)
+        ax4.plot(d.brdf_data[d.wall_name].wavelength_nm, 100.0 * werr, color="C5", lw=1.1)
+        ax4.set_title(f"wall fitting error at θi = {wti:g}°, θo = {wto:g}°")
+        rows.append(["all (mean)", f"{c.angle_deg[-1]:g}°",
+                     100.0 * float(np.sqrt(np.nanmean(np.nanmean(c.nse[:, -1], axis=0) ** 2))),
+                     f"wall fit at θi = {wti:g}°, θo = {wto:g}°",
+                     100.0 * float(np.sqrt(np.nanmean(werr ** 2)))])
+    for ax in (ax1, ax2):
+        ax.axhline(0.0, color="0.5", lw=0.7)
+        ax.set_ylabel("NSE [%]")
+    for ax in (ax3, ax4):
+        ax.axhline(0.0, color="0.5", lw=0.7)
+        ax.set_ylabel("(fit − measured)/measured [%]")
+        ax.set_xlabel("wavelength [nm]")
+    for ax in (ax1, ax3):
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(loc="best")
+    return fig, rows
+
+
+@styled
+def fig_images(f: ImageFigure) -> Any:
+    """The panels side by side at their pixel aspect; scalar maps with a labelled colour bar."""
+    n = len(f.panels)
+    h, w = np.asarray(f.panels[0].data).shape[:2]
+    width_in = min(4.0 * n, 12.0)
+    fig = new_figure(width_in, width_in / n * h / w + 0.9)
+    axes = fig.subplots(1, n, squeeze=False)[0]
+    for ax, p in zip(axes, f.panels, strict=True):
+        data = np.asarray(p.data)
+        if data.ndim == 3:
+            ax.imshow(data if data.dtype == np.uint8 else np.clip(data, 0.0, 1.0))
+        else:
+            finite = data[np.isfinite(data)]
+            vmax = p.vmax if p.vmax is not None else (
+                float(np.percentile(finite, 99)) if finite.size else 1.0)
+            im = ax.imshow(data, cmap=SEQUENTIAL_CMAP, vmin=0.0, vmax=max(vmax, 1e-12))
+            cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, shrink=0.9)
+            if p.unit:
+                cb.set_label(p.unit)
+        ax.set_title(p.label)
+        ax.set_axis_off()
+    return fig
+
+
+@styled
+def in_style(plot: Callable[[], Any]) -> Any:
+    """A figure made elsewhere (`analyze.fit.polar_plot`, `analyze.budget.budget_figure`) in the
+    report's rcParams."""
+    return plot()

@@ -1,0 +1,135 @@
+"""The HTML report read in a real browser (headless Chromium): every figure decodes, nothing
+overflows horizontally at 1280 px, body text is at least 12 px, and each section is
+photographed.
+
+The report is the synthetic campaign's (tests/report_fixtures.py) unless NORMBOX_REPORT_HTML
+names one (e.g. the demo's `demo-out/report.html`); screenshots go to NORMBOX_SCREENSHOT_DIR
+(default: the test's temporary directory).  The report itself carries no script: the test
+checks a copy with one measuring script added, and reads the result from the DOM that
+Chromium dumps.  Chromium is Debian's `chromium` (`make setup` installs it when run as root).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytestmark = pytest.mark.slow
+
+WIDTH_PX = 1280
+FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+         "--disable-background-networking", "--disable-component-update", "--disable-sync",
+         "--hide-scrollbars", "--virtual-time-budget=10000"]
+
+# measures the page after load and writes the result into <body data-check="...">
+CHECK_JS = """
+window.addEventListener('load', () => {
+  const W = window.innerWidth;
+  const imgs = [...document.images];
+  const broken = imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt);
+  const sticking = [];
+  for (const el of document.body.querySelectorAll('*')) {
+    if (el.closest('.scroll') && !el.classList.contains('scroll')) continue;
+    const r = el.getBoundingClientRect();
+    if (r.width > 0 && r.right > W + 0.5) sticking.push(el.tagName + '#' + (el.id || ''));
+  }
+  const scrolling = [...document.querySelectorAll('.scroll')]
+    .filter(s => s.scrollWidth > s.clientWidth + 1)
+    .map(s => s.parentElement.id);
+  let minFont = 1e9, minWhere = '';
+  for (const el of document.body.querySelectorAll('*')) {
+    const own = [...el.childNodes].some(n => n.nodeType === 3 && n.textContent.trim());
+    if (!own) continue;
+    const fs = parseFloat(getComputedStyle(el).fontSize);
+    if (fs < minFont) { minFont = fs; minWhere = el.tagName + ':' + el.textContent.slice(0, 30); }
+  }
+  const sections = [...document.querySelectorAll('section')].map(s => {
+    const r = s.getBoundingClientRect();
+    return {id: s.id, height: r.height};
+  });
+  document.body.setAttribute('data-check', JSON.stringify({
+    width: W, scrollWidth: document.documentElement.scrollWidth, images: imgs.length,
+    broken, sticking: sticking.slice(0, 10), scrolling, minFont, minWhere, sections}));
+});
+"""
+
+
+def _chromium() -> str:
+    for name in ("chromium", "chromium-browser"):
+        path = shutil.which(name)
+        if path:
+            return path
+    pytest.skip("headless Chromium not installed (Debian: apt-get install chromium; "
+                "`make setup` installs it when run as root)")
+
+
+def _run(browser: str, profile: Path, *args: str) -> subprocess.CompletedProcess[str]:
+    profile.mkdir(parents=True, exist_ok=True)
+    return subprocess.run([browser, *FLAGS, f"--user-data-dir={profile}", *args],
+                          capture_output=True, text=True, timeout=180, check=False)
+
+
+@pytest.fixture(scope="module")
+def report_html(tmp_path_factory) -> Path:
+    given = os.environ.get("NORMBOX_REPORT_HTML")
+    if given:
+        return Path(given)
+    from report_fixtures import synthetic_report_data
+
+    from normbox_lab.analyze.report import ImageFigure, ImagePanel, write_report
+
+    data = synthetic_report_data(step_nm=20.0, seed=1)
+    data.polar_materials = ["patch08"]
+    rng = np.random.default_rng(0)
+    data.images = [ImageFigure("fig-camera", "Virtual camera (synthetic panels)",
+                               "Random panels: the layout of an image figure.",
+                               [ImagePanel("truth", rng.uniform(size=(60, 80, 3))),
+                                ImagePanel("prediction", rng.uniform(size=(60, 80, 3))),
+                                ImagePanel("ΔE00", rng.uniform(0, 2, (60, 80)), 2.0, "ΔE00"),
+                                ImagePanel("noise floor", rng.uniform(0, 0.3, (60, 80)), 2.0,
+                                           "ΔE00")])]
+    return write_report(tmp_path_factory.mktemp("browser") / "report.html", data)
+
+
+def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Path) -> None:
+    browser = _chromium()
+    text = report_html.read_text(encoding="utf-8")
+    assert "<script" not in text
+    probe = tmp_path / "probe.html"
+    probe.write_text(text.replace("</body>", f"<script>{CHECK_JS}</script></body>"),
+                     encoding="utf-8")
+    done = _run(browser, tmp_path / "profile", f"--window-size={WIDTH_PX},1000",
+                "--dump-dom", probe.as_uri())
+    m = re.search(r'data-check="([^"]*)"', done.stdout)
+    assert m, f"no measurement in the dumped DOM; chromium said: {done.stderr[-2000:]}"
+    check = json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&"))
+    assert check["width"] == WIDTH_PX
+    figures = text.count("<figure id=")
+    assert check["images"] == figures > 5
+    assert check["broken"] == [], f"figures that do not decode: {check['broken']}"
+    assert check["scrollWidth"] <= WIDTH_PX, check["sticking"]
+    assert check["sticking"] == [], check["sticking"]
+    assert check["scrolling"] == [], f"tables wider than the page: {check['scrolling']}"
+    assert check["minFont"] >= 12.0, check["minWhere"]
+
+    # one screenshot per section: a copy that shows only that section, as tall as it is
+    out = Path(os.environ.get("NORMBOX_SCREENSHOT_DIR", tmp_path / "screens"))
+    out.mkdir(parents=True, exist_ok=True)
+    for k, sec in enumerate(check["sections"]):
+        sid = sec["id"]
+        keep = "nav{display:none}" if k == 0 else "header,nav{display:none}"
+        page = tmp_path / f"section-{sid}.html"
+        page.write_text(text.replace(
+            "</style>", f"section:not(#{sid}){{display:none}}{keep}</style>"), encoding="utf-8")
+        height = int(min(max(sec["height"] + (420 if k == 0 else 80), 400), 6000))
+        shot = out / f"report-{k + 1:02d}-{sid}.png"
+        _run(browser, tmp_path / "profile", f"--window-size={WIDTH_PX},{height}",
+             f"--screenshot={shot}", page.as_uri())
+        assert shot.exists() and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", sid
