@@ -199,3 +199,30 @@ def test_quality_flags_are_listed_with_their_severity():
     assert "No quality flags" in _section(text, "qa")
     text, _f, _t = build_html(ReportData(flags=None))
     assert "No QA data" in _section(text, "qa")
+
+
+def test_report_store_reads_campaign_instruments_and_flags(tmp_path):
+    """report_store: campaign rows, instruments, software versions and flags from the store."""
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze.report_store import (
+        campaign_instruments,
+        campaign_runs,
+        quality_flags,
+        software_versions,
+    )
+
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("reference-sweep", seeds={"noise": 7}, planned=312)
+        store.add_instrument(run.id, "radiometer",
+                             {"model": "CS-1000A", "serial_number": "", "port": "sim://cs1000a"},
+                             {"date": "2026-11-01", "lamp": "NIST-traceable"})
+        rows = campaign_runs(store, [run.id])
+        inst = campaign_instruments(store, [run.id])
+        flags = quality_flags(store, [run.id])
+    assert rows[0]["protocol"] == "reference-sweep" and rows[0]["seeds"] == "noise=7"
+    assert rows[0]["readings"] == "0/312" and rows[0]["date"][:2] == "20"
+    assert inst[0]["model"] == "CS-1000A (emulated)"
+    assert inst[0]["serial"] == "not reported by the device"
+    assert inst[0]["calibration"] == "date: 2026-11-01; lamp: NIST-traceable"
+    assert software_versions()["numpy"] == np.__version__
+    assert flags == []
