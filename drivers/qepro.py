@@ -25,6 +25,7 @@ retries the call once; if it stays away, `InstrumentError`.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -34,7 +35,7 @@ import numpy as np
 from normbox_lab.core import transport
 from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
-from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady, ProtocolError
 
 MIN_INTEGRATION_S = 8e-3
 MAX_INTEGRATION_S = 1600.0
@@ -65,8 +66,21 @@ class QEPro:
         self.simulated = simulated
         self._white_standard: Any = None     # set by the backend that opened the device
         self.integration_time_s = 0.1
-        self._wavelengths = np.asarray(self.spec.wavelengths(), dtype=float)
-        self.max_counts = float(self.spec.max_intensity)
+        try:
+            self._wavelengths = np.asarray(self.spec.wavelengths(), dtype=float)
+            self.max_counts = float(self.spec.max_intensity)
+        except self._errors as exc:
+            raise InstrumentError(f"seabreeze: {exc}", instrument=instrument_id) from exc
+        except (TypeError, ValueError) as exc:
+            raise ProtocolError(f"unreadable wavelength calibration: {exc}",
+                                instrument=instrument_id) from None
+        wl = self._wavelengths
+        if wl.ndim != 1 or wl.size < 16 or not np.all(np.isfinite(wl)) \
+                or np.any(np.diff(wl) <= 0) or not math.isfinite(self.max_counts) \
+                or self.max_counts <= 0:
+            raise ProtocolError(f"implausible device data: {wl.size} wavelengths (they must "
+                                f"increase), max counts {self.max_counts:g}",
+                                instrument=instrument_id)
         self.has_tec = "thermo_electric" in self._features() and \
             bool(self._features()["thermo_electric"])
         self.has_nonlinearity = bool(self._features().get("nonlinearity_coefficients"))
@@ -142,7 +156,11 @@ class QEPro:
                                           f"{self.reconnect_timeout_s:g} s: {exc}",
                                           instrument=self.instrument_id) from exc
                 self.clock.sleep(0.5)
-        self.spec.integration_time_micros(round(self.integration_time_s * 1e6))
+        try:
+            self.spec.integration_time_micros(round(self.integration_time_s * 1e6))
+        except self._errors as exc:
+            raise InstrumentError(f"QE Pro back but not answering: {exc}",
+                                  instrument=self.instrument_id) from exc
 
     # --- the Spectrometer role -----------------------------------------------------------------
     def identify(self) -> InstrumentIdentity:
@@ -172,7 +190,7 @@ class QEPro:
     def acquire(self, correct_dark: bool = True, correct_nonlinearity: bool = True) -> Acquisition:
         """One spectrum with its raw counts and the saturation flag (never raises on it)."""
         nl = correct_nonlinearity and self.has_nonlinearity
-        raw = np.asarray(self._call(lambda: self.spec.intensities(False, False)), dtype=float)
+        raw = self._checked_counts(self._call(lambda: self.spec.intensities(False, False)))
         counts = raw.copy()
         dark_px = self._dark_pixels()
         offset = float(np.mean(raw[dark_px])) if dark_px else 0.0
@@ -188,11 +206,30 @@ class QEPro:
         tec = self.tec_temperature_c() if self.has_tec else float("nan")
         return Acquisition(counts, raw, self.integration_time_s, saturated, tec)
 
+    def _checked_counts(self, values: Any) -> np.ndarray:
+        """The device's counts as floats: one finite value per pixel, or ProtocolError."""
+        try:
+            raw = np.asarray(values, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ProtocolError(f"counts are not numbers: {exc}",
+                                instrument=self.instrument_id) from None
+        if raw.shape != self._wavelengths.shape or not np.all(np.isfinite(raw)):
+            raise ProtocolError(f"counts: {raw.size} values (expected "
+                                f"{self._wavelengths.size}), finite: "
+                                f"{bool(np.all(np.isfinite(raw)))}",
+                                instrument=self.instrument_id)
+        return raw
+
     def _dark_pixels(self) -> list[int]:
         feats = self._features().get("spectrometer")
-        if feats:
-            return list(feats[0].get_electric_dark_pixel_indices())
-        return []
+        if not feats:
+            return []
+        pixels = list(self._call(lambda: feats[0].get_electric_dark_pixel_indices()))
+        if not all(isinstance(p, (int, np.integer)) and 0 <= p < self._wavelengths.size
+                   for p in pixels):
+            raise ProtocolError(f"electric dark pixel indices out of range: {pixels[:8]}",
+                                instrument=self.instrument_id)
+        return [int(p) for p in pixels]
 
     def intensities_counts(self, correct_dark: bool = True,
                            correct_nonlinearity: bool = True) -> np.ndarray:

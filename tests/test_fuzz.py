@@ -224,7 +224,55 @@ def brdf_json(rng: random.Random) -> None:
     parse_brdf_json(_decode_stream(mutate(rng, BRDF_JSON), "f.json"), "f.json", "m")
 
 
+class _HostileSpectrometer:
+    """A seabreeze-shaped device whose answers are wrong in random ways: short, long, NaN or
+    non-numeric counts, out-of-range dark pixels, or a SeaBreezeError (a USB drop)."""
+
+    def __init__(self, inner, rng: random.Random, error: type) -> None:
+        self._inner, self._rng, self._error = inner, rng, error
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def intensities(self, *a):
+        good = np.asarray(self._inner.intensities(*a))
+        return self._rng.choice([
+            lambda: good, lambda: good[:-3], lambda: np.append(good, 1.0),
+            lambda: np.where(np.arange(good.size) == 7, np.nan, good),
+            lambda: ["x"] * good.size, lambda: np.inf * good,
+            lambda: (_ for _ in ()).throw(self._error("USB: device not found"))])()
+
+    def integration_time_micros(self, us):
+        if self._rng.random() < 0.2:
+            raise self._error("USB: device not found")
+        return self._inner.integration_time_micros(us)
+
+
+def qepro_operations(rng: random.Random) -> None:
+    from normbox_lab.drivers.qepro import QEPro
+    from normbox_lab.sim import core
+    from normbox_lab.sim import qepro as simq
+    from normbox_lab.sim.transport import register_url_scheme
+
+    register_url_scheme()
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    simq.device("qepro", clock=clock, light_arm=lambda: 0.0, detector_arm=lambda: 45.0)
+    q = QEPro.open("sim://qepro", clock, reconnect_timeout_s=1.0)
+    q.spec = _HostileSpectrometer(q.spec, rng, simq.SeaBreezeError)
+    q._reopen = None if rng.random() < 0.5 else (lambda: q.spec)
+    for _ in range(3):
+        op = rng.randrange(3)
+        if op == 0:
+            q.acquire()
+        elif op == 1:
+            q.set_integration_time_s(rng.choice([0.01, 0.1, 1.0]))
+        else:
+            q.intensities_counts()
+
+
 PARSERS: dict[str, Callable[[random.Random], None]] = {
+    "qepro-operations": qepro_operations,
     "brdf-json": brdf_json,
     "lab-toml": lab_toml,
     "cs1000a-ascii": cs1000_ascii, "cs1000a-binary": cs1000_binary,

@@ -18,9 +18,9 @@ def test_second_lock_is_refused_at_once_with_the_owner(tmp_path):
     with Store(tmp_path / "s.sqlite") as store:
         run = store.create_run("x")
         lock = store.lock_run(run.id)
-        with Store(tmp_path / "s.sqlite") as other:
-            with pytest.raises(StoreError, match=f"another normbox-lab process \\(pid {os.getpid()}"):
-                other.lock_run(run.uuid)
+        with Store(tmp_path / "s.sqlite") as other, \
+                pytest.raises(StoreError, match=f"another normbox-lab process \\(pid {os.getpid()}"):
+            other.lock_run(run.uuid)
         lock.release()
         store.lock_run(run.id).release()             # free again
         assert not lock.path.exists()
@@ -55,9 +55,9 @@ def test_kill_9_of_the_owner_frees_the_lock(tmp_path):
         run = store.create_run("x")
     child = subprocess.Popen(
         [sys.executable, "-c",
-         "import sys; from normbox_lab.acquire.store import Store; "
-         f"lock = Store({str(path)!r}).lock_run({run.id}); print('locked', flush=True); "
-         "sys.stdin.read()"],
+         ("import sys; from normbox_lab.acquire.store import Store; "
+          f"lock = Store({str(path)!r}).lock_run({run.id}); print('locked', flush=True); "
+          "sys.stdin.read()")],
         stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
     try:
         assert child.stdout.readline().strip() == "locked"

@@ -495,7 +495,8 @@ class Engine:
         for role in (r for r, v in step.requires.items() if v == "stable"):
             lamp = self.instrument(role)
             if isinstance(lamp, LampMonitor):     # the lamp's own monitor, for the drift gate
-                meta["lamp_monitor_cd_m2"] = float(lamp.luminance_cd_m2())
+                meta["lamp_monitor_cd_m2"] = float(self.with_retry(step.key, role,
+                                                                   lamp.luminance_cd_m2))
         kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
         self._quality_gates(step.key)
@@ -572,7 +573,8 @@ class Engine:
         roles = self._light_roles(step)
         for role in roles:
             lamp = require(self.instrument(role), Settling, role, step.key)
-            if lamp.is_stable():
+            # the check talks to the lamp: inside the retry loop like any instrument call
+            if self.with_retry(step.key, role, lamp.is_stable):
                 continue
             self._known.pop(role, None)
             self.state = "suspended"
