@@ -37,6 +37,7 @@ from serial import SerialException
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     DeviceError,
+    ImplausibleData,
     InstrumentError,
     InstrumentTimeout,
     OperatorAbort,
@@ -485,7 +486,8 @@ class KonicaMinoltaRadiometer(SerialRadiometer):
         data = self._read_data()
         why = implausibility(data.spectrum, undefined_to_nan(data.colorimetry_values[1]))
         if why:
-            raise self._protocol(f"implausible data: {why}", data.raw[:200])
+            raise ImplausibleData(f"implausible data: {why}", raw=data.raw[:200],
+                                  instrument=self.instrument_id)
         return data
 
     def _confirmed(self, first: Transfer) -> Transfer:

@@ -115,3 +115,30 @@ def test_qepro_nan_or_short_counts_are_protocol_errors():
                 q.acquire()
     finally:
         core.CONTEXT.reset()
+
+
+def test_implausible_data_is_retried_and_recorded_as_a_quality_flag(tmp_path):
+    from engine_fakes import FakeLab
+
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import ImplausibleData
+
+    lab = FakeLab()
+    real = lab.radiometer.measure
+    calls = {"n": 0}
+
+    def corrupted_once():
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise ImplausibleData("implausible data: band 500 nm is 40.1", raw=b"4.01e1",
+                                  instrument="radiometer")
+        return real()
+
+    lab.radiometer.measure = corrupted_once
+    with Store(tmp_path / "s.sqlite") as store:
+        plan = eng.build_plan("reference-sweep", {"angles_deg": [30], "patches": [1, 2]}, lab)
+        res = eng.Engine(lab, store, plan).run()
+        assert res.status == "done" and res.done == 2
+        flags = store.flag_rows(run_id=res.run_id)
+        assert [f["gate"] for f in flags] == ["instrument-error:implausible-data"]

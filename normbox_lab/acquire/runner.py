@@ -52,6 +52,7 @@ from normbox_lab.core.capabilities import (
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     DeviceError,
+    ImplausibleData,
     InstrumentError,
     NormboxError,
     NotReady,
@@ -225,6 +226,9 @@ class Engine:
             self._known.pop(role, None)
             if isinstance(exc, DeviceError) and self._gates is not None:
                 self._gates.device_error(key, role, str(exc.code), exc.meaning)
+            if isinstance(exc, ImplausibleData) and self._gates is not None:
+                # corrupted on the wire and refused after re-reads: a quality flag too
+                self._gates.device_error(key, role, "implausible-data", str(exc))
             if transient and attempt < self.retry.attempts:
                 self._emit("warning", key, message=f"{role}: {exc} — retry "
                            f"{attempt}/{self.retry.attempts - 1}")

@@ -4,6 +4,7 @@
     ├── InstrumentError
     │   ├── InstrumentTimeout   no (complete) reply in time
     │   ├── ProtocolError       bytes that make no sense; carries the raw bytes
+    │   │   └── ImplausibleData well-formed bytes whose values cannot be a measurement
     │   ├── DeviceError         the device said no; carries its code and meaning
     │   └── NotReady            the device cannot do this now (not homed, lamp warming, ...)
     ├── ConfigError             a lab config problem; names file, line and field
@@ -37,6 +38,11 @@ class ProtocolError(InstrumentError):
     def __init__(self, message: str, *, raw: bytes = b"", instrument: str = "") -> None:
         self.raw = bytes(raw)
         super().__init__(f"{message} (raw={self.raw!r})", instrument=instrument)
+
+
+class ImplausibleData(ProtocolError):
+    """Well-formed data that cannot be a measurement (out of range, an isolated band far off
+    its neighbours, Lv inconsistent with the spectrum): corrupted on a wire without checksum."""
 
 
 class DeviceError(InstrumentError):
