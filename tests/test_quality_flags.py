@@ -3,6 +3,8 @@ in `normbox_lab.analyze.qa` and on the `normbox-lab qa` command line."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -194,6 +196,11 @@ def test_fit_not_converged_and_at_bounds(tmp_path):
         assert [f.key for f in found["fit-not-converged"]] == ["p03"]
         assert found["fit-not-converged"][0].severity == "error"
         assert "fit-outlier" not in found            # 4–6 %: no outlier
+        # closure-like fits (all tiny): 3 × the median is no outlier below 2 %
+        tiny = {n: (aid, dataclasses.replace(f, fit_error_pct=e)) for (n, (aid, f)), e in
+                zip(fits.items(), (0.01, 0.01, 0.03), strict=True)}
+        qa.check_fits(store, run, tiny)
+        assert "fit-outlier" not in gates_of(store, run)
 
 
 def test_prediction_standard_error_above_target(tmp_path):

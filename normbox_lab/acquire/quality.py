@@ -62,6 +62,8 @@ LIMIT_SOURCES: dict[str, str] = {
                            "15 % is clearly out of family",
     "fit_outlier_factor": "a material whose fit error exceeds this multiple of the median of "
                           "all materials' fit errors",
+    "fit_outlier_min_pct": "…and exceeds this absolute fit error (below it the fit is within "
+                           "the gonio's ±0.7 % white-standard uncertainty, a few times over)",
     "prediction_rel_se_limit": "Monte-Carlo standard error per band relative to the "
                                "radiance: 1 % (the fast renderer's default target is 0.4 %)",
 }
@@ -82,6 +84,7 @@ class QualityLimits:
     radiometer_max_luminance_cd_m2: float = 80_000.0
     fit_error_limit_pct: float = 15.0
     fit_outlier_factor: float = 2.5
+    fit_outlier_min_pct: float = 2.0
     prediction_rel_se_limit: float = 0.01
 
 

@@ -174,7 +174,8 @@ def provenance(accepted: Iterable[Flag]) -> dict[str, Any]:
 def check_fits(store: Any, brdf_run: int | str, fits: Mapping[str, tuple[int, Any]],
                limits: QualityLimits | None = None) -> list[Flag]:
     """Gates on a set of fits (name → (artifact id, MaterialFit)): fit error above the limit
-    (warning), an outlier against the median of all materials (error), not converged
+    (warning), an outlier against the median of all materials (error; only above
+    `fit_outlier_min_pct`), not converged
     (error), parameters at their bounds (warning)."""
     import numpy as np
 
@@ -190,7 +191,7 @@ def check_fits(store: Any, brdf_run: int | str, fits: Mapping[str, tuple[int, An
                               run=brdf_run, artifact=aid, key=name, value=e,
                               limit=limits.fit_error_limit_pct))
         if len(errors) >= 3 and math.isfinite(median) and median > 0 and \
-                e > limits.fit_outlier_factor * median:
+                e > limits.fit_outlier_factor * median and e > limits.fit_outlier_min_pct:
             out.append(record(store, "fit-outlier", "error",
                               f"fit error {e:.2f} % is {e / median:.1f} × the median "
                               f"{median:.2f} % of {len(errors)} materials",
