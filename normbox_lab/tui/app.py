@@ -683,6 +683,12 @@ class NormboxConsole(App):
 
     # --- periodic refresh (throttled: at time scale 0 readings arrive in bursts) -------------
     def _tick(self) -> None:
+        try:
+            self._refresh_dirty()
+        except NoMatches:          # the console is closing: the widgets are gone
+            pass
+
+    def _refresh_dirty(self) -> None:
         if not self.panes_built:
             return
         if self._spectrum_dirty:
