@@ -92,10 +92,17 @@ class DarkFrame:
     tec_temperature_c: float
     taken_s: float                  # clock.now_s() when taken
     drift_counts_s: float | None = None   # dark-current change since the previous dark
+    drift_sigma_counts_s: float | None = None   # its standard uncertainty (frame noise)
 
     @property
     def rate_counts_s(self) -> float:
         return float(np.mean(self.counts)) / self.integration_time_s
+
+    @property
+    def rate_sigma_counts_s(self) -> float:
+        """Standard error of `rate_counts_s` from the frame's own pixel scatter."""
+        n = max(int(np.size(self.counts)), 1)
+        return float(np.std(self.counts)) / math.sqrt(n) / self.integration_time_s
 
     def valid_for(self, integration_time_s: float, tec_temperature_c: float, now_s: float,
                   tec_tolerance_c: float, max_age_s: float) -> bool:
@@ -241,9 +248,11 @@ class Gonioreflectometer:
         frame = DarkFrame(self._new_id(), acq.counts, float(integration_time_s),
                           float(acq.tec_temperature_c), self.clock.now_s())
         if self._last_dark is not None:
+            prev = self._last_dark
             frame = DarkFrame(frame.dark_id, frame.counts, frame.integration_time_s,
                               frame.tec_temperature_c, frame.taken_s,
-                              frame.rate_counts_s - self._last_dark.rate_counts_s)
+                              frame.rate_counts_s - prev.rate_counts_s,
+                              math.hypot(frame.rate_sigma_counts_s, prev.rate_sigma_counts_s))
         self._last_dark = frame
         self._darks[key] = frame
         self.darks_taken += 1
@@ -362,6 +371,7 @@ class Gonioreflectometer:
                       "dark_age_s": self.clock.now_s() - dark.taken_s,
                       "dark_new": self.darks_taken > darks_before,
                       "dark_drift_counts_s": dark.drift_counts_s,
+                      "dark_drift_sigma_counts_s": dark.drift_sigma_counts_s,
                       "peak_signal_counts": float(np.max(acq.counts - dark.counts)),
                       "peak_counts": float(np.max(acq.raw_counts)),
                       "full_scale_counts": float(full)})

@@ -18,7 +18,7 @@ brdf-negative          error     min BRDF < −`brdf_negative_per_sr` (unblocked
 saturation             warning   peak raw counts > `saturation_fraction` × full scale
 noise-floor            warning   peak dark-corrected counts < `noise_floor_counts`
 dark-drift             warning   |dark current change| between consecutive darks >
-                                 `dark_drift_counts_s`
+                                 `dark_drift_counts_s` + 3σ of the change (frame noise)
 tec-off-setpoint       error     |TEC − set point| > `tec_tolerance_c` during a reading
 lamp-drift             warning   sphere monitor (its own MEAS:LUM?) changed by more than
                                  `lamp_drift_percent` since the run's first reading
@@ -201,12 +201,14 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
                             f"peak signal {float(signal):.0f} counts is below the noise floor "
                             f"{limits.noise_floor_counts:g}"))
     drift = metadata.get("dark_drift_counts_s")
-    if metadata.get("dark_new") and drift is not None and \
-            abs(float(drift)) > limits.dark_drift_counts_s:
-        out.append(FlagSpec(key, "dark-drift", "warning", float(drift),
-                            limits.dark_drift_counts_s,
+    # the limit plus 3 σ of the estimate itself (short darks give a noisy dark rate)
+    limit = limits.dark_drift_counts_s + 3.0 * float(metadata.get("dark_drift_sigma_counts_s")
+                                                     or 0.0)
+    if metadata.get("dark_new") and drift is not None and abs(float(drift)) > limit:
+        out.append(FlagSpec(key, "dark-drift", "warning", float(drift), limit,
                             f"dark current changed by {float(drift):+.0f} counts/s since the "
-                            f"previous dark (limit ±{limits.dark_drift_counts_s:g})"))
+                            f"previous dark (limit ±{limits.dark_drift_counts_s:g} + 3σ of the "
+                            f"estimate = ±{limit:.0f})"))
     tec, sp = metadata.get("tec_temperature_c"), metadata.get("tec_setpoint_c")
     if tec is not None and sp is not None and math.isfinite(float(tec)) and \
             math.isfinite(float(sp)) and abs(float(tec) - float(sp)) > limits.tec_tolerance_c:
