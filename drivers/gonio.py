@@ -58,6 +58,8 @@ WHITE_TARGET_FRACTION = 0.6
 #: auto-ranging keeps the peak below this fraction of full scale where it can (the CCD is
 #: nonlinear beyond the stored correction near full scale)
 RANGE_CEILING_FRACTION = 0.95
+#: electrically dark pixels the dark-pixel (offset) correction averages (QE Pro: 0–3, 1040–1043)
+OFFSET_PIXELS = 8
 
 #: calibration-validity defaults (overridable per lab: ``[instruments.spectrometer]`` options
 #: are the QE Pro's; these are the gonio's).  The QE Pro data sheet gives the TEC set point
@@ -100,9 +102,12 @@ class DarkFrame:
 
     @property
     def rate_sigma_counts_s(self) -> float:
-        """Standard error of `rate_counts_s` from the frame's own pixel scatter."""
+        """Standard error of `rate_counts_s` from the frame's own pixel scatter: the mean of
+        its pixels, and the electrical offset subtracted from all of them, estimated from the
+        QE Pro's 8 electrically dark pixels (common to the whole frame, and dominant)."""
         n = max(int(np.size(self.counts)), 1)
-        return float(np.std(self.counts)) / math.sqrt(n) / self.integration_time_s
+        sd = float(np.std(self.counts))
+        return sd * math.sqrt(1.0 / n + 1.0 / OFFSET_PIXELS) / self.integration_time_s
 
     def valid_for(self, integration_time_s: float, tec_temperature_c: float, now_s: float,
                   tec_tolerance_c: float, max_age_s: float) -> bool:
