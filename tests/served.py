@@ -16,11 +16,16 @@ from normbox_lab.core.clock import RealClock
 from normbox_lab.sim import core, serve
 
 
+NO_WORLD = object()
+
+
 @contextlib.contextmanager
 def served(device: str, transport: str, **options: str) -> Iterator[serve.TcpServer |
                                                                   serve.PtyServer]:
     """Yield the running server (`.url` for pyserial, `.path` for a pty, `.emulator`)."""
-    emulator = core.create(device, clock=RealClock(), **options)
+    # not the process-wide world another test may have left in `core.CONTEXT`: with a world
+    # that has nothing to say, the radiometers see their default light
+    emulator = core.create(device, clock=RealClock(), world=NO_WORLD, **options)
     emulator.prepare()
     server = serve.PtyServer(emulator) if transport == "pty" else \
         serve.TcpServer(emulator, "127.0.0.1", 0)
