@@ -15,7 +15,6 @@ from serial.urlhandler import protocol_socket
 from normbox_lab.core.clock import RealClock
 from normbox_lab.sim import core, serve
 
-
 NO_WORLD = object()
 
 
