@@ -24,13 +24,15 @@ NRMSE_FLOOR = 0.005
 DELTA_E00_MAX = 0.2
 
 
-def _world():
+def _world(target_rel_se: float | None = None):
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
     from normbox_lab.demo import DemoOptions, make_world
 
     config = parse_config(SIM_CONFIG_TEMPLATE.replace(
         'quality = "default"', 'quality = "default"\ntruth = "model"'))
     world, render = make_world(config, DemoOptions(truth="model"), "default")
+    if target_rel_se is not None:          # both truth and prediction (the render reads it)
+        world.target_rel_se = target_rel_se
     # the truth's noise drawn independently of the prediction's, at the same target
     world.errors = dataclasses.replace(world.errors, render_rel_se=world.target_rel_se)
     return world, render
@@ -68,9 +70,9 @@ def _reference_run(store, world, patches, angles):
     return run.id, se
 
 
-def closure(tmp_path, patches, angles):
+def closure(tmp_path, patches, angles, target_rel_se=None):
     patches = sorted(patches)                  # the comparison's order
-    world, render = _world()
+    world, render = _world(target_rel_se)
     with Store(tmp_path / "closure.sqlite") as store:
         brdf = _gonio_run(store, patches)
         ref, truth_se = _reference_run(store, world, patches, angles)
@@ -104,9 +106,16 @@ def test_closure_independent_noise_small(tmp_path):
     _check(c, limit, combined)
 
 
+#: Monte-Carlo target of the full closure: at the default 0.4 % per band, independent noise
+#: alone gives ΔE00 up to ~0.26 on a few of the 312 configurations (varies with the seed:
+#: patch 6 at 70° 0.22 / 0.13 / 0.04 for three truth seeds); 0.2 % halves it.
+FULL_TARGET_REL_SE = 0.002
+
+
 @pytest.mark.slow
 def test_closure_independent_noise_all_312(tmp_path):
-    c, limit, combined = closure(tmp_path, list(range(1, 25)), list(range(30, 91, 5)))
+    c, limit, combined = closure(tmp_path, list(range(1, 25)), list(range(30, 91, 5)),
+                                 target_rel_se=FULL_TARGET_REL_SE)
     assert c.nrmse.shape == (24, 13)
     _check(c, limit, combined)
     print(f"closure 312: NRMSE max {100 * np.nanmax(c.nrmse):.3f} % (limit min "
