@@ -52,7 +52,8 @@ def campaign():
 def _budget(campaign, ref, spec):
     _, pred, se, der, _ = campaign
     x = BudgetInputs(RADIOMETER_WAVELENGTHS_NM, np.array(ANGLES), PATCHES, ref, pred, se,
-                     der["d_angle"], der["d_geometry_rel"], der["d_homogeneity_rel"], None, 0)
+                     der["d_angle"], der["d_geometry_rel"], der["d_homogeneity_rel"], None, 0,
+                     shared_noise=True)
     return compute_budget(x, parse_error_spec(spec), n_draws=64)
 
 

@@ -16,7 +16,7 @@ per sweep angle, per campaign), linearised where that is accurate:
 | gonio-cal | u · P (the fitted BRDFs scale with the calibration) | — |
 | qepro-nonlin | −x · P / 2 (mean of the residual compression over a reading, fixed sign) | linear model |
 | qepro-snr | P · N(0, 1/(SNR·√n_geometries)) per material (noise averaged by the fit) | linear model |
-| render | N(0, SE_pred) (+ N(0, x·P) with the `render` switch) | the prediction's standard errors |
+| render | N(0, SE_pred) (+ the truth's, SE_pred scaled to a worst band of x, with the `render` switch; none on a virtual run with shared seeds) | the prediction's standard errors |
 | fit | R · (d·err_d + (1 − d)·err_i) (the paper's error model, Fig. 12) | the fits' residuals |
 
 A source's contribution is the RMS over its draws of NRMSE(R, R + δ) (and the mean ΔE00(R, R + δ)):
@@ -65,6 +65,9 @@ class BudgetInputs:
     d_homogeneity_rel: np.ndarray | None = None            # [angle, λ] per unit fraction
     fit_nse: np.ndarray | None = None                      # error model's simulated NSE
     white_patch_index: int = 0
+    #: the virtual Normbox renders truth and prediction with the same seeds: their Monte-Carlo
+    #: noise cancels unless the `render` source gives the truth its own
+    shared_noise: bool = False
 
 
 @dataclass
@@ -154,9 +157,16 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
     if name == "fit":
         return None if x.fit_nse is None else (R * x.fit_nse)[None]
     if name == "render":
-        se = x.prediction_se[None] * rng.standard_normal((K,) + R.shape)
+        if x.shared_noise and not errors.render_rel_se:
+            return None            # truth and prediction share their random numbers
+        se = x.prediction_se[None] * _band_noise(rng, K, R.shape, x.wavelength_nm)
         if errors.render_rel_se:
-            se = se + errors.render_rel_se * P[None] * rng.standard_normal((K,) + R.shape)
+            # the truth rendered to a largest band error x: the prediction's SE spectrum scaled
+            with np.errstate(divide="ignore", invalid="ignore"):
+                worst = np.nanmax(np.where(P > 0, x.prediction_se / P, 0.0), axis=-1)
+            scale = errors.render_rel_se / np.maximum(worst, 1e-12)
+            se = se + (x.prediction_se * scale[..., None])[None] * _band_noise(
+                rng, K, R.shape, x.wavelength_nm)
         return se
     if not errors.is_on(name):
         return None
@@ -202,6 +212,20 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
         sigma = 1.0 / (errors.qepro_snr * np.sqrt(N_GONIO_GEOMETRIES))
         return rng.normal(0.0, sigma, (K, n_p, 1, 1)) * P[None]
     raise ValueError(f"unknown budget source {name!r}")
+
+
+def _band_noise(rng: np.random.Generator, n_draws: int, shape: tuple[int, ...],
+                wavelength_nm: np.ndarray) -> np.ndarray:
+    """Unit normal noise drawn per 5 nm render band and interpolated to the grid, as the
+    renders' noise is (the 1 nm spectra are the bands interpolated)."""
+    from normbox_lab.predict.render import BAND_CENTRES_NM
+
+    z = rng.standard_normal((n_draws,) + shape[:-1] + (BAND_CENTRES_NM.size,))
+    idx = np.interp(wavelength_nm, BAND_CENTRES_NM, np.arange(BAND_CENTRES_NM.size))
+    lo = np.floor(idx).astype(int)
+    hi = np.minimum(lo + 1, BAND_CENTRES_NM.size - 1)
+    t = idx - lo
+    return z[..., lo] * (1 - t) + z[..., hi] * t
 
 
 def _nrmse(ref: np.ndarray, other: np.ndarray) -> np.ndarray:
@@ -374,6 +398,16 @@ def _latest_run(store: Any, protocol: str) -> Any:
     return runs[-1] if runs else None
 
 
+def _virtual_run(lab_config_text: str) -> bool:
+    """A run of the demo's virtual Normbox with an error spec (fast renderer, shared seeds)."""
+    import tomllib
+
+    try:
+        return bool(tomllib.loads(lab_config_text or "").get("render", {}).get("errors"))
+    except tomllib.TOMLDecodeError:
+        return False
+
+
 def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
                       with_geometry: bool = True,
                       progress: Callable[[str, int, int], None] | None = None
@@ -422,7 +456,7 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     x = BudgetInputs(ref.wavelength_nm, ref.angle_deg, list(ref.patches), ref.radiance,
                      pred["radiance"], pred["std_error"], der["d_angle"],
                      der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
-                     white)
+                     white, shared_noise=_virtual_run(run.lab_config))
     return x, timings
 
 
