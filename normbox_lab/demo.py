@@ -37,7 +37,6 @@ QUICK_ANGLES = [30, 60, 90]
 FULL_ANGLES = list(range(30, 91, 5))
 
 #: target largest relative standard error per 5 nm band of the fast renderer, per quality
-FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
 
 
 @dataclass
@@ -128,7 +127,7 @@ def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Calla
 
     if opts.renderer == "stock":
         return VirtualNormbox(config=config), None
-    from normbox_lab.predict.fastrender import FastNormbox, config_seed
+    from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox, config_seed
 
     world_cls = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})
     world = world_cls(config=config)

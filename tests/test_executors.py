@@ -24,13 +24,20 @@ def test_unknown_executor_is_refused():
         make_executor("mpi")
 
 
-@pytest.mark.skipif(dask_available(), reason="dask is installed")
-def test_dask_missing_says_how_to_install():
+def test_dask_missing_says_how_to_install(monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "distributed", None)     # as if the extra were missing
+    assert not dask_available()
     with pytest.raises(ImportError, match="normbox-lab\\[scale\\]"):
         make_executor("dask")
 
 
-@pytest.mark.skipif(not dask_available(), reason="dask.distributed not installed")
+def test_ray_is_not_an_executor():
+    with pytest.raises(ValueError, match="unknown executor 'ray'"):
+        make_executor("ray")
+
+
 def test_local_dask_cluster_gives_the_in_process_spectra():
     from normbox_lab.predict import materials as mats
     from normbox_lab.predict.fastrender import predict_spectra
@@ -52,3 +59,12 @@ def test_local_dask_cluster_gives_the_in_process_spectra():
     np.testing.assert_array_equal(there.radiance, here.radiance)
     np.testing.assert_array_equal(there.std_error, here.std_error)
     np.testing.assert_array_equal(there.n_paths, here.n_paths)
+
+
+def test_predict_cli_address_needs_the_dask_executor(tmp_path, capsys):
+    from normbox_lab.cli import main
+
+    rc = main(["predict", "1", "--address", "tcp://scheduler:8786",
+               "--store", str(tmp_path / "s.sqlite")])
+    assert rc == 2
+    assert "--address names a dask scheduler" in capsys.readouterr().err

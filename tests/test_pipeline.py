@@ -114,3 +114,24 @@ def test_default_truth_nrmse_flat_to_60_then_rising(tmp_path):
     low = by_angle[:3]                       # 30, 45, 60
     assert low.max() - low.min() < 0.5 * low.mean(), by_angle        # flat
     assert by_angle[3] > low.mean() and by_angle[4] > by_angle[3], by_angle  # rising
+
+
+def test_predict_on_an_executor_closes_within_its_noise(tmp_path):
+    """`predict --executor`: the fast renderer as independent jobs (here in process; dask gives
+    identical spectra, test_executors).  Its random numbers are independent of the truth's, so
+    the closure holds within 0.5 % plus three combined standard errors."""
+    from normbox_lab.predict.executors import make_executor
+
+    world, _ = _world("model")
+    with Store(tmp_path / "s.sqlite") as store:
+        brdf = _gonio_run(store, "model")
+        ref = _reference_run(store, world)
+        fit_run(store, brdf)
+        with make_executor("inprocess") as ex:
+            predict_run(store, ref, quality="quick", executor=ex)
+        pred = store.latest_artifact("prediction", f"ref-run-{store.get_run(ref).id}")
+        assert pred.metadata["executor"] == "inprocess"
+        rel_se = pred.arrays["std_error"] / pred.arrays["radiance"]
+        c = compare_run(store, ref, brdf)
+    combined = np.sqrt(2.0) * np.sqrt(np.mean(rel_se ** 2, axis=-1))      # truth has the same
+    assert np.all(c.nrmse <= 0.005 + 3.0 * combined), (c.nrmse, combined)

@@ -137,10 +137,17 @@ def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
 def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None = None,
                 geometry: Any = None, quality: str = "default", lamp: Any = None,
                 render: Callable[..., Any] | None = None,
-                progress: ProgressFn = _noop, accept_flagged: bool = False) -> int:
+                progress: ProgressFn = _noop, accept_flagged: bool = False,
+                executor: Any = None) -> int:
     """Render every patch × angle of the reference run with the fitted materials.  Error
     flags on the reference run or on the (stored) fits used are refused unless
-    `accept_flagged`."""
+    `accept_flagged`.
+
+    `executor` (an `executors.make_executor(...)`: in process, or a dask cluster): predict all
+    patch × angle configurations with the fast band-vector renderer
+    (`fastrender.predict_spectra`) as independent jobs on it, at the relative standard error
+    of `quality` (`FAST_TARGET_REL_SE`); the results do not depend on the executor.  Without
+    one, each configuration goes through `render` (default: the stock Mitsuba renderer)."""
     from normbox_lab.analyze import qa
     from normbox_lab.predict.materials import Material, holder_material
     from normbox_lab.predict.render import render_view
@@ -164,15 +171,41 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
     out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
     err = np.zeros_like(out)
     total, done, t0 = n_p * n_a + n_a, 0, time.perf_counter()
-    for pi, p in enumerate(ref.patches):
-        mat = Material.from_fit(fits[fit_key(p)])
-        for ai, a in enumerate(ref.angle_deg):
-            progress("predict", done, total)
-            r = render(geometry, patch=mat, wall=wall, holder=holder, angle_deg=float(a),
-                       lamp=lamp, quality=quality)
-            out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
-            err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
-            done += 1
+    if executor is not None:
+        from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, predict_spectra
+
+        progress("predict", done, total)
+        mats = {fit_key(p): Material.from_fit(fits[fit_key(p)]) for p in ref.patches}
+        pred = predict_spectra(mats, ref.angle_deg, wall=wall, holder=holder, lamp=lamp,
+                               geometry=geometry, target_rel_se=FAST_TARGET_REL_SE[quality],
+                               seed=1, executor=executor)
+        for pi, p in enumerate(ref.patches):
+            for ai, a in enumerate(ref.angle_deg):
+                rad, se = pred.spectrum(fit_key(p), float(a))
+                out[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, rad)
+                err[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, se)
+        done = n_p * n_a
+        if render is render_view:              # the light shares with the same renderer
+            from normbox_lab.predict.fastrender import FastNormbox
+
+            fast = FastNormbox(geometry)
+
+            def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
+                       direct_only=False):
+                return fast.render_view(patch=patch, wall=wall, holder=holder,
+                                        angle_deg=angle_deg, lamp=lamp, seed=1,
+                                        target_rel_se=FAST_TARGET_REL_SE[quality or "default"],
+                                        direct_only=direct_only)
+    else:
+        for pi, p in enumerate(ref.patches):
+            mat = Material.from_fit(fits[fit_key(p)])
+            for ai, a in enumerate(ref.angle_deg):
+                progress("predict", done, total)
+                r = render(geometry, patch=mat, wall=wall, holder=holder, angle_deg=float(a),
+                           lamp=lamp, quality=quality)
+                out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+                err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
+                done += 1
     # direct-only renders of the white patch (or the first) for the light shares per angle
     wp = WHITE_PATCH if WHITE_PATCH in ref.patches else ref.patches[0]
     wmat = Material.from_fit(fits[fit_key(wp)])
@@ -190,6 +223,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
          "patches": np.array(ref.patches, dtype=float), "radiance": out, "std_error": err,
          "direct_white": direct, "full_white": out[ref.patches.index(wp)]},
         metadata={"quality": quality, "white_patch": wp,
+                  "executor": getattr(executor, "name", None) or "none",
                   "render_s": time.perf_counter() - t0,
                   "fits": {n: fits[n].name for n in need}, **qa.provenance(accepted)},
         run_ref=ref_run)

@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                          "(normbox_lab.predict.bench)")
     pr.add_argument("--target", type=float, default=None,
                     help="relative standard error per band to reach (default 0.002)")
-    pr.add_argument("--executor", default=None, choices=("inprocess", "dask", "ray"))
+    pr.add_argument("--executor", default=None, choices=("inprocess", "dask"))
     pr.add_argument("--workers", type=int, default=None, help="cluster workers (dask/ray)")
     pr.add_argument("--address", default=None, help="an existing dask/ray cluster")
     pr.add_argument("--quick", action="store_true", help="a smoke run (4 patches × 3 angles)")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 
 from normbox_lab.commands.common import add_store_argument
 
@@ -23,6 +24,14 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "latest fits (spectral, with Monte-Carlo standard error).")
     p.add_argument("run", metavar="REFERENCE_RUN_ID")
     p.add_argument("--quality", default="default", choices=("quick", "default", "high"))
+    p.add_argument("--executor", choices=("inprocess", "dask"), default=None,
+                   help="predict with the fast band-vector renderer, as independent jobs in "
+                        "this process or on a dask.distributed cluster (default: the stock "
+                        "Mitsuba renderer, one configuration after the other)")
+    p.add_argument("--workers", type=int, default=2, metavar="N",
+                   help="dask: worker processes of a new local cluster (default 2)")
+    p.add_argument("--address", metavar="URL", default=None,
+                   help="dask: an existing cluster's scheduler, e.g. tcp://scheduler:8786")
     p.add_argument("--light-map", metavar="RUN_ID",
                    help="take the lamp luminance from this light-map run")
     _accept_flagged(p)
@@ -93,13 +102,28 @@ def _print_artifact_flags(store, kind: str) -> int:
 
 def _predict(args: argparse.Namespace) -> int:
     from normbox_lab.analyze.pipeline import lamp_from_light_map, predict_run
+    from normbox_lab.predict.executors import make_executor
 
+    if args.address and args.executor != "dask":
+        print("normbox-lab predict: error: --address names a dask scheduler: use it with "
+              "--executor dask", file=sys.stderr)
+        return 2
     with _open(args) as store:
-        aid = predict_run(store, args.run, quality=args.quality,
-                          lamp=lamp_from_light_map(store, args.light_map),
-                          progress=lambda s, d, t: print(f"\rpredict {d}/{t}", end="",
-                                                         flush=True),
-                          accept_flagged=args.accept_flagged)
+        lamp = lamp_from_light_map(store, args.light_map)
+        try:
+            executor = (make_executor(args.executor, workers=args.workers,
+                                      address=args.address) if args.executor else None)
+        except (ImportError, OSError) as exc:       # no dask, or no scheduler at --address
+            print(f"normbox-lab predict: error: {exc}", file=sys.stderr)
+            return 2
+        try:
+            aid = predict_run(store, args.run, quality=args.quality, lamp=lamp,
+                              progress=lambda s, d, t: print(f"\rpredict {d}/{t}", end="",
+                                                             flush=True),
+                              accept_flagged=args.accept_flagged, executor=executor)
+        finally:
+            if executor is not None:
+                executor.close()
         print(f"\nprediction stored (artifact {aid})")
     return 0
 

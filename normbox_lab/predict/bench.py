@@ -7,7 +7,7 @@ with).  Bands: 81 triangular 5 nm hats, 380–780 nm.
 
 - Fast: `fastrender.predict_spectra` renders all configurations to the target (largest relative
   standard error over the bands ≤ `target`, 0.2 % by default), in process or with
-  `--executor dask|ray`; its wall time for all of them is the headline figure.
+  `--executor dask`; its wall time for all of them is the headline figure.
 - Baseline, in the same run: stock Mitsuba `llvm_ad_spectral` (4 hero wavelengths per path,
   `specfilm` with the same 81 hats, the project's `normbox` BSDF; `render.render_view`,
   uncached) on a few configurations (default 3: patch 19 at 30°, 13 at 60°, 24 at 90°) at a
@@ -50,9 +50,10 @@ def _parser() -> argparse.ArgumentParser:
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--target", type=float, default=0.002,
                    help="relative standard error per band to reach (default 0.002)")
-    p.add_argument("--executor", default="inprocess", choices=("inprocess", "dask", "ray"))
-    p.add_argument("--workers", type=int, default=2, help="cluster workers (dask/ray)")
-    p.add_argument("--address", default=None, help="an existing dask/ray cluster")
+    p.add_argument("--executor", default="inprocess", choices=("inprocess", "dask"))
+    p.add_argument("--workers", type=int, default=2, help="cluster workers (dask)")
+    p.add_argument("--address", default=None,
+                   help="an existing dask cluster's scheduler, e.g. tcp://scheduler:8786")
     p.add_argument("--quick", action="store_true",
                    help="4 patches × 3 angles and a small baseline (a smoke run)")
     p.add_argument("--baseline-spp", type=int, default=64,

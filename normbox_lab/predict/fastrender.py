@@ -803,6 +803,11 @@ def config_seed(seed: int, name: str) -> int:
 # All patch × angle spectra, in process or on a cluster
 # --------------------------------------------------------------------------------------------
 
+#: the largest relative standard error over the bands, per configuration, of each prediction
+#: quality (the fast renderer's equivalent of `render.Quality`)
+FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
+
+
 @dataclass
 class PredictionSet:
     """Predicted radiance for every patch × angle: arrays (n_patch, n_angle, n_band)."""
