@@ -330,3 +330,17 @@ def test_opening_a_bad_port_is_an_instrument_error(url):
     for cls in (AptRotationStage, ZaberRotationStage, SphereLightSource, CS1000A, CS2000A):
         with pytest.raises(InstrumentError, match="cannot open"):
             cls.open(url, VirtualClock())
+
+
+@pytest.mark.parametrize("key", ["min_angle_deg", "time_scale", "box_inner_mm"])
+def test_integers_beyond_float_range_are_config_errors(key):
+    import re
+
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+
+    text = re.sub(rf"^{key} = .*$", f"{key} = 1" + "0" * 400, SIM_CONFIG_TEMPLATE, count=1,
+                  flags=re.MULTILINE)
+    assert "0" * 400 in text
+    with pytest.raises(ConfigError, match=key) as err:
+        parse_config(text, "lab.toml")
+    assert err.value.line > 0

@@ -150,7 +150,8 @@ def _shipped_parameters(name: str) -> dict[str, Any] | None:
 
 
 def _is_number(v: Any) -> bool:
-    return isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and abs(v) < 1e300 \
+        and math.isfinite(v)
 
 
 def _parameter_problem(shipped: dict[str, Any] | None, key: str, value: Any) -> str:
@@ -239,7 +240,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
             raise err(tab, key, f"must be a number, got {type(v).__name__} {v!r}")
-        if not math.isfinite(v):
+        if not (abs(v) < 1e300 and math.isfinite(v)):      # (an int beyond float range too)
             raise err(tab, key, "must be finite")
         if minimum is not None and v < minimum:
             raise err(tab, key, f"must be ≥ {minimum}, got {v}")
@@ -296,7 +297,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
                   else isinstance(v, (int, float)) and not isinstance(v, bool))
             if not ok:
                 raise err(tab, k, f"must be {want.__name__}, got {type(v).__name__} {v!r}")
-            if want in (int, float) and not (math.isfinite(v) and abs(v) < 1e12):
+            if want in (int, float) and not (abs(v) < 1e12 and math.isfinite(v)):
                 raise err(tab, k, f"must be a finite number of sensible size, got {v!r}")
         if "baud" in options:
             b = options["baud"]
