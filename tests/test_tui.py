@@ -83,7 +83,7 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             info = app.query_one("#run-info")
             await until(pilot, lambda: "dry-run" in str(info.render()), "the dry-run")
             text = str(info.render())
-            assert "6 readings" in text and "ETA" in text
+            assert "6 readings" in text and "lab time" in text
             assert app.dry.plan.planned == 6 and app.dry.total_s > 0
 
             await pilot.press("s")

@@ -435,8 +435,9 @@ class NormboxConsole(App):
             self.call_from_thread(self._log, "[red]dry-run failed:[/] ", str(exc))
             return
         text = (f"dry-run {protocol}: {len(dry.plan)} steps, {dry.plan.planned} readings, "
-                f"{len(dry.executed)} executed · ETA {format_duration(dry.total_s)} "
-                f"({dry.total_s:.0f} s lab clock)")
+                f"{len(dry.executed)} executed · lab time {format_duration(dry.total_s)} "
+                f"({dry.total_s:.0f} s of instrument and operator time; in a simulated lab "
+                f"the remaining time is measured once the run goes)")
         self.dry = dry
         self.call_from_thread(self._after_dry, text)
 
@@ -590,16 +591,17 @@ class NormboxConsole(App):
             self.progress_planned, self.progress_done = d["planned"], d["done"]
             self._bar(d["done"], d["planned"])
             self._set_run_status("running")
-            self.eta = format_duration(d["eta_s"])
+            self._eta_start = (time.monotonic(), d["done"])
+            self._lab_remaining_s = float(d["eta_s"])
             self._log(f"run {d['run_uuid'][:8]} segment {d['segment']}: {d['done']}/"
-                      f"{d['planned']} done, ETA {self.eta}")
+                      f"{d['planned']} done, lab time left {format_duration(d['eta_s'])}")
             self._runs_dirty = True
         elif k == "step-started":
             self.current_step = f"{ev.key} · {d.get('label', d.get('kind', ''))}"
             self._update_run_info()
         elif k == "progress":
             self.progress_done = d["done"]
-            self.eta = format_duration(d["eta_s"])
+            self._lab_remaining_s = float(d["eta_s"])
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":
@@ -655,11 +657,36 @@ class NormboxConsole(App):
         self.run_status = status
         self._update_run_info()
 
+    def remaining_text(self) -> str:
+        """"remaining 0:04:10 · done ≈ 14:32" while a run goes; "" when none does (after an
+        abort or the end no estimate is shown).  On a real clock the remaining time is the
+        engine's timing model (instrument and operator time); on a virtual clock (a simulated
+        lab) it is the observed wall-clock rate of this segment × the readings left, since
+        the lab clock says nothing about how long a person waits."""
+        import datetime
+
+        from normbox_lab.acquire.engine import format_duration
+
+        if self.run_status not in ("running", "suspended", "paused"):
+            return ""
+        left = max(0, self.progress_planned - self.progress_done)
+        scale = getattr(getattr(self.session.lab, "clock", None), "time_scale", None)
+        if scale is None:                           # real clock: the timing model
+            remaining_s = getattr(self, "_lab_remaining_s", None)
+        else:                                       # simulated: the observed rate
+            t0, done0 = getattr(self, "_eta_start", (time.monotonic(), self.progress_done))
+            taken = self.progress_done - done0
+            remaining_s = ((time.monotonic() - t0) / taken * left) if taken > 0 else None
+        if remaining_s is None:
+            return "remaining: measuring…"
+        finish = datetime.datetime.now() + datetime.timedelta(seconds=remaining_s)
+        return f"remaining {format_duration(remaining_s)} · done ≈ {finish:%H:%M}"
+
     def _update_run_info(self) -> None:
-        eta = getattr(self, "eta", "?")
+        remaining = self.remaining_text()
         self.query_one("#run-info", Static).update(
-            f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings "
-            f"· ETA {eta} (lab clock)\nstep: {self.current_step}")
+            f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings"
+            f"{' · ' + remaining if remaining else ''}\nstep: {self.current_step}")
 
     def _show_prompt(self, req: Any) -> None:
         if self.session.operator is None:      # the virtual operator answered already
@@ -817,6 +844,10 @@ class NormboxConsole(App):
                   "results": "#heatmap"}.get(str(pane))
         if target is not None:
             self.query_one(target).focus()
+        elif self.focused is not None and not self._in_pane(self.focused, str(pane)):
+            # focus must not stay in the pane just hidden: Textual's TabbedContent would
+            # switch back to the pane that holds the focused widget (the Runs-tab trap)
+            self.set_focus(None)
         if pane == "results":
             self._refresh_results()
         elif pane == "images":
@@ -825,6 +856,9 @@ class NormboxConsole(App):
             self._runs_dirty = True
         elif pane == "spectrum":
             self._spectrum_dirty = self.latest is not None
+
+    def _in_pane(self, widget: Any, pane_id: str) -> bool:
+        return any(getattr(node, "id", None) == pane_id for node in widget.ancestors)
 
     def _refresh_results(self) -> None:
         from normbox_lab.tui.views import latest_heatmap

@@ -14,13 +14,15 @@ from typing import Any
 
 import numpy as np
 
-#: rating class (index into normbox_lab.analyze.compare.RATING_SCALE) → cell style and legend label
-RATING_STYLES: tuple[tuple[str, str], ...] = (
-    ("black on green", "≤1 below JND"),
-    ("black on yellow", "≤2 noticeable"),
-    ("black on dark_orange", "≤5 discernible"),
-    ("white on red", ">5 easily seen"),
-)
+from normbox_lab.analyze.report_style import RATING_COLOURS, RATING_TEXT
+
+#: rating class (index into normbox_lab.analyze.compare.RATING_SCALE) → cell style and legend
+#: label; the report's colours (Okabe–Ito: dark blue, sky blue, orange, vermillion — distinct in
+#: hue and in lightness, also for colour-blind readers)
+RATING_STYLES: tuple[tuple[str, str], ...] = tuple(
+    (f"{text} on {colour}", label) for colour, text, label in zip(
+        RATING_COLOURS, RATING_TEXT,
+        ("≤1 below JND", "≤2 just noticeable", "≤5 discernible", ">5 easily seen"), strict=True))
 
 
 def rating_class(delta_e: float) -> int:

@@ -1,0 +1,75 @@
+"""Pilot tests of the operator console's traps and status lines: tab keys work from every
+tab, the rating colours are distinct, and the remaining-time line tells the truth (measured
+wall-clock rate in a simulated lab, nothing after an abort)."""
+
+from __future__ import annotations
+
+import asyncio
+
+from test_tui import answer_prompt, lab_env, new_session, set_reduced_parameters, until  # noqa: F401
+from textual.widgets import Static, TabbedContent
+
+from normbox_lab.tui.app import NormboxConsole, PromptScreen
+from normbox_lab.tui.views import RATING_STYLES
+
+
+def test_tab_keys_work_from_the_runs_tab_also_after_tab_focus(lab_env):  # noqa: F811
+    """The Runs tab used to trap 2, 3 and 6: focus stayed on its hidden table and the tabbed
+    container switched back to the pane holding the focused widget."""
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            tabs = app.query_one(TabbedContent)
+            for key, pane in (("2", "run"), ("3", "spectrum"), ("6", "images"),
+                              ("1", "instruments"), ("5", "results")):
+                await pilot.press("4")
+                await until(pilot, lambda: tabs.active == "runs", "the Runs tab")
+                await pilot.press("tab")
+                await pilot.press(key)
+                await pilot.pause(0.2)
+                assert tabs.active == pane, (key, tabs.active)
+    asyncio.run(scenario())
+    app.session.close()
+
+
+def test_rating_colours_are_four_distinct_colour_blind_safe_colours():
+    backgrounds = [style.split(" on ")[1] for style, _ in RATING_STYLES]
+    assert len(set(backgrounds)) == 4
+    # the Okabe–Ito colours of the report, not two near-identical oranges
+    assert backgrounds == ["#0072B2", "#56B4E9", "#E69F00", "#D55E00"]
+    import colour
+    import numpy as np
+
+    rgb = np.array([[int(c[i:i + 2], 16) / 255 for i in (1, 3, 5)] for c in backgrounds])
+    lab = colour.XYZ_to_Lab(colour.sRGB_to_XYZ(rgb))
+    pairs = [colour.delta_E(lab[i], lab[j], method="CIE 2000")
+             for i in range(4) for j in range(i + 1, 4)]
+    assert min(pairs) > 15, pairs            # the old two oranges were ΔE00 4.6 apart
+
+
+def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F811
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("d")
+            await until(pilot, lambda: "lab time" in str(
+                app.query_one("#run-info", Static).render()), "the dry run")
+            assert "ETA" not in str(app.query_one("#run-info", Static).render())
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            text = app.remaining_text()
+            # one reading taken on the virtual clock: the estimate is the observed rate
+            assert text.startswith("remaining ") and "done ≈ " in text, text
+            await pilot.press("a")
+            await until(pilot, lambda: app.run_status == "aborted", "the abort")
+            assert app.remaining_text() == ""
+            assert "remaining" not in str(app.query_one("#run-info", Static).render())
+    asyncio.run(scenario())
+    session.wait(5.0)
+    session.close()
