@@ -73,3 +73,31 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
     asyncio.run(scenario())
     session.wait(5.0)
     session.close()
+
+
+def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):  # noqa: F811
+    """Ctrl+Q while the operator is asked: no hang, the prompt is withdrawn, the run ends
+    paused (resumable), never left `running`."""
+    import time
+
+    from normbox_lab.acquire.store import Store
+
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await pilot.press("ctrl+q")
+            await until(pilot, lambda: not session.busy, "the run to stop", timeout_s=10.0)
+    t0 = time.monotonic()
+    asyncio.run(scenario())
+    assert time.monotonic() - t0 < 60.0
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused" and s.keys(run.id) == {"a30/p01"}

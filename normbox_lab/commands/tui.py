@@ -77,9 +77,16 @@ def _tui(args: argparse.Namespace) -> int:
         session.close()
         return 0
     if session.busy:
-        # the window closed while the run was still finishing its reading: let it commit
-        print("waiting for the current reading to be committed…", file=sys.stderr)
-        session.wait(600.0)
+        # the window closed while a run was still going: withdraw any prompt, let a reading
+        # under way be committed, and end the segment paused (resumable)
+        session.quit()
+        print("pausing the run (a reading under way is committed first)…", file=sys.stderr)
+        try:
+            session.wait(600.0)
+        except KeyboardInterrupt:             # Ctrl+C while waiting: abort, still resumable
+            print("interrupted: aborting the run (resumable)…", file=sys.stderr)
+            session.abort()
+            session.wait(30.0)
     result = session.result
     engine = session.engine
     if engine is not None and engine.run_uuid:

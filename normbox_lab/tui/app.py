@@ -215,6 +215,9 @@ class NormboxConsole(App):
     """
     BINDINGS: ClassVar = [
         Binding("q", "quit_console", "quit"),
+        # Ctrl+Q is Textual's "close now"; here it leaves the same safe way as q (the run
+        # pauses after the reading under way, a waiting prompt is withdrawn), on every screen
+        Binding("ctrl+q", "quit_console", "quit", show=False, priority=True),
         Binding("s", "start", "start"),
         Binding("d", "dry_run", "dry-run"),
         Binding("p", "pause_resume", "pause"),
