@@ -101,3 +101,28 @@ def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):  # noqa:
     with Store(lab_env / "tui.sqlite") as s:
         (run,) = s.runs()
         assert run.status == "paused" and s.keys(run.id) == {"a30/p01"}
+
+
+def test_runs_tab_shows_flag_counts_and_completed_with_flags(lab_env):  # noqa: F811
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze import qa
+
+    with Store(lab_env / "tui.sqlite") as s:
+        run = s.create_run("reference-sweep", status="running")
+        s.set_run_status(run.id, "done")
+        qa.record(s, "lamp-drift", "warning", "lamp drifted 1.2 %", run=run.id, key="a30/p01",
+                  value=1.2, limit=1.0)
+        qa.record(s, "radiometer-range", "error", "Lv above range", run=run.id,
+                  key="a30/p09", value=9e4, limit=8e4)
+    app = NormboxConsole(new_session(lab_env), offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(120, 30)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("4")
+            table = app.query_one("#runs-table")
+            await until(pilot, lambda: table.row_count == 1, "the run row")
+            row = [str(c) for c in table.get_row_at(0)]
+            assert "completed with flags" in row and "1E 1W" in row, row
+    asyncio.run(scenario())
+    app.session.close()

@@ -139,7 +139,7 @@ class ResumeScreen(ModalScreen[int | None]):
         with Vertical():
             yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
             table: DataTable = DataTable(id="resume-table", cursor_type="row")
-            table.add_columns("id", "uuid", "protocol", "status", "readings", "created")
+            table.add_columns("id", "uuid", "protocol", "status", "readings", "flags", "created")
             for r in reversed(self.runs):
                 table.add_row(*run_row(r), key=str(r.id))
             yield table
@@ -298,7 +298,8 @@ class NormboxConsole(App):
         self.query_one("#spectrum", TabPane).mount_all([
             Static("no reading yet", id="spectrum-head"), Vertical(id="plot-box")])
         self.query_one("#runs", TabPane).mount_all([
-            table("runs-table", ("id", "uuid", "protocol", "status", "readings", "created"),
+            table("runs-table", ("id", "uuid", "protocol", "status", "readings", "flags",
+                                 "created"),
                   cursor_type="row", zebra_stripes=True),
             table("readings-table", ("key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s"),
                   cursor_type="row", zebra_stripes=True)])
@@ -799,6 +800,7 @@ class NormboxConsole(App):
         return out
 
     def _refresh_runs(self) -> None:
+        from normbox_lab.analyze import qa
         from normbox_lab.tui.views import run_row
 
         store = self.session.store
@@ -806,8 +808,9 @@ class NormboxConsole(App):
         selected = self._selected_run_id()
         table.clear()
         runs = store.runs()
+        flags = qa.summaries_by_run(store)
         for r in runs:
-            table.add_row(*run_row(r), key=str(r.id))
+            table.add_row(*run_row(r, flags.get(r.id)), key=str(r.id))
         if runs:
             ids = [r.id for r in runs]
             row = ids.index(selected) if selected in ids else len(ids) - 1

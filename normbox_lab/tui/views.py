@@ -115,12 +115,16 @@ def reading_row(r: Any) -> tuple[str, ...]:
             num(m.get("integration_time_s"), ".2f"))
 
 
-def run_row(run: Any) -> tuple[str, ...]:
+def run_row(run: Any, flags: Any = None) -> tuple[str, ...]:
+    """One row of the Runs tab; `flags`: the run's `qa.QaSummary` (None: no flags).  A done
+    run with flags reads "completed with flags", as in `normbox-lab runs`."""
     import time
 
     created = time.strftime("%m-%d %H:%M", time.localtime(run.created_s))
-    return (str(run.id), run.uuid[:8], _short_protocol(run.protocol), run.status,
-            f"{run.done}/{run.planned}", created)
+    status = "completed with flags" if run.status == "done" and flags else run.status
+    flag_text = f"{flags.errors}E {flags.warnings}W" if flags else "—"
+    return (str(run.id), run.uuid[:8], _short_protocol(run.protocol), status,
+            f"{run.done}/{run.planned}", flag_text, created)
 
 
 def _short_protocol(protocol: str) -> str:
