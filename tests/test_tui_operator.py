@@ -126,3 +126,37 @@ def test_runs_tab_shows_flag_counts_and_completed_with_flags(lab_env):  # noqa: 
             assert "completed with flags" in row and "1E 1W" in row, row
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_dead_radiometer_is_a_red_row_not_connected(lab_env):  # noqa: F811
+    """Health is real: the poll asks each instrument a cheap question through its driver; a
+    radiometer that never answers is shown in red with 'no answer', and `i` says so."""
+    from dataclasses import replace
+
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.tui.controller import Session
+
+    config = parse_config(SIM_CONFIG_TEMPLATE, "<sim>")
+    dead = replace(config.instruments["radiometer"], port="sim://cs1000a?faults=no-reply=1.0")
+    config = replace(config, instruments={**config.instruments, "radiometer": dead})
+    session = Session(config, lab_env / "tui.sqlite", world="analytic", time_scale=0.0)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(120, 30)) as pilot:
+            await until(pilot, lambda: app.lab_ready or getattr(app, "lab_error", ""),
+                        "the lab")
+            rows = session.poll_instruments()
+            by_role = {r["role"]: r for r in rows}
+            assert by_role["radiometer"]["ok"] is False
+            assert by_role["radiometer"]["state"].startswith("no answer")
+            assert by_role["rotator"]["ok"] is True and by_role["rotator"]["last_seen"]
+            await pilot.press("1")
+            await pilot.press("i")
+            table = app.query_one("#inst-table")
+            await until(pilot, lambda: table.row_count > 0, "the instruments table")
+            cells = table.get_row("radiometer")
+            assert "no answer" in str(cells[3]) and "D55E00" in str(cells[0].style).upper()
+            assert str(cells[4]) == "never"
+    asyncio.run(scenario())
+    session.close()

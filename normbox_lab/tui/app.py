@@ -292,7 +292,7 @@ class NormboxConsole(App):
             t.add_columns(*columns)
             return t
         self.query_one("#instruments", TabPane).mount_all([
-            table("inst-table", ("role", "connection", "identity", "state"),
+            table("inst-table", ("role", "connection", "identity", "state", "last seen"),
                   cursor_type="row", zebra_stripes=True),
             Static("", id="live")])
         self.query_one("#spectrum", TabPane).mount_all([
@@ -737,13 +737,25 @@ class NormboxConsole(App):
             self.resume_run(pending)
 
     def _show_instruments(self, rows: list[dict[str, Any]]) -> None:
+        from rich.text import Text
+
         table = self.query_one("#inst-table", DataTable)
         table.clear()
+        width = max(24, self.size.width - 60)
         for r in rows:
             ident = r["identity"] or "-"
-            table.add_row(r["role"], connection_text(r),
-                          ident if len(ident) <= 24 else ident[:23] + "…", r["state"] or "-")
+            seen = r.get("last_seen")
+            seen_text = time.strftime("%H:%M:%S", time.localtime(seen)) if seen else "never"
+            style = "bold white on #D55E00" if r.get("ok") is False else ""
+            cells = (r["role"], connection_text(r),
+                     ident if len(ident) <= width else ident[:width - 1] + "…",
+                     r["state"] or "-", seen_text)
+            table.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
         self._show_live()
+        bad = [r["role"] for r in rows if r.get("ok") is False]
+        self.notify(f"instruments polled at {time.strftime('%H:%M:%S')}: "
+                    + (f"no answer from {', '.join(bad)}" if bad else "all answered"),
+                    severity="error" if bad else "information", markup=False)
 
     def _show_live(self) -> None:
         live = self.session.live

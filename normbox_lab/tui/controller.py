@@ -123,6 +123,8 @@ class Session:
         self.result: Any = None
         self.error: BaseException | None = None
         self.live = LiveState()
+        #: role → wall time (s) of the last answer to the health poll
+        self.last_seen: dict[str, float] = {}
         self._lock = threading.Lock()
 
     # --- setup (call from a worker thread: the world may take seconds) -------------------------
@@ -302,7 +304,9 @@ class Session:
     def poll_instruments(self) -> list[dict[str, Any]]:
         """Connection, identity and state of every configured instrument (only while no run is
         active: the engine owns the ports during a run).  One dict per role."""
-        from normbox_lab.core.capabilities import Identifiable
+        import time
+
+        from normbox_lab.core.capabilities import HealthPollable, Identifiable
 
         lab = self.ensure_lab()
         rows: list[dict[str, Any]] = []
@@ -311,7 +315,8 @@ class Session:
             row: dict[str, Any] = {"role": role, "driver": cfg.driver if cfg else "composite",
                                    "port": cfg.port if cfg else "-",
                                    "simulated": bool(cfg.simulated) if cfg else lab.simulated,
-                                   "identity": "", "state": ""}
+                                   "identity": "", "state": "", "ok": None,
+                                   "last_seen": self.last_seen.get(role)}
             if self.busy:
                 row["state"] = "in use by the run"
                 rows.append(row)
@@ -322,9 +327,14 @@ class Session:
                 if ident is not None:
                     row["identity"] = " ".join(str(x) for x in (
                         ident.model, ident.serial_number, ident.firmware) if x)
+                if isinstance(inst, HealthPollable):
+                    inst.status()                 # a cheap query over the wire: is it there?
                 row["state"] = self._state_of(role, inst)
+                row["ok"] = True
+                row["last_seen"] = self.last_seen[role] = time.time()
             except (NormboxError, OSError) as exc:
-                row["state"] = f"unavailable: {exc}"
+                row["state"] = f"no answer: {exc}"
+                row["ok"] = False
             rows.append(row)
         return rows
 
