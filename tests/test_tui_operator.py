@@ -160,3 +160,69 @@ def test_dead_radiometer_is_a_red_row_not_connected(lab_env):  # noqa: F811
             assert str(cells[4]) == "never"
     asyncio.run(scenario())
     session.close()
+
+
+def _real_sim_session(tmp_path):
+    """Every instrument its real driver against its wire-level emulator (no fakes)."""
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.tui.controller import Session
+
+    return Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), tmp_path / "tui.sqlite",
+                   world="analytic", time_scale=0.0)
+
+
+def test_emergency_stop_during_a_run_switches_the_lamp_off_and_pauses(tmp_path, monkeypatch):
+    """x during a run (lamp warmed up, the operator asked to place the next patch): the
+    emulators report the lamp off and the rotator not moving, the run ends paused and
+    resumable, the reading under way is not committed."""
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.capabilities import Movable, Switchable
+
+    monkeypatch.chdir(tmp_path)
+    session = _real_sim_session(tmp_path)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(100, 30)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            sphere = session.lab.instrument("sphere")
+            assert isinstance(sphere, Switchable) and sphere.state() != "off"
+            await pilot.press("x")
+            await until(pilot, lambda: not session.busy, "the run to stop", timeout_s=10.0)
+            assert sphere.state() == "off"                       # asked over the wire
+            rotator = session.lab.instrument("rotator")
+            assert isinstance(rotator, Movable)
+            p1 = rotator.position_deg()
+            assert rotator.position_deg() == p1                  # not moving
+    asyncio.run(scenario())
+    session.close()
+    with Store(tmp_path / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused" and s.keys(run.id) == {"a30/p01"}
+        assert "emergency-stop" in [k for _, k, _ in s.events(run.id)]
+
+
+def test_emergency_stop_without_a_run_halts_the_lab(tmp_path, monkeypatch):
+    from normbox_lab.core.capabilities import Switchable
+
+    monkeypatch.chdir(tmp_path)
+    session = _real_sim_session(tmp_path)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(100, 30)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            sphere = session.lab.instrument("sphere")
+            assert isinstance(sphere, Switchable)
+            sphere.set_output(True)
+            assert sphere.state() != "off"
+            await pilot.press("x")
+            await pilot.pause(0.2)
+            assert sphere.state() == "off"
+            footer = " ".join(str(b.description) for b in app.BINDINGS if b.show)
+            assert "E-STOP" in footer
+    asyncio.run(scenario())
+    session.close()

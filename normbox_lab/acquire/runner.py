@@ -48,6 +48,7 @@ from normbox_lab.core.capabilities import (
     Settling,
     SpectrumReadable,
     Stoppable,
+    Switchable,
 )
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
@@ -119,6 +120,7 @@ class Engine:
         self._pause = threading.Event()
         self._stop = threading.Event()
         self._abort = threading.Event()
+        self._emergency = threading.Event()
         self._resume = threading.Event()
         self._busy: tuple[str, Any] | None = None     # (role, instrument) while a step runs
         self._prompt_ids = itertools.count(1)
@@ -183,6 +185,14 @@ class Engine:
         busy = self._busy
         if busy is not None:
             halt(*busy)
+
+    def emergency_stop(self) -> None:
+        """Immediate, the operator's emergency stop: the busy instrument halts now, then every
+        instrument of the plan halts and every lamp is switched off; the reading under way is
+        abandoned (never committed) and the segment ends `paused`, resumable (lamps warm up
+        again on resume: their state is forgotten)."""
+        self._emergency.set()
+        self.abort()
 
     def answer(self, choice: str, prompt_id: int | None = None) -> None:
         """Answer the prompt the engine is waiting on (when no operator callable is set)."""
@@ -342,7 +352,11 @@ class Engine:
         except OperatorAbort as exc:
             status = "aborted"
             self._halt_all()
-            self._store_event("abort", reason=str(exc))
+            if self._emergency.is_set():
+                status = "paused"
+                self._store_event("emergency-stop", reason=str(exc))
+            else:
+                self._store_event("abort", reason=str(exc))
         except BaseException as exc:
             # KeyboardInterrupt / unexpected error: the run stays resumable
             status = "paused" if isinstance(exc, KeyboardInterrupt) else "failed"
@@ -452,12 +466,22 @@ class Engine:
             inst.home(wait=True)
 
     def _halt_all(self) -> None:
-        for role in self.plan.roles:
+        roles = list(self.plan.roles)
+        if self._emergency.is_set() and "sphere" not in roles:
+            roles.append("sphere")                 # every lamp of the lab goes off
+        for role in roles:
             try:
                 inst = self.instrument(role)
             except (KeyError, NormboxError):
                 continue
             halt(role, inst)
+            if self._emergency.is_set() and isinstance(inst, Switchable):
+                try:
+                    inst.set_output(False)
+                except (InstrumentError, OSError) as exc:
+                    log.warning("%s: switching off during the emergency stop failed: %s",
+                                role, exc)
+                self._known.pop(role, None)
 
     # --- one measurement, with the state it needs ---------------------------------------------
     def _take(self, i: int) -> None:

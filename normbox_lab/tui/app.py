@@ -214,6 +214,7 @@ class NormboxConsole(App):
     #images-view { height: 1fr; padding: 0 1; }
     """
     BINDINGS: ClassVar = [
+        Binding("x", "emergency_stop", "E-STOP", priority=True),
         Binding("q", "quit_console", "quit"),
         # Ctrl+Q is Textual's "close now"; here it leaves the same safe way as q (the run
         # pauses after the reading under way, a waiting prompt is withdrawn), on every screen
@@ -537,6 +538,19 @@ class NormboxConsole(App):
             self.prompt_screen.dismiss("")
         self._log("quitting: the run pauses after the current reading (q again: abort)")
         self.notify("pausing the run before quitting… (q again: abort now)")
+
+    def action_emergency_stop(self) -> None:
+        """x: every axis stops and every lamp goes off now; a run ends paused (resumable)."""
+        if not self.lab_ready:
+            return
+        failed = self.session.emergency_stop()
+        if self.prompt_screen is not None:
+            self.prompt_screen.dismiss("")
+        self._log("[b red]EMERGENCY STOP[/] ", "axes halted, lamps off"
+                  + (f"; not reached: {'; '.join(failed)}" if failed else ""))
+        self.notify("EMERGENCY STOP: axes halted, lamps off"
+                    + (" — run paused, r resumes" if self.session.busy else ""),
+                    severity="error", markup=False)
 
     def action_poll(self) -> None:
         if self.lab_ready:

@@ -236,6 +236,31 @@ class Session:
         if self.operator is not None:
             self.operator.cancel("abort")
 
+    def emergency_stop(self) -> list[str]:
+        """The operator's emergency stop: every axis halts and every lamp goes off.  During a
+        run the engine does it (the reading under way is abandoned, the run ends `paused`,
+        resumable); otherwise the console halts the lab's instruments itself.  Returns what
+        could not be reached."""
+        from normbox_lab.acquire.runner import halt
+        from normbox_lab.core.capabilities import Switchable
+
+        if self.engine is not None and self.busy:
+            self.engine.emergency_stop()
+            if self.operator is not None:
+                self.operator.cancel("abort")
+            return []
+        failed = []
+        lab = self.lab
+        for role in (lab.roles() if lab is not None else []):
+            try:
+                inst = lab.instrument(role)
+                halt(role, inst)
+                if isinstance(inst, Switchable):
+                    inst.set_output(False)
+            except (NormboxError, OSError) as exc:
+                failed.append(f"{role}: {exc}")
+        return failed
+
     def quit(self) -> None:
         """Leave safely: the current reading finishes and is committed, the segment ends
         `paused` (resumable from the console or `normbox-lab run --resume`)."""
