@@ -421,7 +421,8 @@ def test_abort_at_a_prompt_then_resume_with_r(lab_env):
             await pilot.press("s")
             await answer_prompt(pilot, app, "patch 1 ")
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
-            await pilot.press("a")                 # abort while the operator is asked
+            await pilot.press("a")                 # abort while the operator is asked…
+            await pilot.press("a")                 # …confirmed
             await until(pilot, lambda: app.run_status == "aborted", "the abort")
             await until(pilot, lambda: not session.busy, "the worker to end")
             with Store(lab_env / "tui.sqlite") as s:

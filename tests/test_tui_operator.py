@@ -67,6 +67,9 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
             # one reading taken on the virtual clock: the estimate is the observed rate
             assert text.startswith("remaining ") and "done ≈ " in text, text
             await pilot.press("a")
+            await pilot.pause(0.1)
+            assert app.session.busy and app.run_status != "aborted"    # asked, not done
+            await pilot.press("a")                                      # confirmed
             await until(pilot, lambda: app.run_status == "aborted", "the abort")
             assert app.remaining_text() == ""
             assert "remaining" not in str(app.query_one("#run-info", Static).render())

@@ -519,10 +519,22 @@ class NormboxConsole(App):
             self._log("pause requested: after the current reading")
             self._set_run_status("pausing…")
 
+    #: seconds within which a second `a` confirms the abort
+    ABORT_CONFIRM_S = 5.0
+
     def action_abort(self) -> None:
-        if self.session.busy:
+        """a asks for confirmation (a again within 5 s) before it aborts the run."""
+        if not self.session.busy:
+            return
+        armed = getattr(self, "_abort_armed_until", 0.0)
+        if time.monotonic() <= armed:
+            self._abort_armed_until = 0.0
             self.session.abort()
             self._log("[red]abort requested[/]")
+            return
+        self._abort_armed_until = time.monotonic() + self.ABORT_CONFIRM_S
+        self.notify("abort the run? press a again within 5 s (p pauses instead; x is the "
+                    "emergency stop)", severity="warning", markup=False)
 
     def action_quit_console(self) -> None:
         if not self.session.busy:
