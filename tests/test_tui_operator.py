@@ -229,3 +229,24 @@ def test_emergency_stop_without_a_run_halts_the_lab(tmp_path, monkeypatch):
             assert "E-STOP" in footer
     asyncio.run(scenario())
     session.close()
+
+
+def test_fault_prompt_names_the_role_once_and_says_what_to_check():
+    from normbox_lab.acquire.runner import Engine
+    from normbox_lab.core.errors import InstrumentTimeout
+
+    asked = []
+
+    class Probe:
+        retry = type("R", (), {"persistent": "ask"})()
+        _prompt_ids = iter(range(1, 10))
+
+        def _ask(self, req):
+            asked.append(req)
+            return "retry"
+
+    exc = InstrumentTimeout("radiometer: no reply")
+    assert Engine._fault_decision(Probe(), "a30/p01", "radiometer", exc, 3) == "retry"
+    message = asked[0].message
+    assert message.count("radiometer") == 1, message
+    assert "cable" in message and "powered on" in message

@@ -637,9 +637,12 @@ class Engine:
             self._store_event("operator", key=key, prompt="fault", answer=choice, automatic=True)
             return choice
         kind = "device-error" if isinstance(exc, DeviceError) else type(exc).__name__
+        detail = str(exc).removeprefix(f"{role}: ")        # errors often name the role already
+        hint = ("check the instrument's own display or error state" if isinstance(exc, DeviceError)
+                else "check the cable, the port and that the instrument is powered on")
         req = PromptRequest(next(self._prompt_ids), key, "fault",
-                            f"{role}: {exc} (after {attempt} attempt(s)) — retry, skip this "
-                            "reading, or abort the run?", ("retry", "skip", "abort"),
+                            f"{role}: {detail} (after {attempt} attempt(s); {hint}) — retry, "
+                            "skip this reading, or abort the run?", ("retry", "skip", "abort"),
                             {"role": role, "error": kind})
         return self._ask(req)
 
