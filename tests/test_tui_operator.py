@@ -13,6 +13,16 @@ from normbox_lab.tui.app import NormboxConsole, PromptScreen
 from normbox_lab.tui.views import RATING_STYLES
 
 
+async def start_and_wait_for_the_second_prompt(pilot, app, parameters: bool = True) -> None:
+    """Reduced sweep started, the first patch placed: the run waits at the second prompt
+    with one reading committed."""
+    if parameters:
+        await set_reduced_parameters(pilot, app)
+    await pilot.press("s")
+    await answer_prompt(pilot, app, "patch 1 ")
+    await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+
+
 def test_tab_keys_work_from_the_runs_tab_also_after_tab_focus(lab_env):  # noqa: F811
     """The Runs tab used to trap 2, 3 and 6: focus stayed on its hidden table and the tabbed
     container switched back to the pane holding the focused widget."""
@@ -60,9 +70,7 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
             await until(pilot, lambda: "lab time" in str(
                 app.query_one("#run-info", Static).render()), "the dry run")
             assert "ETA" not in str(app.query_one("#run-info", Static).render())
-            await pilot.press("s")
-            await answer_prompt(pilot, app, "patch 1 ")
-            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await start_and_wait_for_the_second_prompt(pilot, app, parameters=False)
             text = app.remaining_text()
             # one reading taken on the virtual clock: the estimate is the observed rate
             assert text.startswith("remaining ") and "done ≈ " in text, text
@@ -90,10 +98,7 @@ def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):  # noqa:
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
-            await set_reduced_parameters(pilot, app)
-            await pilot.press("s")
-            await answer_prompt(pilot, app, "patch 1 ")
-            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await start_and_wait_for_the_second_prompt(pilot, app)
             await pilot.press("ctrl+q")
             await until(pilot, lambda: not session.busy, "the run to stop", timeout_s=10.0)
     t0 = time.monotonic()
@@ -187,10 +192,7 @@ def test_emergency_stop_during_a_run_switches_the_lamp_off_and_pauses(tmp_path, 
 
     async def scenario() -> None:
         async with app.run_test(size=(100, 30)) as pilot:
-            await set_reduced_parameters(pilot, app)
-            await pilot.press("s")
-            await answer_prompt(pilot, app, "patch 1 ")
-            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await start_and_wait_for_the_second_prompt(pilot, app)
             sphere = session.lab.instrument("sphere")
             assert isinstance(sphere, Switchable) and sphere.state() != "off"
             await pilot.press("x")
