@@ -1,7 +1,7 @@
 """The camera tracer: full spectral images (all 81 bands per path) with light-path layers,
 depth, normals and the Wilkie & Weidlich (2009) auxiliary images CWNI and NWCI.
 
-It is `normbox_lab.predict.fastrender.BandPathTracer`'s machinery (Mitsuba mono variant for ray casting,
+It is `normbox_lab.predict.fastrender.BandPathTracer`'s machinery and its one path loop (Mitsuba mono variant for ray casting,
 band tables, λ-independent sampling, NEE + MIS, GGX/cosine mixture, Russian roulette) with a
 pinhole camera in place of the 1° radiometer.  Every path carries all bands, so every layer and
 both auxiliary images are exact per-path estimators from the same paths.
@@ -89,135 +89,31 @@ class CameraTracer(BandPathTracer):
         self._ybar: np.ndarray | None = None
 
     # ---- run-time constants (opaque: changing them never recompiles) ----------------------
-    def _consts(self, camera: PinholeCamera, spp: int) -> SimpleNamespace:
+    def _camera_consts(self, camera: PinholeCamera, spp: int) -> SimpleNamespace:
+        """`BandPathTracer._consts` plus the camera's, all opaque JIT values."""
         dr, m = self.dr, self.m
-        e = self.emitter
-        ny, nx = self._map_shape
 
         def f(v: float) -> Any:
             return dr.opaque(m.Float, float(v))
-
-        def u(v: int) -> Any:
-            return dr.opaque(m.UInt32, int(v))
 
         def vec(v: Any) -> Any:
             return m.Vector3f(*(f(x) for x in v))
 
         fwd, right, up = camera.frame()
         tx, ty = camera.tan_half_fov
-        return SimpleNamespace(
+        c = self._consts()
+        c.__dict__.update(
             origin=m.Point3f(*(f(x) for x in camera.origin_m)), fwd=vec(fwd), right=vec(right),
             up=vec(up), tan_x=f(tx), tan_y=f(ty), inv_w=f(1.0 / int(camera.width_px)),
-            inv_h=f(1.0 / int(camera.height_px)), width=u(int(camera.width_px)),
-            spp=u(int(spp)), em_slot=u(self.emitter_slot), max_depth=u(self.max_depth),
-            rr_depth=u(self.rr_depth),
-            em_x0=f(e.centre_m[0] - e.half_x_m), em_y0=f(e.centre_m[1] - e.half_y_m),
-            em_sx=f(2.0 * e.half_x_m), em_sy=f(2.0 * e.half_y_m), em_z=f(e.centre_m[2]),
-            em_area=f(e.area_m2), map_nx=u(nx), map_nxf=f(nx), map_nyf=f(ny))
-
-    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any) -> Any:
-        """The emitter's spatial factor at a point of its plane (as `_emitter_factor`)."""
-        dr, m = self.dr, self.m
-        i = m.UInt32(dr.clip(dr.floor((x - c.em_x0) / c.em_sx * c.map_nxf), 0.0, c.map_nxf - 1.0))
-        j = m.UInt32(dr.clip(dr.floor((y - c.em_y0) / c.em_sy * c.map_nyf), 0.0, c.map_nyf - 1.0))
-        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i)
-
-    def _lookup(self, tab: Mapping[str, Any], delta: Any) -> Any:
-        """Band spectra at λ_b + δ (as `BandPathTracer._trace`'s lookup)."""
-        dr, m = self.dr, self.m
-        step = self.grid.step_nm
-        pos = delta + step
-        k = m.UInt32(dr.floor(pos))
-        frac = pos - dr.floor(pos)
-        offsets = [b * step for b in range(self.grid.n_bands)]
-        n_fine = tab["n_fine"]
-
-        def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
-            base = slot * n_fine + k
-            arr = m.Array4f if width == 4 else m.Array2f
-            out: list[list[Any]] = [[] for _ in range(width // 2)]
-            for off in offsets:
-                v = dr.gather(arr, table, base + off, active)
-                for t in range(width // 2):
-                    out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
-            return out
-
-        return lookup
+            inv_h=f(1.0 / int(camera.height_px)), width=dr.opaque(m.UInt32, int(camera.width_px)),
+            spp=dr.opaque(m.UInt32, int(spp)))
+        return c
 
     def _camera_ray(self, c: SimpleNamespace, col: Any, row: Any, jx: Any, jy: Any) -> Any:
         dr, m = self.dr, self.m
         x = (2.0 * (m.Float(col) + jx) * c.inv_w - 1.0) * c.tan_x
         y = (1.0 - 2.0 * (m.Float(row) + jy) * c.inv_h) * c.tan_y
         return m.Ray3f(c.origin, dr.normalize(c.fwd + c.right * x + c.up * y))
-
-    # ---- one path vertex, in pieces --------------------------------------------------------
-    def _intersect(self, c: SimpleNamespace, ray: Any, active: Any) -> SimpleNamespace:
-        dr, m = self.dr, self.m
-        pi = self.scene.ray_intersect_preliminary(ray, active=active)
-        valid = active & pi.is_valid()
-        reg = dr.reinterpret_array(m.UInt32, pi.shape)
-        slot = dr.gather(m.UInt32, self._shape_slot, reg, valid)
-        fidx = dr.gather(m.UInt32, self._shape_base, reg, valid) + pi.prim_index
-        ng = m.Vector3f(*(dr.gather(m.Float, comp, fidx, valid) for comp in self._normals))
-        p = ray.o + ray.d * pi.t
-        surf = valid & (slot > 0) & (slot != c.em_slot)
-        return SimpleNamespace(valid=valid, t=pi.t, slot=slot, ng=ng, p=p, surf=surf)
-
-    def _emission(self, c: SimpleNamespace, hit: SimpleNamespace, ray: Any,
-                  prev_pdf: Any) -> Any:
-        """The emitter's factor where the ray hits its front, MIS-weighted against NEE when the
-        ray was BSDF-sampled (prev_pdf > 0); weight 1 for camera rays."""
-        dr = self.dr
-        cos_l = ray.d.z                                   # the light faces −z
-        hit_em = hit.valid & (hit.slot == c.em_slot) & (cos_l > 0)
-        pdf_em = dr.square(hit.t) / (c.em_area * dr.fmax(cos_l, 1e-12))
-        w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
-                      / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
-        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
-
-    def _vertex(self, tab: Mapping[str, Any], lookup: Any, delta: Any, hit: SimpleNamespace,
-                ray: Any, active: Any) -> tuple[SimpleNamespace, Any, Any]:
-        """Material and local frame at a surface hit: (vx for `_band_factors`, frame, origin
-        of rays leaving it)."""
-        dr, m = self.dr, self.m
-        wi_w = -ray.d
-        nf = dr.select(dr.dot(wi_w, hit.ng) < 0, -hit.ng, hit.ng)
-        frame = m.Frame3f(nf)
-        slot = hit.slot
-        kd, ks = lookup(tab["kdks"], slot, active, 4)
-        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
-        vx = SimpleNamespace(
-            wi=frame.to_local(wi_w), alpha=dr.gather(m.Float, tab["alpha"], slot, active),
-            eta=dr.gather(m.Float, tab["eta"], slot, active),
-            c=dr.gather(m.Float, tab["c"], slot, active),
-            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks,
-            kb=lookup(tab["kb"], slot, active, 2)[0] if has_kb else None,
-            inv_s2=dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None,
-            deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
-            delta=delta)
-        return vx, frame, self._offset(hit.p, nf)
-
-    def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
-             active: Any) -> tuple[Any, Any, Any]:
-        """A uniform point of the emitter with a shadow ray: (local wo, weight without the
-        BRDF — factor·MIS·cos/pdf —, mask)."""
-        dr, m = self.dr, self.m
-        lx = c.em_x0 + rng.next_float32() * c.em_sx
-        ly = c.em_y0 + rng.next_float32() * c.em_sy
-        to_l = m.Vector3f(lx, ly, c.em_z) - o
-        dist2 = dr.squared_norm(to_l)
-        dist = dr.sqrt(dist2)
-        dl = to_l / dist
-        cos_e = dl.z
-        shadow = m.Ray3f(o, dl)
-        shadow.maxt = dist * (1.0 - 1e-4)
-        ok = active & (cos_e > 0)
-        ok = ok & ~self.scene.ray_test(shadow, ok)
-        pdf_l = dist2 / (c.em_area * dr.fmax(cos_e, 1e-12))
-        wo = frame.to_local(dl)
-        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
-        mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
-        return wo, self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30) * mis * wo.z, ok
 
     def _lobes(self, vx: SimpleNamespace, wo: Any, weight: Any,
                mask: Any) -> tuple[list[Any], list[Any]]:
@@ -238,24 +134,24 @@ class CameraTracer(BandPathTracer):
         BSDF sample there, and the continuation ray.  Everything evaluated (one kernel)."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
-        step = self.grid.step_nm
         idx = dr.arange(m.UInt32, n)
         gidx = m.UInt64(idx) + dr.opaque(m.UInt64, int(pix0) * int(spp))
         # seeded by the global path index (the constructor would add the chunk-local index)
         rng = m.PCG32(size=n)
         rng.seed(initstate=dr.opaque(m.UInt64, int(seed_state)) + gidx, initseq=gidx)
-        delta = step * (rng.next_float32() - rng.next_float32())
+        delta, k, frac = self._wavelength_offset(rng)
         pix = dr.opaque(m.UInt32, int(pix0)) + idx // c.spp
         row = pix // c.width
         col = pix - row * c.width
         jx = rng.next_float32()
         jy = rng.next_float32()
         ray = self._camera_ray(c, col, row, jx, jy)
-        lookup = self._lookup(tab, delta)
+        lookup = self._lookup(tab, k, frac)
         hit = self._intersect(c, ray, m.Bool(True))
         e0 = self._emission(c, hit, ray, m.Float(0.0))
         active = hit.surf
-        vx, frame, o = self._vertex(tab, lookup, delta, hit, ray, active)
+        frame, wi, o = self._frame(hit, ray)
+        vx = self._vertex(tab, lookup, delta, hit.slot, wi, active)
         wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
         nd, ns = self._lobes(vx, wl, wt, ok)
         wo, bpdf, act = self._sample(vx, rng, active)
@@ -264,60 +160,24 @@ class CameraTracer(BandPathTracer):
         probe = dr.abs(gd[0] + gs[0])
         for b in range(8, n_b, 8):
             probe = dr.fmax(probe, dr.abs(gd[b] + gs[b]))
-        out = SimpleNamespace(nd=nd, ns=ns, gd=gd, gs=gs, e0=e0, delta=delta,
+        out = SimpleNamespace(nd=nd, ns=ns, gd=gd, gs=gs, e0=e0, delta=delta, k=k, frac=frac,
                               ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
                               active=act & (1 < c.max_depth), rng=rng, probe=probe)
-        dr.eval(out.nd, out.ns, out.gd, out.gs, out.e0, out.delta, out.ray.o, out.ray.d,
-                out.pdf, out.active, out.rng, out.probe)
+        dr.eval(out.nd, out.ns, out.gd, out.gs, out.e0, out.delta, out.k, out.frac, out.ray.o,
+                out.ray.d, out.pdf, out.active, out.rng, out.probe)
         return out
 
     def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
                   fh: SimpleNamespace) -> tuple[list[Any], Any]:
-        """The path loop from the continuation rays with throughput 1: (acc_b, e1), where e1 is
-        the emitter seen at the first vertex (MIS vs NEE) and acc_b everything after it."""
+        """`BandPathTracer._path_loop` from the continuation rays with throughput 1: (acc_b,
+        e1), where e1 is the emitter seen at the first vertex (MIS vs NEE) and acc_b
+        everything after it."""
         dr, m = self.dr, self.m
-        n_b = self.grid.n_bands
-        delta, probe_scale = fh.delta, fh.probe
-        lookup = self._lookup(tab, delta)
-
-        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
-                   acc: Any, e1: Any) -> tuple[Any, ...]:
-            thr, acc = list(thr), list(acc)
-            hit = self._intersect(c, ray, active)
-            e = self._emission(c, hit, ray, prev_pdf)
-            first = depth == 1
-            e1 = e1 + dr.select(first, e, 0.0)
-            e_later = dr.select(first, 0.0, e)
-            for b in range(n_b):
-                acc[b] = dr.fma(thr[b], e_later, acc[b])
-            active = hit.surf & (depth + 1 < c.max_depth)
-            vx, frame, o = self._vertex(tab, lookup, delta, hit, ray, active)
-            wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
-            fac = self._band_factors(vx, wl, wt, ok)
-            for b in range(n_b):
-                acc[b] = dr.fma(thr[b], fac[b], acc[b])
-            wo, bpdf, active = self._sample(vx, rng, active)
-            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), active)
-            for b in range(n_b):
-                thr[b] = thr[b] * fac[b]
-            probe = dr.abs(thr[0])
-            for b in range(8, n_b, 8):
-                probe = dr.fmax(probe, dr.abs(thr[b]))
-            q = dr.select(depth + 1 >= c.rr_depth, dr.minimum(probe * probe_scale, 0.95), 1.0)
-            active = active & (rng.next_float32() < q)
-            inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
-            for b in range(n_b):
-                thr[b] = thr[b] * inv_q
-            return depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1
-
-        state = (m.UInt32(1), fh.active, fh.ray, fh.pdf, fh.rng,
-                 [m.Float(1.0) for _ in range(n_b)], [m.Float(0.0) for _ in range(n_b)],
-                 m.Float(0.0))
-        state = dr.while_loop(state, lambda depth, active, *_: active & (depth < c.max_depth),
-                              bounce, label="camerapath")
-        acc, e1 = state[6], state[7]
-        dr.eval(acc, e1)
-        return acc, e1
+        res = self._path_loop(tab, c, self._lookup(tab, fh.k, fh.frac), fh.delta, fh.ray,
+                              fh.active, m.UInt32(1), fh.pdf, fh.rng, probe_scale=fh.probe,
+                              split_first=True)
+        dr.eval(res.acc, res.e1)
+        return res.acc, res.e1
 
     def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: list[Any], e1: Any,
                  spp: int) -> np.ndarray:
@@ -325,7 +185,7 @@ class CameraTracer(BandPathTracer):
         each pixel's spp paths: (7·B + 2, n_pixels) float32."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
-        lookup = self._lookup(tab, fh.delta)
+        lookup = self._lookup(tab, fh.k, fh.frac)
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         inv_b = 1.0 / n_b
         g = [fh.gd[b] + fh.gs[b] for b in range(n_b)]
@@ -399,7 +259,7 @@ class CameraTracer(BandPathTracer):
         cam = camera if camera is not None else self.camera
         t0 = time.perf_counter()
         tab = self._tables(materials, emitter_wavelength_nm, emitter_radiance)
-        c = self._consts(cam, spp)
+        c = self._camera_consts(cam, spp)
         w, h = int(cam.width_px), int(cam.height_px)
         n_pix = w * h
         n_b = self.grid.n_bands

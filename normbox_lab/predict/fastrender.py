@@ -206,12 +206,17 @@ class BandPathTracer:
     No virtual function call is traced, and every material parameter is array data, so one
     compiled kernel serves all materials, all sample angles, and later processes (Dr.Jit's
     kernel cache on disk).
+
+    The path loop (`_path_loop`: emission with MIS, next-event estimation, BSDF sampling,
+    Russian roulette) is the one loop of the project: the radiometer estimate (`render`), the
+    all-patches estimate (`normbox_lab.predict.patchset`) and the camera
+    (`normbox_lab.images.tracer`) all run it, each with its own start of the path.
     """
 
-    def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]], radiometer: Radiometer,
-                 emitter: RectEmitter, *, variant: str, emitter_slot: str = "panel",
-                 grid: BandGrid | None = None, max_depth: int = 12, rr_depth: int = 6,
-                 chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
+    def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]],
+                 radiometer: Radiometer | None, emitter: RectEmitter, *, variant: str,
+                 emitter_slot: str = "panel", grid: BandGrid | None = None, max_depth: int = 12,
+                 rr_depth: int = 6, chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
         import drjit as dr
         import mitsuba as mi
 
@@ -271,12 +276,29 @@ class BandPathTracer:
         self._normals = [m.Float(nrm[:, i]) for i in range(3)]
 
     # ---- tables ------------------------------------------------------------------------
+    def material_tables(self, material: Any) -> dict[str, Any]:
+        """One material on the 1 nm grid: kd, ks, kb tables and its scalar parameters."""
+        g = self.grid
+        mkb = getattr(material, "kb", None)
+        return {"kd": g.table(material.wavelength_nm, material.kd),
+                "ks": g.table(material.wavelength_nm, material.ks),
+                "kb": (g.table(material.wavelength_nm, mkb) if mkb is not None
+                       else np.zeros(g.fine_nm.size)),
+                "alpha": max(float(material.alpha), 1e-4), "eta": float(material.eta),
+                "c": float(getattr(material, "c", 0.0)),
+                "deta": float(getattr(material, "deta_per_100nm", 0.0)) / 100.0,
+                "inv_sigma2": 1.0 / float(getattr(material, "backscatter_sigma", 1.0)) ** 2,
+                "p_spec": specular_probability(material)}
+
     def _tables(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
-                emitter_radiance: Any) -> dict[str, Any]:
+                emitter_radiance: Any, extra_slots: Sequence[Any] = ()) -> dict[str, Any]:
+        """JIT tables of every slot's material (slot names → `materials`), then `extra_slots`
+        (materials at slot indices len(slot_names)…, for `_path_loop`'s patch remapping)."""
         m = self.m
         g = self.grid
         fine = g.fine_nm
-        n_slots = len(self.slot_names)
+        names = list(self.slot_names)
+        n_slots = len(names) + len(extra_slots)
         kd = np.zeros((n_slots, fine.size))
         ks = np.zeros((n_slots, fine.size))
         kb = np.zeros((n_slots, fine.size))
@@ -284,23 +306,19 @@ class BandPathTracer:
         par = {"alpha": np.full(width, 0.5), "eta": np.full(width, 1.5),
                "c": np.zeros(width), "p_spec": np.zeros(width), "deta": np.zeros(width),
                "inv_sigma2": np.ones(width)}
-        for s, name in enumerate(self.slot_names):
-            if s == 0 or s == self.emitter_slot:
-                continue                          # black
-            mat = materials.get(name)
-            if mat is None:
-                raise KeyError(f"no material for {name!r}")
-            kd[s] = g.table(mat.wavelength_nm, mat.kd)
-            ks[s] = g.table(mat.wavelength_nm, mat.ks)
-            mkb = getattr(mat, "kb", None)
-            if mkb is not None:
-                kb[s] = g.table(mat.wavelength_nm, mkb)
-            par["alpha"][s] = max(float(mat.alpha), 1e-4)
-            par["eta"][s] = float(mat.eta)
-            par["c"][s] = float(getattr(mat, "c", 0.0))
-            par["deta"][s] = float(getattr(mat, "deta_per_100nm", 0.0)) / 100.0
-            par["inv_sigma2"][s] = 1.0 / float(getattr(mat, "backscatter_sigma", 1.0)) ** 2
-            par["p_spec"][s] = specular_probability(mat)
+        for s in range(n_slots):
+            if s < len(names):
+                if s == 0 or s == self.emitter_slot:
+                    continue                      # black
+                mat = materials.get(names[s])
+                if mat is None:
+                    raise KeyError(f"no material for {names[s]!r}")
+            else:
+                mat = extra_slots[s - len(names)]
+            t = self.material_tables(mat)
+            kd[s], ks[s], kb[s] = t["kd"], t["ks"], t["kb"]
+            for key, column in par.items():
+                column[s] = t[key]
         le = g.table(emitter_wavelength_nm, emitter_radiance)
         tab = {k: m.Float(v) for k, v in par.items()}
 
@@ -314,47 +332,44 @@ class BandPathTracer:
                    dispersive=bool(np.any(par["deta"])))
         return tab
 
-    # ---- geometry helpers ----------------------------------------------------------------
-    def _emitter_factor(self, x: Any, y: Any) -> Any:
-        """The emitter's spatial factor at a point of its plane."""
+    # ---- run-time constants (opaque: changing them never recompiles) ----------------------
+    def _consts(self) -> SimpleNamespace:
+        """The emitter's placement and the path depths as opaque JIT values."""
         dr, m = self.dr, self.m
         e = self.emitter
         ny, nx = self._map_shape
-        i = m.UInt32(dr.clip(dr.floor((x - e.centre_m[0] + e.half_x_m) / (2 * e.half_x_m) * nx),
-                             0, nx - 1))
-        j = m.UInt32(dr.clip(dr.floor((y - e.centre_m[1] + e.half_y_m) / (2 * e.half_y_m) * ny),
-                             0, ny - 1))
-        return dr.gather(m.Float, self._factor_map, j * nx + i)
 
-    def _offset(self, p: Any, n: Any) -> Any:
-        """A ray origin just off the surface on the side of n."""
-        dr = self.dr
-        eps = 2e-5 * (1.0 + dr.max(dr.abs(p)))
-        return p + n * eps
+        def f(v: float) -> Any:
+            return dr.opaque(m.Float, float(v))
 
-    # ---- one chunk of paths ------------------------------------------------------------
-    def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
-        """Trace n paths; returns (n_bands, n) float64 per-path radiance estimates."""
+        def u(v: int) -> Any:
+            return dr.opaque(m.UInt32, int(v))
+
+        return SimpleNamespace(
+            em_slot=u(self.emitter_slot), max_depth=u(self.max_depth), rr_depth=u(self.rr_depth),
+            em_x0=f(e.centre_m[0] - e.half_x_m), em_y0=f(e.centre_m[1] - e.half_y_m),
+            em_sx=f(2.0 * e.half_x_m), em_sy=f(2.0 * e.half_y_m), em_z=f(e.centre_m[2]),
+            em_area=f(e.area_m2), map_nx=u(nx), map_nxf=f(nx), map_nyf=f(ny))
+
+    # ---- path pieces -------------------------------------------------------------------
+    def _wavelength_offset(self, rng: Any) -> tuple[Any, Any, Any]:
+        """A per-path offset δ ~ triangular(−step, step), shared by all bands: (δ, k, frac)
+        with δ + step = k + frac, k the 1 nm table index and frac ∈ [0, 1]."""
         dr, m = self.dr, self.m
-        scene = self.scene
-        g = self.grid
-        em = self.emitter
-        step = g.step_nm
-        n_b = g.n_bands
-        n_fine = tab["n_fine"]
-        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
-        idx = dr.arange(m.UInt64, n)
-        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=idx)
-        # per-path wavelength offset δ ~ triangular(−step, step), shared by all bands
-        delta = step * (rng.next_float32() - rng.next_float32())
-        pos = delta + step                         # ∈ (0, 2·step)
+        step = self.grid.step_nm
+        pos = step * (rng.next_float32() - rng.next_float32()) + step
         k = m.UInt32(dr.floor(pos))
-        frac = pos - dr.floor(pos)
-        offsets = [b * step for b in range(n_b)]
+        return pos - step, k, pos - dr.floor(pos)
+
+    def _lookup(self, tab: Mapping[str, Any], k: Any, frac: Any) -> Any:
+        """`lookup(table, slot, active, width)`: spectra at λ_b + δ for every band (δ + step =
+        k + frac), `width`/2 interleaved (value, slope) tables, one packet gather per band."""
+        dr, m = self.dr, self.m
+        step = self.grid.step_nm
+        offsets = [b * step for b in range(self.grid.n_bands)]
+        n_fine = tab["n_fine"]
 
         def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
-            """Spectra at λ_b + δ for every band: `width`/2 interleaved (value, slope) tables,
-            one packet gather per band."""
             base = slot * n_fine + k
             arr = m.Array4f if width == 4 else m.Array2f
             out: list[list[Any]] = [[] for _ in range(width // 2)]
@@ -364,110 +379,221 @@ class BandPathTracer:
                     out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
             return out
 
-        # camera rays, uniform over the square field of view
+        return lookup
+
+    def _radiometer_ray(self, rng: Any) -> Any:
+        """A ray uniform over the radiometer's square field of view."""
+        dr, m = self.dr, self.m
         f, left, up = self.radiometer.frame()
         th = float(np.tan(np.deg2rad(self.radiometer.fov_deg) / 2.0))
         u1 = (2.0 * rng.next_float32() - 1.0) * th
         u2 = (2.0 * rng.next_float32() - 1.0) * th
         d = dr.normalize(m.Vector3f(*map(float, f)) + m.Vector3f(*map(float, left)) * u1
                          + m.Vector3f(*map(float, up)) * u2)
-        ray = m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
-        lz = float(em.centre_m[2])
-        area = em.area_m2
+        return m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
+
+    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any) -> Any:
+        """The emitter's spatial factor at a point of its plane."""
+        dr, m = self.dr, self.m
+        i = m.UInt32(dr.clip(dr.floor((x - c.em_x0) / c.em_sx * c.map_nxf), 0.0, c.map_nxf - 1.0))
+        j = m.UInt32(dr.clip(dr.floor((y - c.em_y0) / c.em_sy * c.map_nyf), 0.0, c.map_nyf - 1.0))
+        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i)
+
+    def _offset(self, p: Any, n: Any) -> Any:
+        """A ray origin just off the surface on the side of n."""
+        dr = self.dr
+        eps = 2e-5 * (1.0 + dr.max(dr.abs(p)))
+        return p + n * eps
+
+    def _intersect(self, c: SimpleNamespace, ray: Any, active: Any) -> SimpleNamespace:
+        dr, m = self.dr, self.m
+        pi = self.scene.ray_intersect_preliminary(ray, active=active)
+        valid = active & pi.is_valid()
+        reg = dr.reinterpret_array(m.UInt32, pi.shape)
+        slot = dr.gather(m.UInt32, self._shape_slot, reg, valid)
+        fidx = dr.gather(m.UInt32, self._shape_base, reg, valid) + pi.prim_index
+        ng = m.Vector3f(*(dr.gather(m.Float, comp, fidx, valid) for comp in self._normals))
+        p = ray.o + ray.d * pi.t
+        surf = valid & (slot > 0) & (slot != c.em_slot)
+        return SimpleNamespace(valid=valid, t=pi.t, slot=slot, ng=ng, p=p, surf=surf)
+
+    def _emission(self, c: SimpleNamespace, hit: SimpleNamespace, ray: Any,
+                  prev_pdf: Any) -> Any:
+        """The emitter's factor where the ray hits its front, MIS-weighted against NEE when the
+        ray was BSDF-sampled (prev_pdf > 0); weight 1 for camera rays."""
+        dr = self.dr
+        cos_l = ray.d.z                                   # the light faces −z
+        hit_em = hit.valid & (hit.slot == c.em_slot) & (cos_l > 0)
+        pdf_em = dr.square(hit.t) / (c.em_area * dr.fmax(cos_l, 1e-12))
+        w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
+                      / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
+        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
+
+    def _frame(self, hit: SimpleNamespace, ray: Any) -> tuple[Any, Any, Any]:
+        """Local frame at a hit with the normal towards the incoming side (two-sided
+        surfaces): (frame, local wi, origin of rays leaving it)."""
+        dr, m = self.dr, self.m
+        wi_w = -ray.d
+        nf = dr.select(dr.dot(wi_w, hit.ng) < 0, -hit.ng, hit.ng)
+        frame = m.Frame3f(nf)
+        return frame, frame.to_local(wi_w), self._offset(hit.p, nf)
+
+    def _vertex(self, tab: Mapping[str, Any], lookup: Any, delta: Any, slot: Any, wi: Any,
+                active: Any) -> SimpleNamespace:
+        """The material of `slot` at a vertex with local incoming direction wi (the `vx` of
+        `_band_factors` / `_sample`)."""
+        dr, m = self.dr, self.m
+        kd, ks = lookup(tab["kdks"], slot, active, 4)
+        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
+        return SimpleNamespace(
+            wi=wi, alpha=dr.gather(m.Float, tab["alpha"], slot, active),
+            eta=dr.gather(m.Float, tab["eta"], slot, active),
+            c=dr.gather(m.Float, tab["c"], slot, active),
+            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks,
+            kb=lookup(tab["kb"], slot, active, 2)[0] if has_kb else None,
+            inv_s2=dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None,
+            deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
+            delta=delta)
+
+    def _light_sample(self, c: SimpleNamespace, frame: Any, o: Any, rng: Any,
+                      active: Any) -> tuple[Any, Any, Any, Any]:
+        """A uniform point of the emitter seen from o with a shadow ray: (local wo, emitter
+        factor / pdf (solid angle), pdf, mask of unoccluded front-facing samples)."""
+        dr, m = self.dr, self.m
+        lx = c.em_x0 + rng.next_float32() * c.em_sx
+        ly = c.em_y0 + rng.next_float32() * c.em_sy
+        to_l = m.Vector3f(lx, ly, c.em_z) - o
+        dist2 = dr.squared_norm(to_l)
+        dist = dr.sqrt(dist2)
+        dl = to_l / dist
+        cos_e = dl.z
+        shadow = m.Ray3f(o, dl)
+        shadow.maxt = dist * (1.0 - 1e-4)
+        ok = active & (cos_e > 0)
+        ok = ok & ~self.scene.ray_test(shadow, ok)
+        pdf_l = dist2 / (c.em_area * dr.fmax(cos_e, 1e-12))
+        return frame.to_local(dl), self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30), pdf_l, ok
+
+    def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
+             active: Any) -> tuple[Any, Any, Any]:
+        """Next-event estimation at a vertex: (local wo, weight without the BRDF — emitter
+        factor · MIS · cos / pdf —, mask)."""
+        dr = self.dr
+        wo, em_w, pdf_l, ok = self._light_sample(c, frame, o, rng, active)
+        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
+        mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
+        return wo, em_w * mis * wo.z, ok
+
+    # ---- the path loop -----------------------------------------------------------------
+    def _path_loop(self, tab: Mapping[str, Any], c: SimpleNamespace, lookup: Any, delta: Any,
+                   ray: Any, active: Any, depth: Any, prev_pdf: Any, rng: Any, *,
+                   probe_scale: Any = None, split_first: bool = False,
+                   patches: SimpleNamespace | None = None) -> SimpleNamespace:
+        """Trace from `ray` (path vertex number `depth`, previous BSDF pdf `prev_pdf`, 0 for a
+        camera ray) with throughput 1 until every path has ended.  Returns `acc` (per band,
+        Σ throughput · emitter factor; the lamp spectrum is the caller's), and:
+
+        - `split_first`: `e1`, the emitter found at vertex 1 (kept out of `acc`; the camera's
+          layers need it apart);
+        - `patches` (slot: the patch slot, base: first extra slot of `_tables`, count: P): the
+          patch stands for P materials.  A path that hits it picks one, p* uniformly at random,
+          with weight P, and uses p*'s material there and at every later patch hit; everything
+          it finds afterwards goes to `late` (per band) for patch p* alone.  Unbiased for every
+          patch: E[P · 1{p* = p} · X_p] = E[X_p].
+        `probe_scale` multiplies the Russian-roulette probe (the throughput before `ray`)."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        pp = patches
+        none = 0xFFFFFFFF
 
         def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
-                   acc: Any) -> tuple[Any, ...]:
-            """One path vertex: emission (MIS), NEE, BSDF sampling, Russian roulette."""
-            thr, acc = list(thr), list(acc)
-            pi = scene.ray_intersect_preliminary(ray, active=active)
-            active = active & pi.is_valid()
-            reg = dr.reinterpret_array(m.UInt32, pi.shape)
-            slot = dr.gather(m.UInt32, self._shape_slot, reg, active)
-            fidx = dr.gather(m.UInt32, self._shape_base, reg, active) + pi.prim_index
-            ng = m.Vector3f(*(dr.gather(m.Float, c, fidx, active) for c in self._normals))
-            p = ray.o + ray.d * pi.t
-            # the emitter, hit by the camera ray or the previous BSDF sample (MIS with NEE)
-            cos_l = ray.d.z                             # light faces −z: front when going up
-            hit_em = active & (slot == self.emitter_slot) & (cos_l > 0)
-            pdf_em = dr.square(pi.t) / (area * dr.fmax(cos_l, 1e-12))
-            w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
-                          / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
-            e = dr.select(hit_em, self._emitter_factor(p.x, p.y) * w, 0.0)
-            for b in range(n_b):
-                acc[b] = dr.fma(thr[b], e, acc[b])
-            active = active & (slot > 0) & (slot != self.emitter_slot)
-            active = active & (depth + 1 < self.max_depth)
-            # local frame, normal towards the incoming side (two-sided surfaces)
-            wi_w = -ray.d
-            nf = dr.select(dr.dot(wi_w, ng) < 0, -ng, ng)
-            frame = m.Frame3f(nf)
-            wi = frame.to_local(wi_w)
-            alpha = dr.gather(m.Float, tab["alpha"], slot, active)
-            eta = dr.gather(m.Float, tab["eta"], slot, active)
-            cc = dr.gather(m.Float, tab["c"], slot, active)
-            p_spec = dr.gather(m.Float, tab["p_spec"], slot, active)
-            kd, ks = lookup(tab["kdks"], slot, active, 4)
-            kb = lookup(tab["kb"], slot, active, 2)[0] if has_kb else None
-            inv_s2 = dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None
-            deta = dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None
-
-            vx = SimpleNamespace(wi=wi, alpha=alpha, eta=eta, c=cc, kd=kd, ks=ks, kb=kb,
-                                 inv_s2=inv_s2, deta=deta, delta=delta, p_spec=p_spec)
-
-            # emitter sampling (next-event estimation): a uniform point of the rectangle
-            o = self._offset(p, nf)
-            lx = em.centre_m[0] + (2.0 * rng.next_float32() - 1.0) * em.half_x_m
-            ly = em.centre_m[1] + (2.0 * rng.next_float32() - 1.0) * em.half_y_m
-            to_l = m.Vector3f(lx, ly, lz) - o
-            dist2 = dr.squared_norm(to_l)
-            dist = dr.sqrt(dist2)
-            dl = to_l / dist
-            cos_e = dl.z
-            shadow = m.Ray3f(o, dl)
-            shadow.maxt = dist * (1.0 - 1e-4)
-            ok = active & (cos_e > 0)
-            ok = ok & ~scene.ray_test(shadow, ok)
-            pdf_l = dist2 / (area * dr.fmax(cos_e, 1e-12))
-            wo = frame.to_local(dl)
-            bpdf = self._pdf(wi, wo, alpha, p_spec)
-            mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
-            em_w = self._emitter_factor(lx, ly) / dr.fmax(pdf_l, 1e-30)
-            fac = self._band_factors(vx, wo, em_w * mis * wo.z, ok)
-            for b in range(n_b):
-                acc[b] = dr.fma(thr[b], fac[b], acc[b])
-            # BSDF sampling: cosine or GGX, by a λ-independent coin
+                   acc: Any, e1: Any, late: Any, pstar: Any) -> tuple[Any, ...]:
+            thr, acc, late = list(thr), list(acc), list(late)
+            hit = self._intersect(c, ray, active)
+            e = self._emission(c, hit, ray, prev_pdf)
+            if split_first:
+                first = depth == 1
+                e1 = e1 + dr.select(first, e, 0.0)
+                e = dr.select(first, 0.0, e)
+            slot = hit.slot
+            if pp is not None:
+                in_late = dr.select(pstar != none, 1.0, 0.0)
+                for b in range(n_b):
+                    late[b] = dr.fma(thr[b], e * in_late, late[b])
+                    acc[b] = dr.fma(thr[b], e * (1.0 - in_late), acc[b])
+                on_patch = hit.surf & (slot == pp.slot)
+                u = rng.next_float32()
+                pick = on_patch & (pstar == none)
+                pstar = dr.select(pick, dr.minimum(m.UInt32(u * pp.count_f), pp.last), pstar)
+                sel_w = dr.select(pick, pp.count_f, 1.0)
+                slot = dr.select(on_patch, pp.base + pstar, slot)
+                in_late = dr.select(pstar != none, 1.0, 0.0)
+            else:
+                sel_w = 1.0
+                for b in range(n_b):
+                    acc[b] = dr.fma(thr[b], e, acc[b])
+            active = hit.surf & (depth + 1 < c.max_depth)
+            frame, wi, o = self._frame(hit, ray)
+            vx = self._vertex(tab, lookup, delta, slot, wi, active)
+            wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+            fac = self._band_factors(vx, wl, wt * sel_w, ok)
+            if pp is not None:
+                for b in range(n_b):
+                    late[b] = dr.fma(thr[b], fac[b] * in_late, late[b])
+                    acc[b] = dr.fma(thr[b], fac[b] * (1.0 - in_late), acc[b])
+            else:
+                for b in range(n_b):
+                    acc[b] = dr.fma(thr[b], fac[b], acc[b])
             wo, bpdf, active = self._sample(vx, rng, active)
-            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), active)
+            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30) * sel_w, active)
             for b in range(n_b):
                 thr[b] = thr[b] * fac[b]
-            # Russian roulette on a λ-independent survival probability
+            # Russian roulette on a λ-independent survival probability (bands 0, 8, 16, …)
             probe = dr.abs(thr[0])
-            for b in range(1, n_b, 8):
+            for b in range(8, n_b, 8):
                 probe = dr.fmax(probe, dr.abs(thr[b]))
-            q = dr.select(depth + 1 >= self.rr_depth, dr.minimum(probe, 0.95), 1.0)
+            if probe_scale is not None:
+                probe = probe * probe_scale
+            q = dr.select(depth + 1 >= c.rr_depth, dr.minimum(probe, 0.95), 1.0)
             active = active & (rng.next_float32() < q)
             inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
             for b in range(n_b):
                 thr[b] = thr[b] * inv_q
-            ray = m.Ray3f(o, frame.to_world(wo))
-            prev_pdf = bpdf
-            return depth + 1, active, ray, prev_pdf, rng, thr, acc
+            return (depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1,
+                    late, pstar)
 
-        state = (m.UInt32(0), m.Bool(True), ray, m.Float(0.0), rng,
+        state = (m.UInt32(depth), m.Bool(active), ray, m.Float(prev_pdf), rng,
                  [m.Float(1.0) for _ in range(n_b)],      # per-band throughput
-                 [m.Float(0.0) for _ in range(n_b)])      # per-band radiance / Le_b
+                 [m.Float(0.0) for _ in range(n_b)],      # per-band Σ throughput · emitter
+                 m.Float(0.0),                            # e1 (split_first)
+                 [m.Float(0.0) for _ in range(n_b)] if pp is not None else [],
+                 m.UInt32(none) if pp is not None else m.UInt32(0))
         if self.symbolic:
             # one megakernel; a SIMD packet runs until its own longest path ends
             state = dr.while_loop(state, lambda depth, active, *_: active
-                                  & (depth < self.max_depth), bounce, label="bandpath")
+                                  & (depth < c.max_depth), bounce, label="bandpath")
         else:
             # wavefront: one kernel per bounce, every lane each time
-            for d in range(self.max_depth):
-                state = bounce(m.UInt32(d), *state[1:])
+            for _ in range(self.max_depth):
+                state = bounce(*state)
                 dr.eval(state)
-        acc = state[6]
-        le_tab = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
-        out = [acc[b] * le_tab[b] for b in range(n_b)]
+        return SimpleNamespace(acc=state[6], e1=state[7], late=state[8], pstar=state[9])
+
+    # ---- one chunk of radiometer paths ---------------------------------------------------
+    def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
+        """Trace n radiometer paths; returns (n_bands, n) float64 per-path radiance estimates."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        c = self._consts()
+        idx = dr.arange(m.UInt64, n)
+        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=idx)
+        delta, k, frac = self._wavelength_offset(rng)
+        lookup = self._lookup(tab, k, frac)
+        ray = self._radiometer_ray(rng)
+        res = self._path_loop(tab, c, lookup, delta, ray, m.Bool(True), m.UInt32(0),
+                              m.Float(0.0), rng)
+        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
+        out = [res.acc[b] * le[b] for b in range(n_b)]
         dr.eval(out)
         return np.stack([np.asarray(o, dtype=np.float64) for o in out])
 
