@@ -171,3 +171,120 @@ def test_megakernel_equals_wavefront():
     b = FastNormbox(symbolic=False).render_view(patch=patch, wall=wall, angle_deg=60,
                                                 n_paths=4096, seed=4)
     np.testing.assert_allclose(a.radiance, b.radiance, rtol=1e-5)
+
+
+# --------------------------------------------------------------------------------------------
+# All patches per path (normbox_lab.predict.patchset)
+# --------------------------------------------------------------------------------------------
+
+class _Glossy(_Mat):
+    """A second fit-model material: other spectra, roughness, η and −c."""
+
+    name = "glossy"
+    kd = np.array([0.5, 0.1, 0.3, 0.05])
+    ks = np.array([0.8, 0.6, 0.9, 1.0])
+    alpha, eta, c = 0.08, 1.7, 0.002
+
+
+def test_wavelength_strata_are_the_triangle():
+    from normbox_lab.predict.patchset import SUB_BATCH, WavelengthStrata
+
+    s = WavelengthStrata.build(5)
+    assert s.probability.sum() == pytest.approx(1.0)
+    # P(δ + 5 ∈ [k, k + 1)) for the triangle on (0, 10): (2k + 1)/50 rising, mirrored
+    np.testing.assert_allclose(s.probability[:5], [0.02, 0.06, 0.10, 0.14, 0.18])
+    np.testing.assert_allclose(s.probability[5:], s.probability[:5][::-1])
+    assert s.counts.sum() == SUB_BATCH and np.all(np.abs(s.counts - s.probability
+                                                         * SUB_BATCH) < 1.0)
+    assert s.cell_of_lane.size == SUB_BATCH and s.bounds[-1] == SUB_BATCH
+
+
+def test_all_patches_per_path_close_on_the_closed_form():
+    """Two materials on the same floor from one set of paths (patch factor kept out of the
+    path, per-band spectra applied on the host from value and slope per 1 nm cell): each
+    matches its own quadrature; a one-patch render agrees too."""
+    from normbox_lab.predict.patchset import PatchSetTracer
+
+    variant = mono_variant()
+    h = 0.3
+    emitter = RectEmitter((0.0, 0.0, h), 0.10, 0.08, ((0.7, 1.3), (1.0, 1.1)))
+    with in_variant(variant) as mi:
+        floor_bsdf = mi.load_dict({"type": "diffuse", "reflectance": 0.1})
+        panel_bsdf = mi.load_dict({"type": "diffuse", "reflectance": 0.2})
+        T = mi.ScalarTransform4f
+        scene = mi.load_dict({
+            "type": "scene",
+            "floor": {"type": "rectangle", "to_world": T().scale([0.5, 0.5, 1.0]),
+                      "bsdf": floor_bsdf},
+            "panel": {"type": "rectangle", "bsdf": panel_bsdf,
+                      "to_world": T().translate([0, 0, h]).rotate([1, 0, 0], 180)
+                      .scale([0.10, 0.08, 1.0])}})
+    origin = (0.45, 0.2, 0.5)
+    tracer = PatchSetTracer(scene, [(floor_bsdf, "patch"), (panel_bsdf, "panel")],
+                            Radiometer(origin, (0.0, 0.0, 0.0)), emitter, variant=variant,
+                            max_depth=2)
+    wl = np.array([360.0, 830.0])
+    ests = tracer.render_patches([_Mat(), _Glossy()], {}, wl, [2.0, 2.0], n_paths=1 << 17,
+                                 seed=3)
+    for mat, est in zip((_Mat(), _Glossy()), ests, strict=True):
+        expected = 2.0 * _direct_light_closed_form(mat, origin, emitter, h)
+        assert est.n_paths == 1 << 17
+        assert np.all(est.std_error > 0) and np.max(est.std_error / est.radiance) < 0.01
+        z = (est.radiance - expected) / (est.std_error + 1e-3 * expected)
+        assert np.max(np.abs(z)) < 4.0, (mat.name, z)
+    # the two share paths but not their spectra: the glossy one is the brighter at 380 nm
+    assert ests[1].radiance[0] > 2 * ests[0].radiance[0]
+
+
+def test_all_patches_agree_with_one_patch_at_a_time():
+    """In the Normbox (walls, holder, light coming back to the patch) the all-patches estimate
+    of each patch agrees with that patch rendered on its own, within the two SEs."""
+    from normbox_lab.predict import materials as mats
+
+    wall = mats.truth_wall("model")
+    patches = [mats.truth_patch(n, "model") for n in (1, 16, 24)]
+    box = FastNormbox()
+    for angle in (50.0, 90.0):
+        together = box.render_patches(patches=patches, wall=wall, angle_deg=angle,
+                                      n_paths=1 << 17, seed=11)
+        for patch, r in zip(patches, together, strict=True):
+            alone = box.render_view(patch=patch, wall=wall, angle_deg=angle, n_paths=1 << 17,
+                                    seed=12)
+            z = (r.radiance - alone.radiance) / np.hypot(r.std_error, alone.std_error)
+            # bands share paths (one draw per path for all of them): the mean is one N(0, 1)
+            assert abs(np.mean(z)) < 3.0, (patch.name, angle, z)
+            assert np.sum(np.abs(z) > 3.5) <= 3, (patch.name, angle, z)
+            assert r.info["renderer"] == "fastrender-patchset" and r.info["patches"] == 3
+
+
+def test_all_patches_standard_error_is_the_spread_over_seeds():
+    from normbox_lab.predict import materials as mats
+
+    wall = mats.truth_wall("model")
+    patches = [mats.truth_patch(n, "model") for n in (2, 24)]
+    box = FastNormbox()
+    runs = [box.render_patches(patches=patches, wall=wall, angle_deg=70.0, n_paths=1 << 14,
+                               seed=s) for s in range(10)]
+    for i in range(len(patches)):
+        rad = np.array([r[i].radiance for r in runs])
+        se = np.mean([r[i].std_error for r in runs], axis=0)
+        ratio = np.median(rad.std(axis=0, ddof=1) / se)
+        assert 0.6 < ratio < 1.5, ratio
+    again = box.render_patches(patches=patches, wall=wall, angle_deg=70.0, n_paths=1 << 14,
+                               seed=0)
+    np.testing.assert_array_equal(again[1].radiance, runs[0][1].radiance)
+
+
+def test_dispersive_patches_are_rendered_one_at_a_time():
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.fastrender import predict_spectra
+
+    patch = mats.truth_patch(18, "default")
+    if not getattr(patch, "deta_per_100nm", 0.0):
+        pytest.fail("the default truth of patch 18 should have a λ-dependent η")
+    box = FastNormbox()
+    with pytest.raises(ValueError, match="λ-dependent"):
+        box.render_patches(patches=[patch], wall=mats.truth_wall("model"), angle_deg=45.0,
+                           n_paths=2048)
+    ps = predict_spectra([patch], [45.0], wall=mats.truth_wall("model"), n_paths=2048)
+    assert np.all(ps.radiance > 0)

@@ -605,15 +605,10 @@ class BandPathTracer:
         dispersive, has_kb = vx.deta is not None, vx.kb is not None
         h = dr.normalize(wi + wo)
         a2 = alpha * alpha
-        dd = h.z * h.z * (a2 - 1.0) + 1.0
-        dist = dr.select(h.z > 0, a2 / (dr.pi * dd * dd), 0.0)
-
-        def g1(c: Any) -> Any:
-            c2 = dr.clip(c * c, 1e-12, 1.0)
-            return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - c2) / c2))
-
+        dist = ggx_d(a2, h.z)
         valid = mask & (wi.z > 0) & (wo.z > 0)
-        geo = dist * g1(wi.z) * g1(wo.z) / (4.0 * dr.select(valid, wi.z * wo.z, 1.0))
+        geo = (dist * smith_g1(a2, wi.z) * smith_g1(a2, wo.z)
+               / (4.0 * dr.select(valid, wi.z * wo.z, 1.0)))
         cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
         a_ = dr.select(valid, weight * INV_PI, 0.0)
         c_ = dr.select(valid, weight * vx.c, 0.0)
@@ -642,8 +637,14 @@ class BandPathTracer:
     def _sample(self, vx: Any, rng: Any, active: Any) -> tuple[Any, Any, Any]:
         """Cosine or GGX (D·cos θh) direction by a λ-independent coin at vertex `vx` (wi, alpha,
         p_spec): (local wo, its mixture pdf, `active` where wo is usable)."""
+        wo = self._sample_direction(vx.wi, vx.alpha, vx.p_spec, rng)
+        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
+        return wo, bpdf, active & (wo.z > 0) & (bpdf > 0)
+
+    def _sample_direction(self, wi: Any, alpha: Any, p_spec: Any, rng: Any) -> Any:
+        """A local direction: GGX (D·cos θh, roughness alpha) with probability p_spec, else
+        cosine-weighted; three random numbers, drawn whatever the branch."""
         dr, m = self.dr, self.m
-        wi, alpha = vx.wi, vx.alpha
         uc = rng.next_float32()
         us = m.Point2f(rng.next_float32(), rng.next_float32())
         wo_cos = m.warp.square_to_cosine_hemisphere(us)
@@ -653,17 +654,13 @@ class BandPathTracer:
         phi = 2.0 * dr.pi * us.y
         hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
         wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
-        wo = dr.select(uc < vx.p_spec, wo_spec, wo_cos)
-        bpdf = self._pdf(wi, wo, alpha, vx.p_spec)
-        return wo, bpdf, active & (wo.z > 0) & (bpdf > 0)
+        return dr.select(uc < p_spec, wo_spec, wo_cos)
 
     def _pdf(self, wi: Any, wo: Any, alpha: Any, p_spec: Any) -> Any:
         """Solid-angle pdf of the cosine + GGX(D·cos θh) mixture for the outgoing wo."""
         dr = self.dr
         h = dr.normalize(wi + wo)
-        a2 = alpha * alpha
-        dd = h.z * h.z * (a2 - 1.0) + 1.0
-        pdf_h = dr.select(h.z > 0, a2 / (dr.pi * dd * dd), 0.0) * h.z
+        pdf_h = ggx_d(alpha * alpha, h.z) * h.z
         woh = dr.abs(dr.dot(wo, h))
         pdf_spec = dr.select(woh > 0, pdf_h / (4.0 * dr.fmax(woh, 1e-12)), 0.0)
         pdf_cos = dr.fmax(wo.z, 0.0) * INV_PI
@@ -713,6 +710,22 @@ class BandPathTracer:
 
 def _chunk_seed(seed: int, chunk_no: int) -> int:
     return (int(seed) * 0x9E3779B1 + chunk_no * 0x85EBCA6B + 0x2545F491) & 0xFFFFFFFFFFFF
+
+
+def ggx_d(a2: Any, cos_h: Any) -> Any:
+    """GGX normal distribution D(h) for α² = a2 at cos θh (0 for a back-facing h; Dr.Jit)."""
+    import drjit as dr
+
+    dd = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return dr.select(cos_h > 0, a2 / (dr.pi * dd * dd), 0.0)
+
+
+def smith_g1(a2: Any, cos_theta: Any) -> Any:
+    """Smith G1 of GGX for α² = a2 at cos θ (Dr.Jit)."""
+    import drjit as dr
+
+    c2 = dr.clip(cos_theta * cos_theta, 1e-12, 1.0)
+    return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - c2) / c2))
 
 
 def fresnel(eta: Any, cos_beta: Any) -> Any:
@@ -862,13 +875,16 @@ class FastNormbox:
         for tr in self._tracers.values():
             tr.refresh_geometry()
 
-    def tracer(self, angle_deg: float, *, direct_only: bool = False) -> BandPathTracer:
-        """The tracer (max_depth 12, or 2 for the direct light only) with the patch at angle."""
+    def tracer(self, angle_deg: float, *, direct_only: bool = False) -> Any:
+        """The tracer (max_depth 12, or 2 for the direct light only) with the patch at angle:
+        a `patchset.PatchSetTracer` (a `BandPathTracer` that can also serve all patches)."""
         self._ensure_scene(angle_deg)
         depth = 2 if direct_only else self.max_depth
         tr = self._tracers.get(depth)
         if tr is None:
-            tr = self._tracers[depth] = BandPathTracer(
+            from normbox_lab.predict.patchset import PatchSetTracer
+
+            tr = self._tracers[depth] = PatchSetTracer(
                 self._scene, [(self._stand_in[r], STAND_INS[r]) for r in STAND_INS],
                 self._radiometer, self._emitter, variant=self.variant, emitter_slot="panel",
                 grid=self.grid, max_depth=depth, rr_depth=self.rr_depth,
@@ -898,6 +914,35 @@ class FastNormbox:
         return RenderResult(est.wavelength_nm, est.radiance, est.std_error,
                             est.radiance[None, :].copy(), est.time_s, self.variant,
                             key="", cached=False, info=info)
+
+    def render_patches(self, *, patches: Sequence[Any], wall: Any, angle_deg: float,
+                       holder: Any = None, lamp: Any = None,
+                       target_rel_se: float | None = 0.002, n_paths: int | None = None,
+                       seed: int = 0, max_paths: int = 1 << 23) -> list[Any]:
+        """`render_view` for every patch at one angle from one set of paths
+        (`patchset.PatchSetTracer.render_patches`): a `RenderResult` per patch, in order.
+        The estimates are correlated across patches; each one's standard error is its own."""
+        from normbox_lab.predict.materials import holder_material
+        from normbox_lab.predict.render import LAMP_GRID_NM, Lamp, RenderResult
+
+        holder = holder if holder is not None else holder_material()
+        lamp = lamp if lamp is not None else Lamp()
+        tr = self.tracer(angle_deg)
+        ests = tr.render_patches(list(patches), {"wall": wall, "holder": holder}, LAMP_GRID_NM,
+                                 lamp.radiance(LAMP_GRID_NM), n_paths=n_paths,
+                                 target_rel_se=None if n_paths is not None else target_rel_se,
+                                 seed=seed, max_paths=max_paths)
+        out = []
+        for patch, est in zip(patches, ests, strict=True):
+            info = {"angle_deg": float(angle_deg), "patch": patch.name, "wall": wall.name,
+                    "renderer": "fastrender-patchset", "n_paths": est.n_paths,
+                    "seed": int(seed), "max_depth": tr.max_depth, "patches": len(ests),
+                    "target_rel_se": target_rel_se,
+                    "max_rel_se": max_rel_se(est.radiance, est.std_error)}
+            out.append(RenderResult(est.wavelength_nm, est.radiance, est.std_error,
+                                    est.radiance[None, :].copy(), est.time_s, self.variant,
+                                    key="", cached=False, info=info))
+        return out
 
     def predict(self, configs: Sequence[PredictConfig], *, wall: Any, holder: Any = None,
                 lamp: Any = None, target_rel_se: float | None = 0.002,
@@ -976,6 +1021,18 @@ def render_task(task: Mapping[str, Any]) -> list[dict[str, Any]]:
         box = _WORKER_BOXES[key] = FastNormbox(task["geometry"], variant=task.get("variant"),
                                                max_depth=int(task["max_depth"]))
     out = []
+    if task.get("all_patches"):
+        configs = task["configs"]
+        angle = float(configs[0][2])
+        results = box.render_patches(patches=[p for _, p, _ in configs], wall=task["wall"],
+                                     angle_deg=angle, holder=task["holder"], lamp=task["lamp"],
+                                     target_rel_se=task["target_rel_se"],
+                                     n_paths=task["n_paths"],
+                                     seed=config_seed(task["seed"], f"patches@{angle:g}"))
+        for (name, _, _), r in zip(configs, results, strict=True):
+            out.append({"name": name, "radiance": r.radiance, "std_error": r.std_error,
+                        "n_paths": r.info["n_paths"], "time_s": r.render_time_s})
+        return out
     for name, patch, angle in task["configs"]:
         r = box.render_view(patch=patch, wall=task["wall"], angle_deg=angle,
                             holder=task["holder"], lamp=task["lamp"],
@@ -991,15 +1048,20 @@ def predict_spectra(patches: Sequence[Any] | Mapping[str, Any], angles_deg: Sequ
                     target_rel_se: float | None = 0.002, n_paths: int | None = None,
                     seed: int = 0, executor: Any = None, variant: str | None = None,
                     max_depth: int = 12, patches_per_job: int = 6,
-                    threads_per_job: int | None = None) -> PredictionSet:
+                    threads_per_job: int | None = None,
+                    all_patches: bool | None = None) -> PredictionSet:
     """Predict every patch × angle radiometer spectrum with the given (e.g. fitted) materials.
 
     `patches`: `materials.Material`s (use `Material.from_fit(MaterialFit)`) or a name → material
     mapping; `wall`, `holder` likewise; `lamp`: `render.Lamp`.  Noise: `target_rel_se` (largest
     relative standard error over the bands, per configuration) or a fixed `n_paths`.
-    `executor`: an `executors.make_executor(...)` object (None: in process).  Each
-    configuration's seed derives from `seed` and its name "<patch name>@<angle>", so any executor
-    gives identical spectra.
+    `executor`: an `executors.make_executor(...)` object (None: in process).
+
+    `all_patches` (default: whenever no patch has a λ-dependent η): one job per angle traces
+    each path once for all patches (`patchset`; the patches' estimates are then correlated,
+    each with its own correct SE), seeded from `seed` and "patches@<angle>".  Otherwise jobs of
+    `patches_per_job` configurations, each seeded from `seed` and its name "<patch
+    name>@<angle>".  Either way any executor gives identical spectra.
     """
     from normbox_lab.predict.executors import InProcessExecutor
     from normbox_lab.predict.materials import holder_material
@@ -1017,8 +1079,14 @@ def predict_spectra(patches: Sequence[Any] | Mapping[str, Any], angles_deg: Sequ
             "holder": holder if holder is not None else holder_material(),
             "lamp": lamp if lamp is not None else Lamp(), "target_rel_se": target_rel_se,
             "n_paths": n_paths, "seed": int(seed), "threads": threads_per_job}
+    if all_patches is None:
+        all_patches = not any(float(getattr(p, "deta_per_100nm", 0.0)) for _, p in items)
     tasks = []
     for a in angles:                                  # angle-major: few patch moves per job
+        if all_patches:
+            tasks.append({**base, "all_patches": True,
+                          "configs": [(f"{n}@{a:g}", p, float(a)) for n, p in items]})
+            continue
         for s in range(0, len(items), max(1, int(patches_per_job))):
             chunk = items[s:s + max(1, int(patches_per_job))]
             tasks.append({**base, "configs": [(f"{n}@{a:g}", p, float(a)) for n, p in chunk]})

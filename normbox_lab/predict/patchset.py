@@ -1,0 +1,338 @@
+"""All patches per path: one set of traced paths estimates the radiometer spectrum of every
+patch at one sample angle.
+
+At one angle the 24 configurations of a sweep differ only in the patch's material; the geometry
+is the same.  `PatchSetTracer` traces each radiometer path once, with a sampling density that
+does not depend on the patch, and evaluates the throughput of all P patch materials × all bands
+along it.  Every estimate stays unbiased; the estimates of different patches share paths and
+are therefore correlated (their standard errors are each correct, but a difference of two
+patches' estimates is more precise than the two SEs suggest).
+
+How (δ + step = k + frac is the path's wavelength offset, `BandPathTracer._wavelength_offset`):
+
+- **First vertex on the patch** (the radiometer looks at it: nearly every path).  The patch's
+  BRDF is linear in its spectra:  f_p,b = kd_p,b/π + ks_p,b·S_p + kb_p,b·K_p − c_p, where the
+  geometric factors S_p (GGX D·G·F/(4 cos cos) with the patch's α, η) and K_p (backscatter) are
+  per-path scalars.  The kernel keeps the patch factor out of the path and returns, for the
+  light sample (NEE) and the BSDF sample at that vertex: the weight w (emitter · MIS · cos / pdf,
+  resp. cos / pdf) and the P scalars w·S_p, w·K_p.  Directions there come from the *defensive
+  mixture*: the average over the P patches of each patch's own sampling density (cosine + GGX
+  with its α), so the pdf — and the MIS weights — do not depend on the patch.  The rest of the
+  path runs `BandPathTracer._path_loop` with throughput 1.
+- **Later hits of the patch** (light that returns to it after a wall bounce: rare) pick one
+  patch p* uniformly with weight P (`_path_loop`'s `patches`); what the path finds afterwards
+  counts for p* only.
+- **On the host** the per-patch, per-band estimate is assembled with matrix products: for each
+  band b and patch p, Σ over paths of kd_p(λ_b + δ)·A·W_b + ks_p(λ_b + δ)·S_p·W_b + …, where
+  W_b is the lamp spectrum (NEE) or the continuation's radiance, both per band.  The spectra
+  are linear in frac inside a 1 nm table cell, so each term splits into a value part and a
+  slope part (× frac).
+- **Wavelength strata.**  So that the 1 nm table cell k is the same for a block of paths, the
+  lanes of every sub-batch of `SUB_BATCH` paths are split into the 2·step cells of the
+  triangular offset in proportion to their probabilities (stratified sampling: unbiased, and
+  never noisier), frac drawn from the triangle's density inside the cell.
+- **Standard error** from the sub-batches (each an independent stratified estimate of the
+  same mean): SE = sd(sub-batch means) / √(number of sub-batches), per patch and band.
+
+Patches with a λ-dependent Fresnel η (the dispersive truth materials) do not separate; for
+them `FastNormbox` renders each configuration on its own (`BandPathTracer.render`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.predict.fastrender import (
+    BandEstimate,
+    BandPathTracer,
+    _chunk_seed,
+    fresnel,
+    ggx_d,
+    max_rel_se,
+    smith_g1,
+)
+
+#: paths per sub-batch: one stratified estimate; its spread gives the standard error
+SUB_BATCH = 2048
+_NONE = 0xFFFFFFFF
+
+
+@dataclass(frozen=True)
+class WavelengthStrata:
+    """The 2·step 1 nm cells of the triangular offset δ + step ∈ (0, 2·step), and how many
+    lanes of a sub-batch each gets."""
+
+    step_nm: int
+    probability: np.ndarray        # (K,) P(δ + step ∈ [k, k + 1))
+    counts: np.ndarray             # (K,) lanes per sub-batch
+    bounds: np.ndarray             # (K + 1,) lane offsets of the cells in a sub-batch
+
+    @classmethod
+    def build(cls, step_nm: int, sub_batch: int = SUB_BATCH) -> WavelengthStrata:
+        s = int(step_nm)
+        k = np.arange(2 * s)
+        mirror = np.where(k < s, k, 2 * s - 1 - k)
+        prob = (2.0 * mirror + 1.0) / (2.0 * s * s)
+        raw = prob * sub_batch
+        counts = np.maximum(np.floor(raw).astype(np.int64), 1)
+        order = np.argsort(-(raw - np.floor(raw)))
+        for i in order[:max(0, sub_batch - int(counts.sum()))]:
+            counts[i] += 1
+        if int(counts.sum()) != sub_batch:
+            raise ValueError(f"sub-batch of {sub_batch} lanes is too small for {2 * s} strata")
+        return cls(s, prob, counts, np.concatenate([[0], np.cumsum(counts)]))
+
+    @property
+    def cell_of_lane(self) -> np.ndarray:
+        """The cell k of each lane of a sub-batch."""
+        return np.repeat(np.arange(self.counts.size), self.counts).astype(np.uint32)
+
+    @property
+    def weight(self) -> np.ndarray:
+        """Per-lane weight of each cell: P(k) / lanes in k (a sub-batch's estimate is
+        Σ_k weight_k · Σ_lanes in k)."""
+        return self.probability / self.counts
+
+
+class PatchSetTracer(BandPathTracer):
+    """`BandPathTracer` (radiometer view) with `render_patches`: every patch per path."""
+
+    patch_slot_name = "patch"
+
+    # ---- per-patch tables --------------------------------------------------------------
+    def _patch_tables(self, patches: Sequence[Any]) -> SimpleNamespace:
+        mats = [self.material_tables(p) for p in patches]
+        if any(t["deta"] != 0.0 for t in mats):
+            raise ValueError("a patch with a λ-dependent Fresnel η does not separate; render "
+                             "it on its own (BandPathTracer.render)")
+
+        def stack(key: str) -> np.ndarray:
+            return np.stack([t[key] for t in mats])
+
+        def slope(t: np.ndarray) -> np.ndarray:
+            return np.diff(t, axis=-1, append=t[..., -1:])
+
+        kd, ks, kb = stack("kd"), stack("ks"), stack("kb")
+        return SimpleNamespace(
+            count=len(mats), kd=kd, kd_slope=slope(kd), ks=ks, ks_slope=slope(ks), kb=kb,
+            kb_slope=slope(kb), has_kb=bool(np.any(kb)),
+            c=np.array([t["c"] for t in mats]), alpha=[t["alpha"] for t in mats],
+            eta=[t["eta"] for t in mats], p_spec=[t["p_spec"] for t in mats],
+            inv_sigma2=[t["inv_sigma2"] for t in mats])
+
+    # ---- the kernels of one chunk ------------------------------------------------------
+    def _trace_patches(self, tab: Mapping[str, Any], pt: SimpleNamespace, n: int, seed: int,
+                       strata: WavelengthStrata) -> dict[str, np.ndarray]:
+        """n paths (a multiple of the sub-batch): the per-lane pieces of the estimate."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        step = float(self.grid.step_nm)
+        n_p = pt.count
+        c = self._consts()
+
+        def f(v: float) -> Any:
+            return dr.opaque(m.Float, float(v))
+
+        idx = dr.arange(m.UInt32, n)
+        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=m.UInt64(idx))
+        # the wavelength cell of the lane, and frac from the triangle's density inside it
+        sub = int(strata.counts.sum())
+        k = dr.gather(m.UInt32, m.UInt32(strata.cell_of_lane),
+                      idx % dr.opaque(m.UInt32, sub))
+        kf = m.Float(k)
+        upper = kf >= step
+        a = dr.select(upper, (2.0 * step - 1.0) - kf, kf)
+        x = dr.sqrt(a * a + rng.next_float32() * (2.0 * a + 1.0)) - a
+        frac = dr.clip(dr.select(upper, 1.0 - x, x), 0.0, 1.0)
+        delta = kf + frac - step
+        ray = self._radiometer_ray(rng)
+        hit = self._intersect(c, ray, m.Bool(True))
+        first = hit.surf & (hit.slot == self.slot_names.index(self.patch_slot_name))
+        frame, wi, o = self._frame(hit, ray)
+        # light sample and the defensive mixture's BSDF sample at the patch vertex
+        wl, em_w, pdf_l, ok = self._light_sample(c, frame, o, rng, first)
+        q = dr.minimum(m.UInt32(rng.next_float32() * f(n_p)), dr.opaque(m.UInt32, n_p - 1))
+        alphas = [f(v) for v in pt.alpha]
+        p_specs = [f(v) for v in pt.p_spec]
+        alpha_q = dr.gather(m.Float, m.Float(pt.alpha + [pt.alpha[-1]]), q)
+        pspec_q = dr.gather(m.Float, m.Float(pt.p_spec + [pt.p_spec[-1]]), q)
+        wo = self._sample_direction(wi, alpha_q, pspec_q, rng)
+
+        def per_patch(w: Any) -> tuple[Any, list[Any], list[Any], Any]:
+            """(mixture pdf of w, GGX·F factor per patch, backscatter factor per patch,
+            validity) at the patch vertex for the outgoing local direction w."""
+            h = dr.normalize(wi + w)
+            cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+            woh = dr.fmax(dr.abs(dr.dot(w, h)), 1e-12)
+            valid = (wi.z > 0) & (w.z > 0)
+            cosw = dr.select(valid, wi.z * w.z, 1.0)
+            pdf = m.Float(0.0)
+            geo, back = [], []
+            for p in range(n_p):
+                a2 = alphas[p] * alphas[p]
+                d = ggx_d(a2, h.z)
+                pdf += p_specs[p] * d * h.z / (4.0 * woh) + (1.0 - p_specs[p]) * w.z / np.pi
+                g = d * smith_g1(a2, wi.z) * smith_g1(a2, w.z) / (4.0 * cosw)
+                geo.append(dr.select(valid, g * fresnel(f(pt.eta[p]), cb), 0.0))
+                if pt.has_kb:
+                    back.append(dr.exp((dr.dot(wi, w) - 1.0) * f(pt.inv_sigma2[p])) / np.pi)
+            return dr.select(valid, pdf / n_p, 0.0), geo, back, valid
+
+        pdf_wl, geo_l, back_l, valid_l = per_patch(wl)
+        mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(pdf_wl), 1e-30)
+        w_nee = dr.select(first & ok & valid_l, em_w * mis * wl.z, 0.0)
+        pdf_wo, geo_o, back_o, valid_o = per_patch(wo)
+        go_on = first & valid_o & (pdf_wo > 0)
+        w_bsdf = dr.select(go_on, wo.z / dr.fmax(pdf_wo, 1e-30), 0.0)
+        rows_nee = [w_nee / np.pi] + [w_nee * g for g in geo_l] + [w_nee * b for b in back_l]
+        rows_bsdf = [w_bsdf / np.pi] + [w_bsdf * g for g in geo_o] + [w_bsdf * b for b in back_o]
+        # the continuation: from the patch vertex (vertex 1 next), or the camera ray itself
+        # when the radiometer's ray met something else first
+        d_start = dr.select(first, frame.to_world(wo), ray.d)
+        start = m.Ray3f(dr.select(first, o, ray.o), d_start)
+        depth = dr.select(first, m.UInt32(1), m.UInt32(0))
+        active = dr.select(first, go_on & (1 < c.max_depth), m.Bool(True))
+        prev_pdf = dr.select(first, pdf_wo, 0.0)
+        dr.eval(rows_nee, rows_bsdf, first, frac, delta, k, start.o, start.d, depth, active,
+                prev_pdf, rng)
+        lookup = self._lookup(tab, k, frac)
+        patches = SimpleNamespace(
+            slot=dr.opaque(m.UInt32, self.slot_names.index(self.patch_slot_name)),
+            base=dr.opaque(m.UInt32, len(self.slot_names)), count_f=f(n_p),
+            last=dr.opaque(m.UInt32, n_p - 1))
+        res = self._path_loop(tab, c, lookup, delta, start, active, depth, prev_pdf, rng,
+                              patches=patches)
+        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
+        post = [res.acc[b] * le[b] for b in range(n_b)]
+        late = [res.late[b] * le[b] for b in range(n_b)]
+        dr.eval(le, post, late, res.pstar)
+
+        def np32(values: Sequence[Any]) -> np.ndarray:
+            """(n, len(values)) float32, as a transposed view of a row-major stack."""
+            return np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
+
+        return {"le": np32(le), "post": np32(post), "late": np32(late),
+                "rows_nee": np32(rows_nee), "rows_bsdf": np32(rows_bsdf),
+                "first": np.asarray(first, dtype=bool), "frac": np.asarray(frac, np.float32),
+                "pstar": np.asarray(res.pstar, dtype=np.uint32)}
+
+    def _sub_batch_estimates(self, out: Mapping[str, np.ndarray], pt: SimpleNamespace,
+                             strata: WavelengthStrata) -> np.ndarray:
+        """(J, P, B): each sub-batch's estimate of every patch's band radiance."""
+        n_p, n_b, step = pt.count, self.grid.n_bands, self.grid.step_nm
+        sub = int(strata.counts.sum())
+        n = out["frac"].size
+        n_j = n // sub
+        est = np.zeros((n_j, n_p, n_b))
+        frac = out["frac"].reshape(n_j, sub, 1)
+        non_first = (~out["first"]).astype(np.float32).reshape(n_j, 1, sub)
+        n_rows = out["rows_nee"].shape[1]
+        spectra = [(pt.kd, pt.kd_slope, 0)]
+        spectra.append((pt.ks, pt.ks_slope, 1))
+        if pt.has_kb:
+            spectra.append((pt.kb, pt.kb_slope, 1 + n_p))
+        pi_c = np.pi * pt.c[:, None]
+        weight = strata.weight
+        for kk in range(strata.counts.size):
+            lo, hi = int(strata.bounds[kk]), int(strata.bounds[kk + 1])
+            cols = kk + step * np.arange(n_b)
+            fk = frac[:, lo:hi]
+            for rows, w_band in (("rows_nee", "le"), ("rows_bsdf", "post")):
+                x = out[rows].reshape(n_j, sub, n_rows)[:, lo:hi]
+                wb = out[w_band].reshape(n_j, sub, n_b)[:, lo:hi]
+                xx = np.concatenate([x, x * fk], axis=2).transpose(0, 2, 1)
+                mm = np.matmul(xx, wb).astype(np.float64) * weight[kk]      # (J, 2R, B)
+                for table, table_slope, r0 in spectra:
+                    if r0 == 0:                       # kd: one row (A), patch-independent
+                        est += ((table[:, cols] - pi_c)[None] * mm[:, None, 0]
+                                + table_slope[:, cols][None] * mm[:, None, n_rows])
+                    else:
+                        est += (table[:, cols][None] * mm[:, r0:r0 + n_p]
+                                + table_slope[:, cols][None]
+                                * mm[:, n_rows + r0:n_rows + r0 + n_p])
+            post = out["post"].reshape(n_j, sub, n_b)[:, lo:hi]
+            est += (np.matmul(non_first[:, :, lo:hi], post)[:, 0].astype(np.float64)
+                    * weight[kk])[:, None, :]
+        # light that came back to the patch: for the picked patch p* only
+        lanes = np.nonzero(out["pstar"] != _NONE)[0]
+        if lanes.size:
+            local = lanes % sub
+            cell = strata.cell_of_lane[local].astype(np.int64)
+            cols = cell[:, None] + step * np.arange(n_b)[None, :]
+            p = out["pstar"][lanes].astype(np.int64)
+            fr = out["frac"][lanes, None].astype(np.float64)
+            late = out["late"][lanes].astype(np.float64)
+            rows = out["rows_bsdf"][lanes].astype(np.float64)
+            factor = ((pt.kd[p[:, None], cols] + fr * pt.kd_slope[p[:, None], cols]
+                       - pi_c[p]) * rows[:, :1]
+                      + (pt.ks[p[:, None], cols] + fr * pt.ks_slope[p[:, None], cols])
+                      * rows[np.arange(lanes.size), 1 + p][:, None])
+            if pt.has_kb:
+                factor += ((pt.kb[p[:, None], cols] + fr * pt.kb_slope[p[:, None], cols])
+                           * rows[np.arange(lanes.size), 1 + n_p + p][:, None])
+            factor = np.where(out["first"][lanes, None], factor, 1.0)
+            np.add.at(est, (lanes // sub, p), factor * late * strata.weight[cell][:, None])
+        return est
+
+    # ---- public ------------------------------------------------------------------------
+    def render_patches(self, patches: Sequence[Any], materials: Mapping[str, Any],
+                       emitter_wavelength_nm: Any, emitter_radiance: Any, *,
+                       n_paths: int | None = None, target_rel_se: float | None = None,
+                       seed: int = 0, max_paths: int = 1 << 23,
+                       pilot_paths: int = 1 << 16) -> list[BandEstimate]:
+        """The radiometer spectrum of each patch in `patches` (materials of the fit family,
+        no λ-dependent η), the other slots from `materials`, from one set of paths.
+
+        Either a fixed `n_paths` (rounded up to whole sub-batches), or `target_rel_se`: paths
+        are added until every patch's largest relative SE over the bands is at or below it (or
+        `max_paths`).  Deterministic for a given seed.  `BandEstimate.time_s` is the shared
+        wall time divided by the number of patches."""
+        if n_paths is None and target_rel_se is None:
+            raise ValueError("give n_paths or target_rel_se")
+        if not patches:
+            raise ValueError("no patches")
+        t0 = time.perf_counter()
+        pt = self._patch_tables(patches)
+        slots = {**materials, self.patch_slot_name: patches[0]}
+        tab = self._tables(slots, emitter_wavelength_nm, emitter_radiance, extra_slots=patches)
+        strata = WavelengthStrata.build(self.grid.step_nm)
+        sub = int(strata.counts.sum())
+        chunk = max(sub, self.chunk_paths // sub * sub)
+        n_p, n_b = pt.count, self.grid.n_bands
+        s1 = np.zeros((n_p, n_b))
+        s2 = np.zeros((n_p, n_b))
+        n_j = 0
+        chunk_no = 0
+
+        def whole(v: int) -> int:
+            return max(sub, -(-int(v) // sub) * sub)
+
+        goal = whole(n_paths if n_paths is not None else min(pilot_paths, max_paths))
+        while True:
+            while n_j * sub < goal:
+                n = min(chunk, goal - n_j * sub)
+                out = self._trace_patches(tab, pt, n, _chunk_seed(seed, chunk_no), strata)
+                chunk_no += 1
+                est = self._sub_batch_estimates(out, pt, strata)
+                s1 += est.sum(axis=0)
+                s2 += np.einsum("jpb,jpb->pb", est, est)
+                n_j += est.shape[0]
+            mean = s1 / n_j
+            var = np.maximum(s2 / n_j - mean * mean, 0.0) * n_j / max(n_j - 1, 1)
+            se = np.sqrt(var / n_j)
+            if target_rel_se is None:
+                break
+            rel = max(max_rel_se(mean[p], se[p]) for p in range(n_p))
+            if rel <= target_rel_se or n_j * sub >= max_paths:
+                break
+            need = int(np.ceil(n_j * sub * (rel / target_rel_se) ** 2 * 1.05))
+            goal = whole(min(int(max_paths), max(need, n_j * sub + sub)))
+        dt = (time.perf_counter() - t0) / n_p
+        return [BandEstimate(self.grid.centres_nm, mean[p], se[p], n_j * sub, dt)
+                for p in range(n_p)]
