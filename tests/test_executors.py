@@ -59,6 +59,7 @@ def test_local_dask_cluster_gives_the_in_process_spectra():
     np.testing.assert_array_equal(there.radiance, here.radiance)
     np.testing.assert_array_equal(there.std_error, here.std_error)
     np.testing.assert_array_equal(there.n_paths, here.n_paths)
+    assert np.all(here.n_paths == 4096)      # all patches per path: whole sub-batches, ≥ 4
 
 
 def test_predict_cli_address_needs_the_dask_executor(tmp_path, capsys):

@@ -819,33 +819,47 @@ class FastNormbox:
                 value["bsdf"] = stand_in["panel"]
         return d
 
+    #: the angle the scene is built at; every other angle is this scene moved, computed from
+    #: it directly (never from the previous angle), so the geometry at an angle does not
+    #: depend on which angles a process rendered before (bit-identical across executors)
+    REFERENCE_ANGLE_DEG = 45.0
+
     def _ensure_scene(self, angle_deg: float) -> None:
         from normbox_lab.predict import scene as nbscene
 
-        if self._scene is not None:
-            self.set_angle(angle_deg)
-            return
-        g = self.geometry
-        with in_variant(self.variant) as mi:
-            self._stand_in = {r: mi.load_dict({"type": "diffuse", "reflectance": 0.1 + 0.1 * i})
-                              for i, r in enumerate(STAND_INS)}
-            d = self._scene_dict(mi, angle_deg, self._stand_in)
-            self._scene = mi.load_dict(d)
-            self._to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
-                              for k in self.MOVING}
-        self._angle_deg = float(angle_deg)
-        cells = nbscene.panel_cells_m(g)
-        z = float(cells[0][0][2])
-        self._emitter = RectEmitter((0.0, 0.0, z), g.aperture_x_mm / 2000.0,
-                                    g.aperture_y_mm / 2000.0,
-                                    tuple(map(tuple, nbscene.panel_map(
-                                        g.panel_homogeneity_percent))))
-        self._radiometer = Radiometer(origin_m=tuple(nbscene.radiometer_position_m(g)),
-                                      target_m=tuple(nbscene.sample_centre_m(g)),
-                                      up=(0.0, 0.0, 1.0), fov_deg=float(g.radiometer_view_deg))
+        if self._scene is None:
+            g = self.geometry
+            ref = self.REFERENCE_ANGLE_DEG
+            with in_variant(self.variant) as mi:
+                self._stand_in = {r: mi.load_dict({"type": "diffuse",
+                                                   "reflectance": 0.1 + 0.1 * i})
+                                  for i, r in enumerate(STAND_INS)}
+                d = self._scene_dict(mi, ref, self._stand_in)
+                self._scene = mi.load_dict(d)
+                self._ref_to_world = {k: np.array(d[k]["to_world"].matrix, dtype=np.float64)
+                                      for k in self.MOVING}
+                params = mi.traverse(self._scene)
+                self._ref_params = {}
+                for key in self.MOVING:
+                    for name in (f"{key}.vertex_positions", f"{key}.vertex_normals"):
+                        if name in params and dr_size(params[name]) > 0:
+                            self._ref_params[name] = np.array(params[name], dtype=np.float64)
+            self._angle_deg = ref
+            cells = nbscene.panel_cells_m(g)
+            z = float(cells[0][0][2])
+            self._emitter = RectEmitter((0.0, 0.0, z), g.aperture_x_mm / 2000.0,
+                                        g.aperture_y_mm / 2000.0,
+                                        tuple(map(tuple, nbscene.panel_map(
+                                            g.panel_homogeneity_percent))))
+            self._radiometer = Radiometer(origin_m=tuple(nbscene.radiometer_position_m(g)),
+                                          target_m=tuple(nbscene.sample_centre_m(g)),
+                                          up=(0.0, 0.0, 1.0),
+                                          fov_deg=float(g.radiometer_view_deg))
+        self.set_angle(angle_deg)
 
     def set_angle(self, angle_deg: float) -> None:
-        """Rotate the patch and its holder plate in place to `angle_deg`."""
+        """Rotate the patch and its holder plate in place to `angle_deg` (from the reference
+        scene's vertices, so the result depends on `angle_deg` alone)."""
         if self._scene is None:
             self._ensure_scene(angle_deg)
             return
@@ -856,20 +870,18 @@ class FastNormbox:
             params = mi.traverse(self._scene)
             for key in self.MOVING:
                 new = np.array(d[key]["to_world"].matrix, dtype=np.float64)
-                rel = new @ np.linalg.inv(self._to_world[key])
+                rel = new @ np.linalg.inv(self._ref_to_world[key])
                 if f"{key}.to_world" in params:
                     params[f"{key}.to_world"] = mi.ScalarTransform4f(new)
-                else:
-                    v = np.array(params[f"{key}.vertex_positions"], dtype=np.float64)
-                    v = v.reshape(-1, 3) @ rel[:3, :3].T + rel[:3, 3]
-                    params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
-                    nk = f"{key}.vertex_normals"
-                    if nk in params and dr_size(params[nk]) > 0:
-                        nn = np.array(params[nk], dtype=np.float64).reshape(-1, 3)
-                        nn = nn @ np.linalg.inv(rel[:3, :3])
-                        nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-30)
-                        params[nk] = mi.Float(nn.ravel().astype(np.float32))
-                self._to_world[key] = new
+                    continue
+                v = self._ref_params[f"{key}.vertex_positions"].reshape(-1, 3)
+                v = v @ rel[:3, :3].T + rel[:3, 3]
+                params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+                nk = f"{key}.vertex_normals"
+                if nk in self._ref_params:
+                    nn = self._ref_params[nk].reshape(-1, 3) @ np.linalg.inv(rel[:3, :3])
+                    nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-30)
+                    params[nk] = mi.Float(nn.ravel().astype(np.float32))
             params.update()
         self._angle_deg = float(angle_deg)
         for tr in self._tracers.values():

@@ -47,6 +47,7 @@ from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from normbox_lab.predict.fastrender import (
     BandEstimate,
@@ -59,7 +60,9 @@ from normbox_lab.predict.fastrender import (
 )
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
-SUB_BATCH = 2048
+SUB_BATCH = 1024
+#: the fewest sub-batches of a render (so that their spread is an error estimate at all)
+MIN_SUB_BATCHES = 4
 _NONE = 0xFFFFFFFF
 
 
@@ -289,7 +292,8 @@ class PatchSetTracer(BandPathTracer):
         """The radiometer spectrum of each patch in `patches` (materials of the fit family,
         no λ-dependent η), the other slots from `materials`, from one set of paths.
 
-        Either a fixed `n_paths` (rounded up to whole sub-batches), or `target_rel_se`: paths
+        Either a fixed `n_paths` (rounded up to whole sub-batches, at least
+        `MIN_SUB_BATCHES`), or `target_rel_se`: paths
         are added until every patch's largest relative SE over the bands is at or below it (or
         `max_paths`).  Deterministic for a given seed.  `BandEstimate.time_s` is the shared
         wall time divided by the number of patches."""
@@ -311,7 +315,7 @@ class PatchSetTracer(BandPathTracer):
         chunk_no = 0
 
         def whole(v: int) -> int:
-            return max(sub, -(-int(v) // sub) * sub)
+            return max(MIN_SUB_BATCHES * sub, -(-int(v) // sub) * sub)
 
         goal = whole(n_paths if n_paths is not None else min(pilot_paths, max_paths))
         while True:
@@ -319,7 +323,10 @@ class PatchSetTracer(BandPathTracer):
                 n = min(chunk, goal - n_j * sub)
                 out = self._trace_patches(tab, pt, n, _chunk_seed(seed, chunk_no), strata)
                 chunk_no += 1
-                est = self._sub_batch_estimates(out, pt, strata)
+                # one BLAS thread: the sums' order, and so every bit, the same in any process
+                # (dask workers run with one BLAS thread, a plain process with several)
+                with threadpool_limits(1, user_api="blas"):
+                    est = self._sub_batch_estimates(out, pt, strata)
                 s1 += est.sum(axis=0)
                 s2 += np.einsum("jpb,jpb->pb", est, est)
                 n_j += est.shape[0]
