@@ -8,7 +8,7 @@ VENV   := .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.normbox-installed
 
-.PHONY: demo test test-slow test-all setup lint clean
+.PHONY: demo test test-slow test-all setup lint clean bench-gpu
 
 setup: $(STAMP)
 
@@ -47,6 +47,13 @@ test-all: $(STAMP)
 
 demo: $(STAMP)
 	$(VENV)/bin/normbox-lab demo
+
+# On a machine with an NVIDIA GPU: the fast renderer's tests and `bench predict` in Mitsuba's
+# cuda_ad_mono variant (the bench runs twice: the second finds Dr.Jit's kernel cache warm).
+bench-gpu: $(STAMP)
+	NORMBOX_FAST_VARIANT=cuda_ad_mono $(PY) -m pytest -q -m '' tests/test_fastrender.py tests/test_executors.py
+	NORMBOX_FAST_VARIANT=cuda_ad_mono $(VENV)/bin/normbox-lab bench predict
+	NORMBOX_FAST_VARIANT=cuda_ad_mono $(VENV)/bin/normbox-lab bench predict
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check normbox_lab drivers sim protocols tests

@@ -103,7 +103,7 @@ def run_bench_predict(out: TextIO = sys.stdout,
     emit(f"bench predict: {len(configs)} configurations ({len({p for p, _ in configs})} patches"
          f" × {len(angles)} angles), fit-family materials, 81 bands (5 nm hats, 380–780 nm),"
          f" target {100 * target:.2f} % relative standard error in the worst band")
-    emit(f"machine: {os.cpu_count()} CPUs, no GPU in this session; fast variant "
+    emit(f"machine: {os.cpu_count()} CPUs; fast variant "
          f"{mono_variant()}, executor {kind}" + (f" ({n_workers} workers)" if kind != "inprocess"
                                                   else ""))
 
