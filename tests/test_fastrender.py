@@ -72,9 +72,9 @@ def _direct_light_closed_form(mat, origin, emitter, h_m, n=500):
     return kd * i_kd + ks * i_ks - mat.c * i_c
 
 
-def test_direct_light_closes_on_the_closed_form():
-    """A floor under a down-facing rectangular light with a 2×2 radiance map: the tracer
-    (emitter sampling + GGX/cosine sampling with MIS, band tables, −c) matches quadrature."""
+def _floor_under_light(tracer_class, floor_slot):
+    """A floor (material slot `floor_slot`) under a down-facing rectangular light with a 2×2
+    radiance map, seen from above by the radiometer; direct light only (max_depth 2)."""
     variant = mono_variant()
     h = 0.3
     emitter = RectEmitter((0.0, 0.0, h), 0.10, 0.08, ((0.7, 1.3), (1.0, 1.1)))
@@ -90,9 +90,16 @@ def test_direct_light_closes_on_the_closed_form():
                       "to_world": T().translate([0, 0, h]).rotate([1, 0, 0], 180)
                       .scale([0.10, 0.08, 1.0])}})
     origin = (0.45, 0.2, 0.5)
-    tracer = BandPathTracer(scene, [(floor_bsdf, "floor"), (panel_bsdf, "panel")],
-                            Radiometer(origin, (0.0, 0.0, 0.0)), emitter, variant=variant,
-                            max_depth=2)
+    tracer = tracer_class(scene, [(floor_bsdf, floor_slot), (panel_bsdf, "panel")],
+                          Radiometer(origin, (0.0, 0.0, 0.0)), emitter, variant=variant,
+                          max_depth=2)
+    return tracer, origin, emitter, h
+
+
+def test_direct_light_closes_on_the_closed_form():
+    """A floor under a down-facing rectangular light with a 2×2 radiance map: the tracer
+    (emitter sampling + GGX/cosine sampling with MIS, band tables, −c) matches quadrature."""
+    tracer, origin, emitter, h = _floor_under_light(BandPathTracer, "floor")
     wl = np.array([360.0, 830.0])
     est = tracer.render({"floor": _Mat()}, wl, [2.0, 2.0], n_paths=1 << 16, seed=3)
     expected = 2.0 * _direct_light_closed_form(_Mat(), origin, emitter, h)
@@ -205,24 +212,7 @@ def test_all_patches_per_path_close_on_the_closed_form():
     matches its own quadrature; a one-patch render agrees too."""
     from normbox_lab.predict.patchset import PatchSetTracer
 
-    variant = mono_variant()
-    h = 0.3
-    emitter = RectEmitter((0.0, 0.0, h), 0.10, 0.08, ((0.7, 1.3), (1.0, 1.1)))
-    with in_variant(variant) as mi:
-        floor_bsdf = mi.load_dict({"type": "diffuse", "reflectance": 0.1})
-        panel_bsdf = mi.load_dict({"type": "diffuse", "reflectance": 0.2})
-        T = mi.ScalarTransform4f
-        scene = mi.load_dict({
-            "type": "scene",
-            "floor": {"type": "rectangle", "to_world": T().scale([0.5, 0.5, 1.0]),
-                      "bsdf": floor_bsdf},
-            "panel": {"type": "rectangle", "bsdf": panel_bsdf,
-                      "to_world": T().translate([0, 0, h]).rotate([1, 0, 0], 180)
-                      .scale([0.10, 0.08, 1.0])}})
-    origin = (0.45, 0.2, 0.5)
-    tracer = PatchSetTracer(scene, [(floor_bsdf, "patch"), (panel_bsdf, "panel")],
-                            Radiometer(origin, (0.0, 0.0, 0.0)), emitter, variant=variant,
-                            max_depth=2)
+    tracer, origin, emitter, h = _floor_under_light(PatchSetTracer, "patch")
     wl = np.array([360.0, 830.0])
     ests = tracer.render_patches([_Mat(), _Glossy()], {}, wl, [2.0, 2.0], n_paths=1 << 17,
                                  seed=3)
