@@ -111,14 +111,16 @@ class _FastRenderWorld:
 
         angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
         mat = self.patch_material(patch)
-        target, base = self.target_rel_se, 1
+        target, base, pilot = self.target_rel_se, 1, 1 << 14
         if self.errors.render_rel_se:
-            # rendering error: the truth's own noise, independent of the prediction's
-            target, base = self.errors.render_rel_se, 7919 + self.errors.seed
+            # rendering error: the truth's own noise, independent of the prediction's, at the
+            # given worst-band relative SE (a small pilot, so the render does not overshoot it)
+            target, base, pilot = self.errors.render_rel_se, 7919 + self.errors.seed, 1 << 11
         return self.fast.render_view(patch=mat, wall=self.wall, holder=self.holder,
                                      angle_deg=angle, lamp=self.lamp,
                                      target_rel_se=target, direct_only=direct_only,
-                                     seed=config_seed(base, f"{mat.name}@{angle:g}"))
+                                     seed=config_seed(base, f"{mat.name}@{angle:g}"),
+                                     pilot_paths=pilot)
 
 
 def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Callable | None]:

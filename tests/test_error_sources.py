@@ -212,7 +212,7 @@ def test_spec_round_trip_and_paper():
     assert parse_error_spec(e.spec()) == e
     paper = parse_error_spec("paper")
     assert set(paper.on_names()) == set(SOURCE_FIELDS) - {"angle", "angle-sweep", "render"}
-    assert paper.angle_offset_deg == {65.0: 0.7, 80.0: -0.7}
+    assert paper.angle_offset_deg == {65.0: -0.3, 80.0: 0.3}
     assert parse_error_spec(PAPER_SPEC) == paper
     assert parse_error_spec("all=paper,cs1000=off").cs1000_gain == Magnitude()
     assert not parse_error_spec("off").any_on
