@@ -655,10 +655,11 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
         if "wall" in data and np.any(np.isclose(ang, 90.0)):
             e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
             e = np.interp(c.wavelength_nm, data["wall"].wavelength_nm, e)
-            nse90 = np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :], axis=0)
+            # the paper's NSE sign (reference − prediction); the fit error (fit − measured)
+            nse90 = -np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :], axis=0)
             ok = np.isfinite(nse90) & np.isfinite(e)
             r = float(np.corrcoef(nse90[ok], e[ok])[0, 1])
-            rows.append(("NSE at 90° vs wall fit error at (−70°, 80°), r over λ",
+            rows.append(("NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ",
                          "follows it, rising to the red",
                          (f"{r:+.2f} (NSE 450 / 700 nm: "
                           f"{100 * np.interp(450, c.wavelength_nm, nse90):+.1f} / "
