@@ -17,6 +17,7 @@ from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
 from normbox_lab.tui.app import DrillScreen, NormboxConsole, PromptScreen, ResumeScreen
 from normbox_lab.tui.controller import Session
+from normbox_lab.tui.tabs import ImagesPane
 
 ANGLES = "[30, 90]"
 PATCHES = "[1, 9, 19]"
@@ -457,7 +458,8 @@ def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: session.store is not None and app.panes_built, "the store")
             await pilot.press("6")
-            await until(pilot, lambda: getattr(app, "_image_shown", None) is not None,
+            images = app.pane(ImagesPane)
+            await until(pilot, lambda: images.shown_artifact_id is not None,
                         "the image preview")
             figure = app.query_one("#images-text").content.renderables[0]
             title, grid = figure.renderables

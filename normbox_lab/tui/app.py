@@ -15,25 +15,24 @@ from typing import Any, ClassVar
 from textual import on, work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.css.query import NoMatches
 from textual.message import Message
-from textual.screen import ModalScreen
-from textual.widgets import (
-    Button,
-    DataTable,
-    Footer,
-    Input,
-    Label,
-    ProgressBar,
-    RichLog,
-    Select,
-    Static,
-    TabbedContent,
-    TabPane,
-)
+from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.tui.controller import Session
+from normbox_lab.tui.screens import DrillScreen, PromptScreen, ResumeScreen, prompt_text
+from normbox_lab.tui.tabs import (
+    ImagesPane,
+    InstrumentsPane,
+    ResultsPane,
+    RunPane,
+    RunsPane,
+    SpectrumPane,
+)
+from normbox_lab.tui.tabs.instruments import connection_text
+
+__all__ = ["DrillScreen", "NormboxConsole", "PromptScreen", "ResumeScreen", "connection_text",
+           "prompt_text"]
 
 TABS = ("instruments", "run", "spectrum", "runs", "results", "images")
 RADIANCE_TITLE = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
@@ -54,134 +53,6 @@ class LabReady(Message):
         self.error = error
 
 
-# --- modals ----------------------------------------------------------------------------------
-
-class PromptScreen(ModalScreen[str]):
-    """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
-
-    BINDINGS: ClassVar = [Binding("enter", "choose(0)", "answer", show=True),
-                          Binding("r", "pick('retry')", "retry", show=False),
-                          Binding("s", "pick('skip')", "skip", show=False),
-                          Binding("a", "pick('abort')", "abort", show=False),
-                          Binding("p", "app.pause_resume", "pause", show=False),
-                          Binding("q", "app.quit_console", "quit", show=False)]
-    DEFAULT_CSS = """
-    PromptScreen { align: center middle; }
-    PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
-                              background: $panel; }
-    PromptScreen.fault > Vertical { border: thick $error; }
-    PromptScreen Horizontal { height: auto; }
-    PromptScreen Button { margin: 0 1 0 0; }
-    """
-
-    def __init__(self, request: Any) -> None:
-        super().__init__(classes="fault" if request.kind == "fault" else "")
-        self.request = request
-
-    def compose(self) -> ComposeResult:
-        req = self.request
-        title = "Fault" if req.kind == "fault" else "Operator"
-        hint = ("r retry · s skip · a abort · Enter retry" if req.kind == "fault"
-                else "Enter done · p pause after this reading · a abort · q quit")
-        with Vertical():
-            yield Label(f"[b]{title}[/b]  {req.key}")
-            yield Static(prompt_text(req), id="prompt-message")
-            yield Label(f"[dim]{hint}[/dim]")
-            with Horizontal():
-                for i, c in enumerate(req.choices):
-                    yield Button(c, id=f"choice-{c}", compact=True,
-                                 variant="primary" if i == 0 else
-                                 ("error" if c == "abort" else "default"))
-
-    def action_choose(self, index: int) -> None:
-        self.dismiss(self.request.choices[int(index)])
-
-    def action_pick(self, choice: str) -> None:
-        if choice in self.request.choices:
-            self.dismiss(choice)
-        elif choice == "abort":              # an operator prompt: abort the run
-            self.app.action_abort()
-
-    @on(Button.Pressed)
-    def _pressed(self, event: Button.Pressed) -> None:
-        self.dismiss(str(event.button.id).removeprefix("choice-"))
-
-
-def prompt_text(req: Any) -> str:
-    """"Place patch 7 (orange) on the holder, then press Enter" for a place_patch prompt."""
-    msg = str(req.message)
-    if req.kind == "operator":
-        msg = msg[:1].upper() + msg[1:]
-        if req.data.get("action") == "place_patch":
-            msg += " on the holder"
-        msg += " — then Enter"
-    return msg
-
-
-class ResumeScreen(ModalScreen[int | None]):
-    """Offered at start when the store holds runs that are not done."""
-
-    BINDINGS: ClassVar = [Binding("enter", "resume", "resume"), Binding("escape,n", "later", "not now")]
-    DEFAULT_CSS = """
-    ResumeScreen { align: center middle; }
-    ResumeScreen > Vertical { width: 74; height: auto; max-height: 18; border: thick $warning;
-                              padding: 0 1; background: $panel; }
-    ResumeScreen DataTable { height: auto; max-height: 10; }
-    """
-
-    def __init__(self, runs: list[Any]) -> None:
-        super().__init__()
-        self.runs = runs
-
-    def compose(self) -> ComposeResult:
-        from normbox_lab.tui.views import run_row
-
-        with Vertical():
-            yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
-            table: DataTable = DataTable(id="resume-table", cursor_type="row")
-            table.add_columns("id", "uuid", "protocol", "status", "readings", "flags", "created")
-            for r in reversed(self.runs):
-                table.add_row(*run_row(r), key=str(r.id))
-            yield table
-            yield Label("[dim]↑↓ pick · Enter resume · n / Esc not now[/dim]")
-
-    def action_resume(self) -> None:
-        table = self.query_one(DataTable)
-        row = table.cursor_row
-        runs = list(reversed(self.runs))
-        self.dismiss(runs[row].id if 0 <= row < len(runs) else None)
-
-    def action_later(self) -> None:
-        self.dismiss(None)
-
-    @on(DataTable.RowSelected)
-    def _selected(self, _event: DataTable.RowSelected) -> None:
-        self.action_resume()
-
-
-class DrillScreen(ModalScreen[None]):
-    """Per-patch drill-down of the Results heat map."""
-
-    BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
-    DEFAULT_CSS = """
-    DrillScreen { align: center middle; }
-    DrillScreen > VerticalScroll { width: 78; height: auto; max-height: 22;
-                                   border: thick $accent; background: $panel; }
-    """
-
-    def __init__(self, lines: list[str]) -> None:
-        super().__init__()
-        self.lines = lines
-
-    def compose(self) -> ComposeResult:
-        with VerticalScroll():
-            yield Static("\n".join(self.lines), id="drill-text")
-            yield Label("[dim]Esc / Enter: close[/dim]")
-
-    def action_close(self) -> None:
-        self.dismiss(None)
-
-
 # --- the app ---------------------------------------------------------------------------------
 
 class NormboxConsole(App):
@@ -193,25 +64,6 @@ class NormboxConsole(App):
     #status { height: 1; background: $boost; padding: 0 1; }
     TabbedContent { height: 1fr; }
     TabPane { padding: 0; }
-    #inst-table { height: auto; max-height: 10; }
-    #live { height: auto; padding: 0 1; }
-    #run-top { height: 1; }
-    #run-top Select { width: 26; }
-    #params { height: 6; border: round $surface-lighten-2; }
-    .param { height: 1; }
-    .param Label { width: 16; }
-    .param Input { width: 1fr; }
-    #run-info { height: 2; padding: 0 1; }
-    #progress { height: 1; padding: 0 1; }
-    #progress Bar { width: 1fr; }
-    #events { height: 1fr; }
-    #runs-table { height: 1fr; }
-    #readings-table { height: 1fr; }
-    #res-head { height: 2; padding: 0 1; }
-    #heatmap { height: 1fr; }
-    #drill { height: 1; padding: 0 1; }
-    #spectrum-head { height: 1; padding: 0 1; }
-    #images-view { height: 1fr; padding: 0 1; }
     """
     BINDINGS: ClassVar = [
         Binding("x", "emergency_stop", "E-STOP", priority=True),
@@ -250,8 +102,6 @@ class NormboxConsole(App):
         self.previous: Any = None
         self._spectrum_dirty = False
         self._runs_dirty = True
-        self._plot: Any = None
-        self._heatmap: Any = None
         self.progress_done = 0
         self.progress_planned = 0
         self.run_status = "idle"
@@ -262,24 +112,21 @@ class NormboxConsole(App):
     def compose(self) -> ComposeResult:
         yield Static("normbox-lab · starting…", id="status")
         with TabbedContent(initial="run", id="tabs"):
-            yield TabPane("1 Instruments", id="instruments")   # filled after first paint
-            with TabPane("2 Run", id="run"):
-                with Horizontal(id="run-top"):
-                    # the protocol list (engine import) and parameters load after first paint
-                    yield Select([(self.protocol, self.protocol)], value=self.protocol,
-                                 allow_blank=False, compact=True, type_to_search=False,
-                                 id="protocol")
-                    yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
-                yield VerticalScroll(id="params")
-                yield Static("idle", id="run-info")
-                with Horizontal(id="progress"):
-                    yield ProgressBar(total=1, show_eta=False, id="bar")
-                yield RichLog(id="events", max_lines=500, wrap=False, markup=True)
-            yield TabPane("3 Spectrum", id="spectrum")
-            yield TabPane("4 Runs", id="runs")
-            yield TabPane("5 Results", id="results")
-            yield TabPane("6 Images", id="images")
+            yield InstrumentsPane()             # the other tabs are filled after first paint
+            yield RunPane(self.protocol)
+            yield SpectrumPane()
+            yield RunsPane()
+            yield ResultsPane()
+            yield ImagesPane()
         yield Footer()
+
+    def pane(self, kind: type) -> Any:
+        """The tab pane of that class."""
+        return self.query_one(kind)
+
+    @property
+    def _plot(self) -> Any:
+        return self.pane(SpectrumPane).plot
 
     def on_mount(self) -> None:
         self.call_after_refresh(self._first_paint)
@@ -288,29 +135,8 @@ class NormboxConsole(App):
     def _build_panes(self) -> None:
         """The tabs not shown at start: built right after the first paint (less to style and
         lay out before it)."""
-        def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
-            t: DataTable = DataTable(id=wid, **kw)
-            t.add_columns(*columns)
-            return t
-        self.query_one("#instruments", TabPane).mount_all([
-            table("inst-table", ("role", "connection", "identity", "state", "last seen"),
-                  cursor_type="row", zebra_stripes=True),
-            Static("", id="live")])
-        self.query_one("#spectrum", TabPane).mount_all([
-            Static("no reading yet", id="spectrum-head"), Vertical(id="plot-box")])
-        self.query_one("#runs", TabPane).mount_all([
-            table("runs-table", ("id", "uuid", "protocol", "status", "readings", "flags",
-                                 "created"),
-                  cursor_type="row", zebra_stripes=True),
-            table("readings-table", ("key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s"),
-                  cursor_type="row", zebra_stripes=True)])
-        self.query_one("#results", TabPane).mount_all([
-            Static("no comparison in the store yet (normbox-lab compare …)", id="res-head"),
-            DataTable(id="heatmap", cursor_type="cell"),
-            Static("", id="drill")])
-        self.query_one("#images", TabPane).mount_all([
-            VerticalScroll(Static("no image in the store yet (normbox-lab image figure1 …)",
-                                  id="images-text"), id="images-view")])
+        for kind in (InstrumentsPane, SpectrumPane, RunsPane, ResultsPane, ImagesPane):
+            self.pane(kind).build()
         self.panes_built = True
 
     def _first_paint(self) -> None:
@@ -319,13 +145,10 @@ class NormboxConsole(App):
         if self.exit_after_paint:
             self.exit()
             return
-        select = self.query_one("#protocol", Select)
         names = _protocol_names()
         if self.protocol not in names:
             names.append(self.protocol)
-        with select.prevent(Select.Changed):
-            select.set_options([(n, n) for n in names])
-            select.value = self.protocol
+        self.pane(RunPane).set_protocols(names, self.protocol)
         self._show_params(self.protocol)
         self._build_panes()
         self.call_after_refresh(self._load)
@@ -366,45 +189,27 @@ class NormboxConsole(App):
         self.query_one("#status", Static).update(text)
 
     def _log(self, markup: str, detail: str = "") -> None:
-        """One line in the Run tab's log: `markup` (ours) + `detail` (plain: messages and
-        errors from instruments may contain brackets)."""
-        from rich.text import Text
-
-        line = Text.from_markup(markup)
-        if detail:
-            line.append(detail)
-        self.query_one("#events", RichLog).write(line)
+        """One line in the Run tab's log: `markup` (ours) + `detail` (plain)."""
+        self.pane(RunPane).log(markup, detail)
 
     def _show_params(self, protocol: str) -> None:
-        box = self.query_one("#params", VerticalScroll)
-        box.remove_children()
         try:
-            params = self.session.default_parameters(protocol)
+            params: dict[str, Any] | Exception = self.session.default_parameters(protocol)
         except Exception as exc:  # noqa: BLE001 - a broken protocol file is shown, not fatal
-            box.mount(Label(f"[red]{exc}[/]"))
-            return
-        import json
-
-        for k, v in params.items():
-            text = v if isinstance(v, str) else json.dumps(v)   # as `--param K=V` takes it
-            if protocol == self.prefill_protocol:
-                text = self.prefill.get(k, text)
-            box.mount(Horizontal(Label(k), Input(text, id=f"param-{k}", compact=True),
-                                 classes="param"))
+            params = exc
+        prefill = self.prefill if protocol == self.prefill_protocol else {}
+        self.pane(RunPane).show_params(params, prefill)
 
     def parameters(self) -> dict[str, Any]:
         """The parameters as typed in the Run tab (JSON, like `--param K=V`)."""
         from normbox_lab.acquire import engine as eng
 
         module = eng.load_protocol(self.protocol)
-        out: dict[str, Any] = {}
-        for inp in self.query("#params Input").results(Input):
-            key = str(inp.id).removeprefix("param-")
-            out[key] = eng.coerce_param(module.PARAMETERS[key], inp.value)
-        return out
+        return {key: eng.coerce_param(module.PARAMETERS[key], text)
+                for key, text in self.pane(RunPane).parameter_texts().items()}
 
     def set_parameter(self, key: str, value: str) -> None:
-        self.query_one(f"#param-{key}", Input).value = value
+        self.pane(RunPane).set_parameter(key, value)
 
     # --- actions -----------------------------------------------------------------------------
     def action_tab(self, tab: str) -> None:
@@ -447,7 +252,7 @@ class NormboxConsole(App):
         self.call_from_thread(self._after_dry, text)
 
     def _after_dry(self, text: str) -> None:
-        self.query_one("#run-info", Static).update(text)
+        self.pane(RunPane).set_info(text)
         self._log("", text)
 
     def _ready_for_run(self) -> bool:
@@ -681,7 +486,7 @@ class NormboxConsole(App):
             self._poll()
 
     def _bar(self, done: int, planned: int) -> None:
-        self.query_one("#bar", ProgressBar).update(total=max(planned, 1), progress=done)
+        self.pane(RunPane).bar(done, planned)
 
     def _set_run_status(self, status: str) -> None:
         self.run_status = status
@@ -714,7 +519,7 @@ class NormboxConsole(App):
 
     def _update_run_info(self) -> None:
         remaining = self.remaining_text()
-        self.query_one("#run-info", Static).update(
+        self.pane(RunPane).set_info(
             f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings"
             f"{' · ' + remaining if remaining else ''}\nstep: {self.current_step}")
 
@@ -763,20 +568,7 @@ class NormboxConsole(App):
             self.resume_run(pending)
 
     def _show_instruments(self, rows: list[dict[str, Any]]) -> None:
-        from rich.text import Text
-
-        table = self.query_one("#inst-table", DataTable)
-        table.clear()
-        width = max(24, self.size.width - 60)
-        for r in rows:
-            ident = r["identity"] or "-"
-            seen = r.get("last_seen")
-            seen_text = time.strftime("%H:%M:%S", time.localtime(seen)) if seen else "never"
-            style = "bold white on #D55E00" if r.get("ok") is False else ""
-            cells = (r["role"], connection_text(r),
-                     ident if len(ident) <= width else ident[:width - 1] + "…",
-                     r["state"] or "-", seen_text)
-            table.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
+        self.pane(InstrumentsPane).show_instruments(rows, self.size.width)
         self._show_live()
         bad = [r["role"] for r in rows if r.get("ok") is False]
         self.notify(f"instruments polled at {time.strftime('%H:%M:%S')}: "
@@ -784,49 +576,11 @@ class NormboxConsole(App):
                     severity="error" if bad else "information", markup=False)
 
     def _show_live(self) -> None:
-        live = self.session.live
-        angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
-        lamp = live.lamp
-        if live.lamp_stable is not None and live.lamp != "stable":
-            lamp += " (stable)" if live.lamp_stable else " (not stable)"
-        temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
-        last = "-"
-        if live.last_key:
-            lv = "?" if live.last_Lv_cd_m2 is None else f"{live.last_Lv_cd_m2:.3g} cd/m²"
-            xy = "" if live.last_xy is None else f"  x {live.last_xy[0]:.4f} y {live.last_xy[1]:.4f}"
-            last = f"{live.last_key}: Lv {lv}{xy}"
-        patch = "-" if live.patch is None else str(live.patch)
-        self.query_one("#live", Static).update(
-            f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
-            f"spectrometer temperature {temp}\nlast reading {last}")
+        self.pane(InstrumentsPane).show_live(self.session.live)
 
     def _draw_spectrum(self) -> None:
-        if self.latest is None:
-            return
-        key, wl, rad, colo, title = self.latest
-        head = f"latest {key}"
-        if colo is not None:
-            head += f" · Lv {colo.Lv_cd_m2:.3g} cd/m² · x {colo.x:.4f} y {colo.y:.4f}"
-        if self.previous is not None:
-            head += f" · previous {self.previous[0]}"
-        self.query_one("#spectrum-head", Static).update(head)
-        if self._plot is None:
-            from textual_plotext import PlotextPlot
-
-            self._plot = PlotextPlot(id="plot")
-            self.query_one("#plot-box", Vertical).mount(self._plot)
-        plt = self._plot.plt
-        plt.clear_data()
-        plt.title(title)
-        plt.xlabel("wavelength nm")
-        step = max(1, len(wl) // 100)
-        if self.previous is not None:
-            pk, pwl, prad, _, _ = self.previous
-            plt.plot(list(pwl[::step]), list(prad[::step]), label=pk, marker="dot",
-                     color="gray")
-        plt.plot(list(wl[::step]), list(rad[::step]), label=key, marker="braille",
-                 color="cyan")
-        self._plot.refresh()
+        if self.latest is not None:
+            self.pane(SpectrumPane).draw(self.latest, self.previous)
 
     def spectrum_series(self) -> list[str]:
         """Labels of the plotted series (tests)."""
@@ -838,48 +592,10 @@ class NormboxConsole(App):
         return out
 
     def _refresh_runs(self) -> None:
-        from normbox_lab.analyze import qa
-        from normbox_lab.tui.views import run_row
-
-        store = self.session.store
-        table = self.query_one("#runs-table", DataTable)
-        selected = self._selected_run_id()
-        table.clear()
-        runs = store.runs()
-        flags = qa.summaries_by_run(store)
-        for r in runs:
-            table.add_row(*run_row(r, flags.get(r.id)), key=str(r.id))
-        if runs:
-            ids = [r.id for r in runs]
-            row = ids.index(selected) if selected in ids else len(ids) - 1
-            table.move_cursor(row=row)
-            self._show_readings(ids[row])
+        self.pane(RunsPane).refresh_runs()
 
     def _selected_run_id(self) -> int | None:
-        table = self.query_one("#runs-table", DataTable)
-        if table.row_count == 0:
-            return None
-        try:
-            key = table.coordinate_to_cell_key((table.cursor_row, 0)).row_key
-        except Exception:  # noqa: BLE001 - no valid cursor
-            return None
-        return int(str(key.value)) if key.value is not None else None
-
-    @on(DataTable.RowHighlighted, "#runs-table")
-    def _run_highlighted(self, event: DataTable.RowHighlighted) -> None:
-        if event.row_key.value is not None:
-            self._show_readings(int(str(event.row_key.value)))
-
-    def _show_readings(self, run_id: int) -> None:
-        from normbox_lab.tui.views import reading_row
-
-        table = self.query_one("#readings-table", DataTable)
-        if getattr(self, "_readings_shown", None) == (run_id, self.session.store.get_run(run_id).done):
-            return
-        table.clear()
-        for r in self.session.store.readings(run_id):
-            table.add_row(*reading_row(r))
-        self._readings_shown = (run_id, table.row_count)
+        return self.pane(RunsPane).selected_run_id()
 
     @on(TabbedContent.TabActivated)
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
@@ -905,103 +621,15 @@ class NormboxConsole(App):
         return any(getattr(node, "id", None) == pane_id for node in widget.ancestors)
 
     def _refresh_results(self) -> None:
-        from normbox_lab.tui.views import latest_heatmap
-
-        store = self.session.store
-        if store is None:
-            return
-        hm = latest_heatmap(store)
-        if hm is None or (self._heatmap is not None and self._heatmap.artifact_id == hm.artifact_id):
-            return
-        self.show_heatmap(hm)
+        if self.session.store is not None:
+            self.pane(ResultsPane).refresh_from(self.session.store)
 
     def _refresh_images(self) -> None:
-        """The store's latest image figures (one per id; the virtual camera's truth | prediction
-        | ΔE00 first) as half-block previews, each figure's panels side by side across the
-        console's width."""
-        from rich.console import Group
-
-        from normbox_lab.images.terminal import figure_renderable
-
-        store = self.session.store
-        if store is None:
-            return
-        found = store.artifacts(kind="image-figure")
-        if not found or getattr(self, "_image_shown", None) == found[-1].id:
-            return
-        latest = {a.name: a for a in found}
-        order = sorted(latest.values(), key=lambda a: (a.name != "fig-camera", -a.id))
-        self._image_shown = found[-1].id
-        width = max(24, min(160, self.size.width - 4))
-        figures = []
-        for a in order:
-            panels = [(p["label"], a.arrays[f"p{k}"], p.get("vmax"), p.get("unit", ""))
-                      for k, p in enumerate(a.metadata.get("panels", []))]
-            title = f"{a.metadata.get('title', a.name)} (artifact {a.id}, run {a.run_id})"
-            figures.append(figure_renderable(title, panels, width))
-        self.query_one("#images-text", Static).update(Group(*figures))
+        if self.session.store is not None:
+            self.pane(ImagesPane).refresh_from(self.session.store, self.size.width)
 
     def show_heatmap(self, hm: Any) -> None:
-        from rich.text import Text
-
-        from normbox_lab.tui.views import RATING_STYLES, rating_class
-
-        self._heatmap = hm
-        counts = hm.counts()
-        legend = Text()
-        for (style, label), n in zip(RATING_STYLES, counts, strict=True):
-            legend.append(f"{label} ({n})", style=style)
-            legend.append(" ")
-        head = Text(f"comparison {hm.name!r} (artifact {hm.artifact_id}"
-                    f"{'' if hm.run_id is None else f', run {hm.run_id}'}) · "
-                    f"mean ΔE00 {float(hm.delta_e00.mean()):.2f}\n")
-        head.append_text(legend)
-        self.query_one("#res-head", Static).update(head)
-        table = self.query_one("#heatmap", DataTable)
-        table.clear(columns=True)
-        table.add_column("patch", key="patch")
-        for a in hm.angle_deg:
-            table.add_column(f"{a:g}°", key=f"{a:g}")
-        for i, name in enumerate(hm.patch_names):
-            cells: list[Any] = [Text(name[:13])]
-            for j in range(hm.angle_deg.size):
-                de = float(hm.delta_e00[i, j])
-                cells.append(Text(f"{de:4.1f}", style=RATING_STYLES[rating_class(de)][0]))
-            table.add_row(*cells, key=f"p{i}")
-        table.add_row(Text("NRMSE %", style="bold"),
-                      *[Text(f"{100 * v:4.1f}", style="bold") for v in hm.nrmse_per_angle],
-                      key="nrmse")
-        self._drill(0)
-
-    @on(DataTable.CellSelected, "#heatmap")
-    def _cell_selected(self, event: DataTable.CellSelected) -> None:
-        hm = self._heatmap
-        if hm is not None and 0 <= event.coordinate.row < len(hm.patch_names):
-            self.push_screen(DrillScreen(hm.drill_down(event.coordinate.row)))
-
-    @on(DataTable.CellHighlighted, "#heatmap")
-    def _cell(self, event: DataTable.CellHighlighted) -> None:
-        self._drill(event.coordinate.row)
-
-    def _drill(self, row: int) -> None:
-        hm = self._heatmap
-        if hm is None:
-            return
-        drill = self.query_one("#drill", Static)
-        if 0 <= row < len(hm.patch_names):
-            drill.update(hm.summary(row))
-        else:
-            drill.update("NRMSE per angle (mean over patches): " + ", ".join(
-                f"{a:g}° {100 * v:.1f}%" for a, v in zip(hm.angle_deg, hm.nrmse_per_angle,
-                                                         strict=True)))
-
-
-def connection_text(row: dict[str, Any]) -> str:
-    """"sim cs1000a" for an emulator URL, "real /dev/ttyUSB0" for a port."""
-    port = str(row["port"])
-    if port.startswith("sim://"):
-        return "sim " + port.removeprefix("sim://").split("?")[0]
-    return ("sim " if row["simulated"] else "real ") + port
+        self.pane(ResultsPane).show_heatmap(hm)
 
 
 def _protocol_names() -> list[str]:

@@ -1,0 +1,139 @@
+"""The console's modal screens: operator / fault prompts, the resume offer at start, and the
+Results tab's per-patch drill-down."""
+
+from __future__ import annotations
+
+from typing import Any, ClassVar
+
+from textual import on
+from textual.app import ComposeResult
+from textual.binding import Binding
+from textual.containers import Horizontal, Vertical, VerticalScroll
+from textual.screen import ModalScreen
+from textual.widgets import Button, DataTable, Label, Static
+
+
+class PromptScreen(ModalScreen[str]):
+    """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
+
+    BINDINGS: ClassVar = [Binding("enter", "choose(0)", "answer", show=True),
+                          Binding("r", "pick('retry')", "retry", show=False),
+                          Binding("s", "pick('skip')", "skip", show=False),
+                          Binding("a", "pick('abort')", "abort", show=False),
+                          Binding("p", "app.pause_resume", "pause", show=False),
+                          Binding("q", "app.quit_console", "quit", show=False)]
+    DEFAULT_CSS = """
+    PromptScreen { align: center middle; }
+    PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
+                              background: $panel; }
+    PromptScreen.fault > Vertical { border: thick $error; }
+    PromptScreen Horizontal { height: auto; }
+    PromptScreen Button { margin: 0 1 0 0; }
+    """
+
+    def __init__(self, request: Any) -> None:
+        super().__init__(classes="fault" if request.kind == "fault" else "")
+        self.request = request
+
+    def compose(self) -> ComposeResult:
+        req = self.request
+        title = "Fault" if req.kind == "fault" else "Operator"
+        hint = ("r retry · s skip · a abort · Enter retry" if req.kind == "fault"
+                else "Enter done · p pause after this reading · a abort · q quit")
+        with Vertical():
+            yield Label(f"[b]{title}[/b]  {req.key}")
+            yield Static(prompt_text(req), id="prompt-message")
+            yield Label(f"[dim]{hint}[/dim]")
+            with Horizontal():
+                for i, c in enumerate(req.choices):
+                    yield Button(c, id=f"choice-{c}", compact=True,
+                                 variant="primary" if i == 0 else
+                                 ("error" if c == "abort" else "default"))
+
+    def action_choose(self, index: int) -> None:
+        self.dismiss(self.request.choices[int(index)])
+
+    def action_pick(self, choice: str) -> None:
+        if choice in self.request.choices:
+            self.dismiss(choice)
+        elif choice == "abort":              # an operator prompt: abort the run
+            self.app.action_abort()
+
+    @on(Button.Pressed)
+    def _pressed(self, event: Button.Pressed) -> None:
+        self.dismiss(str(event.button.id).removeprefix("choice-"))
+
+
+def prompt_text(req: Any) -> str:
+    """"Place patch 7 (orange) on the holder, then press Enter" for a place_patch prompt."""
+    msg = str(req.message)
+    if req.kind == "operator":
+        msg = msg[:1].upper() + msg[1:]
+        if req.data.get("action") == "place_patch":
+            msg += " on the holder"
+        msg += " — then Enter"
+    return msg
+
+
+class ResumeScreen(ModalScreen[int | None]):
+    """Offered at start when the store holds runs that are not done."""
+
+    BINDINGS: ClassVar = [Binding("enter", "resume", "resume"), Binding("escape,n", "later", "not now")]
+    DEFAULT_CSS = """
+    ResumeScreen { align: center middle; }
+    ResumeScreen > Vertical { width: 74; height: auto; max-height: 18; border: thick $warning;
+                              padding: 0 1; background: $panel; }
+    ResumeScreen DataTable { height: auto; max-height: 10; }
+    """
+
+    def __init__(self, runs: list[Any]) -> None:
+        super().__init__()
+        self.runs = runs
+
+    def compose(self) -> ComposeResult:
+        from normbox_lab.tui.views import run_row
+
+        with Vertical():
+            yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
+            table: DataTable = DataTable(id="resume-table", cursor_type="row")
+            table.add_columns("id", "uuid", "protocol", "status", "readings", "flags", "created")
+            for r in reversed(self.runs):
+                table.add_row(*run_row(r), key=str(r.id))
+            yield table
+            yield Label("[dim]↑↓ pick · Enter resume · n / Esc not now[/dim]")
+
+    def action_resume(self) -> None:
+        table = self.query_one(DataTable)
+        row = table.cursor_row
+        runs = list(reversed(self.runs))
+        self.dismiss(runs[row].id if 0 <= row < len(runs) else None)
+
+    def action_later(self) -> None:
+        self.dismiss(None)
+
+    @on(DataTable.RowSelected)
+    def _selected(self, _event: DataTable.RowSelected) -> None:
+        self.action_resume()
+
+
+class DrillScreen(ModalScreen[None]):
+    """Per-patch drill-down of the Results heat map."""
+
+    BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
+    DEFAULT_CSS = """
+    DrillScreen { align: center middle; }
+    DrillScreen > VerticalScroll { width: 78; height: auto; max-height: 22;
+                                   border: thick $accent; background: $panel; }
+    """
+
+    def __init__(self, lines: list[str]) -> None:
+        super().__init__()
+        self.lines = lines
+
+    def compose(self) -> ComposeResult:
+        with VerticalScroll():
+            yield Static("\n".join(self.lines), id="drill-text")
+            yield Label("[dim]Esc / Enter: close[/dim]")
+
+    def action_close(self) -> None:
+        self.dismiss(None)

@@ -1,0 +1,69 @@
+"""Tab 1, Instruments: every instrument's connection, identity, state and when it last
+answered (a red row when it did not), and the live state of the box."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+from textual.widgets import DataTable, Static, TabPane
+
+from normbox_lab.tui.tabs.common import table
+
+
+def connection_text(row: dict[str, Any]) -> str:
+    """"sim cs1000a" for an emulator URL, "real /dev/ttyUSB0" for a port."""
+    port = str(row["port"])
+    if port.startswith("sim://"):
+        return "sim " + port.removeprefix("sim://").split("?")[0]
+    return ("sim " if row["simulated"] else "real ") + port
+
+
+class InstrumentsPane(TabPane):
+    DEFAULT_CSS = """
+    #inst-table { height: auto; max-height: 10; }
+    #live { height: auto; padding: 0 1; }
+    """
+
+    def __init__(self) -> None:
+        super().__init__("1 Instruments", id="instruments")
+
+    def build(self) -> None:
+        """Filled after the first paint (less to lay out before it)."""
+        self.mount_all([
+            table("inst-table", ("role", "connection", "identity", "state", "last seen"),
+                  cursor_type="row", zebra_stripes=True),
+            Static("", id="live")])
+
+    def show_instruments(self, rows: list[dict[str, Any]], width_cells: int) -> None:
+        from rich.text import Text
+
+        tab = self.query_one("#inst-table", DataTable)
+        tab.clear()
+        width = max(24, width_cells - 60)
+        for r in rows:
+            ident = r["identity"] or "-"
+            seen = r.get("last_seen")
+            seen_text = time.strftime("%H:%M:%S", time.localtime(seen)) if seen else "never"
+            style = "bold white on #D55E00" if r.get("ok") is False else ""
+            cells = (r["role"], connection_text(r),
+                     ident if len(ident) <= width else ident[:width - 1] + "…",
+                     r["state"] or "-", seen_text)
+            tab.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
+
+    def show_live(self, live: Any) -> None:
+        angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
+        lamp = live.lamp
+        if live.lamp_stable is not None and live.lamp != "stable":
+            lamp += " (stable)" if live.lamp_stable else " (not stable)"
+        temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
+        last = "-"
+        if live.last_key:
+            lv = "?" if live.last_Lv_cd_m2 is None else f"{live.last_Lv_cd_m2:.3g} cd/m²"
+            xy = ("" if live.last_xy is None
+                  else f"  x {live.last_xy[0]:.4f} y {live.last_xy[1]:.4f}")
+            last = f"{live.last_key}: Lv {lv}{xy}"
+        patch = "-" if live.patch is None else str(live.patch)
+        self.query_one("#live", Static).update(
+            f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
+            f"spectrometer temperature {temp}\nlast reading {last}")

@@ -1,0 +1,48 @@
+"""Tab 3, Spectrum: the latest reading's spectrum over the previous one's."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from textual.containers import Vertical
+from textual.widgets import Static, TabPane
+
+
+class SpectrumPane(TabPane):
+    DEFAULT_CSS = """
+    #spectrum-head { height: 1; padding: 0 1; }
+    """
+
+    def __init__(self) -> None:
+        super().__init__("3 Spectrum", id="spectrum")
+        self.plot: Any = None
+
+    def build(self) -> None:
+        self.mount_all([Static("no reading yet", id="spectrum-head"), Vertical(id="plot-box")])
+
+    def draw(self, latest: tuple, previous: tuple | None) -> None:
+        """latest / previous: (key, wavelength_nm, values, colorimetry or None, title)."""
+        key, wl, values, colo, title = latest
+        head = f"latest {key}"
+        if colo is not None:
+            head += f" · Lv {colo.Lv_cd_m2:.3g} cd/m² · x {colo.x:.4f} y {colo.y:.4f}"
+        if previous is not None:
+            head += f" · previous {previous[0]}"
+        self.query_one("#spectrum-head", Static).update(head)
+        if self.plot is None:
+            from textual_plotext import PlotextPlot
+
+            self.plot = PlotextPlot(id="plot")
+            self.query_one("#plot-box", Vertical).mount(self.plot)
+        plt = self.plot.plt
+        plt.clear_data()
+        plt.title(title)
+        plt.xlabel("wavelength nm")
+        step = max(1, len(wl) // 100)
+        if previous is not None:
+            pk, pwl, pvalues, _, _ = previous
+            plt.plot(list(pwl[::step]), list(pvalues[::step]), label=pk, marker="dot",
+                     color="gray")
+        plt.plot(list(wl[::step]), list(values[::step]), label=key, marker="braille",
+                 color="cyan")
+        self.plot.refresh()
