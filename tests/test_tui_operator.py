@@ -252,3 +252,33 @@ def test_fault_prompt_names_the_role_once_and_says_what_to_check():
     message = asked[0].message
     assert message.count("radiometer") == 1, message
     assert "cable" in message and "powered on" in message
+
+
+def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
+    """During a run the engine owns the ports (no polling), so the Instruments table shows what
+    the run's events say: the rotator at the sweep angle, the sphere stable, the radiometer's
+    last reading — not the stale '0.00° unhomed' / 'off' of the poll before the run."""
+    from textual.widgets import DataTable
+
+    app = NormboxConsole(new_session(lab_env))
+
+    def state(role: str) -> str:
+        table = app.query_one("#inst-table", DataTable)
+        return str(table.get_row(role)[3])
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await until(pilot, lambda: app.query_one("#inst-table", DataTable).row_count >= 3,
+                        "the first poll")
+            before = state("rotator")
+            await start_and_wait_for_the_second_prompt(pilot, app)
+            await pilot.press("1")
+            await until(pilot, lambda: state("radiometer") == "measured a30/p01",
+                        "the table to follow the run")
+            assert state("rotator") == "30.00° (homed)", (before, state("rotator"))
+            assert state("sphere") == "on, stable"
+            screen = app.screen
+            assert isinstance(screen, PromptScreen)            # the prompt still waits
+    asyncio.run(scenario())
+    app.session.close()

@@ -422,6 +422,8 @@ class NormboxConsole(App):
 
         k = ev.kind
         d = ev.data
+        if k in ("run-started", "step-finished", "suspended", "unsuspended"):
+            self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
             self.progress_planned, self.progress_done = d["planned"], d["done"]
             self._bar(d["done"], d["planned"])
@@ -576,7 +578,10 @@ class NormboxConsole(App):
                     severity="error" if bad else "information", markup=False)
 
     def _show_live(self) -> None:
-        self.pane(InstrumentsPane).show_live(self.session.live)
+        pane = self.pane(InstrumentsPane)
+        pane.show_live(self.session.live)
+        if self.session.busy:          # the table follows the run (no polling during it)
+            pane.show_instruments(self.session.instrument_rows(), self.size.width)
 
     def _draw_spectrum(self) -> None:
         if self.latest is not None:

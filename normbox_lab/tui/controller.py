@@ -17,7 +17,7 @@ from __future__ import annotations
 import logging
 import threading
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -101,6 +101,9 @@ class LiveState:
     last_Lv_cd_m2: float | None = None
     last_xy: tuple[float, float] | None = None
     patch: int | None = None
+    #: role → what the run last did with it ("30.00°", "on, stable", "measured a30/p07"):
+    #: the Instruments table's state column while a run owns the instruments
+    run_state: dict[str, str] = field(default_factory=dict)
 
 
 class Session:
@@ -291,21 +294,30 @@ class Session:
     def _on_event(self, ev: Any) -> None:
         """Engine thread: keep the live state current, then hand the event to the UI."""
         live = self.live
+        if ev.kind == "run-started":
+            live.run_state.clear()
         if ev.kind == "step-finished":
             step = self._step(ev.key)
             if step is not None and step.kind == "move":
                 live.angle_deg = float(step.params["angle_deg"])
+                live.run_state[step.role] = f"{live.angle_deg:.2f}° (homed)"
             elif step is not None and step.kind == "wait-stable":
                 live.lamp, live.lamp_stable = "stable", True
+                live.run_state[step.role or "sphere"] = "on, stable"
         elif ev.kind in ("suspended", "unsuspended"):
             live.lamp_stable = ev.kind == "unsuspended"
             live.lamp = "stable" if live.lamp_stable else "unstable"
+            live.run_state[str(ev.data.get("role") or "sphere")] = (
+                "on, stable" if live.lamp_stable else "on, NOT stable (run waits)")
         elif ev.kind == "answer" and ev.data.get("answer") == "ok":
             w = getattr(self.lab, "world", None)
             live.patch = getattr(w, "patch", live.patch)
         elif ev.kind == "reading-stored":
             r = ev.data.get("reading")
             live.last_key = ev.key
+            step = self._step(ev.key)
+            if step is not None:
+                live.run_state[step.role] = f"measured {ev.key}"
             colo = getattr(r, "colorimetry", None)
             if colo is not None:
                 live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
@@ -361,6 +373,16 @@ class Session:
                 row["state"] = f"no answer: {exc}"
                 row["ok"] = False
             rows.append(row)
+        self.last_rows = rows
+        return rows
+
+    def instrument_rows(self) -> list[dict[str, Any]]:
+        """The Instruments table: the last poll's rows, and while a run owns the instruments
+        (no polling then) each state as the run's events last left it."""
+        rows = [dict(r) for r in getattr(self, "last_rows", [])]
+        if self.busy:
+            for r in rows:
+                r["state"] = self.live.run_state.get(r["role"], "in use by the run")
         return rows
 
     def _state_of(self, role: str, inst: Any) -> str:
