@@ -62,6 +62,21 @@ def test_parameters_from_lab_defaults_and_overrides(tmp_path):
     assert eng.coerce_param([30, 35], "30,60") == [30, 60]
     assert eng.coerce_param(1.0, "2") == 2.0 and isinstance(eng.coerce_param(1.0, "2"), float)
     assert eng.coerce_param("sphere", "lamp2") == "lamp2"
+    assert eng.coerce_param([1, "wall"], "[3, \"wall\"]") == [3, "wall"]
+    assert eng.coerce_param(10, "4") == 4 and isinstance(eng.coerce_param(10, "4"), int)
+
+
+@pytest.mark.parametrize("default, text, expect", [
+    ([30, 35], "[30,", "angles_deg: '[30,' is not a valid value (JSON, e.g. [30, 35])"),
+    ([30, 35], "[30, \"x\"]", "angles_deg: expected a list of numbers"),
+    (1.0, "abc", "angles_deg: expected a number (e.g. 1.0), got 'abc'"),
+    (10, "2.5", "angles_deg: expected a whole number"),
+    (True, "yes", "angles_deg: expected true or false"),
+])
+def test_a_bad_parameter_is_named_with_what_it_expects(default, text, expect):
+    with pytest.raises(eng.PlanError) as exc:
+        eng.coerce_param(default, text, "angles_deg")
+    assert expect in str(exc.value)
 
 
 def test_a_user_protocol_file(tmp_path):

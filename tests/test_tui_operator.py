@@ -282,3 +282,37 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
             assert isinstance(screen, PromptScreen)            # the prompt still waits
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):  # noqa: F811
+    from textual.widgets import Input, Label, Select
+
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            app.set_parameter("angles_deg", "[30,")
+            await pilot.pause(0.1)
+            error = str(app.query_one("#param-error", Static).render())
+            assert error.startswith("angles_deg: '[30,' is not a valid value"), error
+            assert app.query_one("#param-angles_deg", Input).has_class("-invalid")
+            await pilot.press("s")
+            await pilot.pause(0.2)
+            assert not app.session.busy                        # nothing started
+            log = " ".join(str(line) for line in app.query_one("#events").lines)
+            assert "angles_deg" in log
+            app.set_parameter("angles_deg", "[30, 60]")
+            await pilot.pause(0.1)
+            assert not app.query_one("#param-error", Static).display
+            # a long name is not cut: repeatability's threshold_percent
+            app.query_one("#protocol", Select).value = "repeatability"
+            await until(pilot, lambda: bool(app.query("#param-threshold_percent")), "its form")
+            labels = [str(w.render()) for w in app.query(".param Label").results(Label)]
+            assert "threshold_percent" in labels, labels
+            label = next(w for w in app.query(".param Label").results(Label)
+                         if str(w.render()) == "threshold_percent")
+            await until(pilot, lambda: label.size.width > 0, "the layout")
+            assert label.size.width >= len("threshold_percent")
+    asyncio.run(scenario())
+    app.session.close()

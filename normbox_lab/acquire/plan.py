@@ -121,22 +121,55 @@ def load_protocol(name_or_path: str) -> ModuleType:
     return module
 
 
-def coerce_param(default: Any, text: str) -> Any:
-    """`--param K=V`: parse V like the default (JSON for lists, numbers, booleans)."""
+def coerce_param(default: Any, text: str, name: str = "parameter") -> Any:
+    """`--param K=V` (and the console's parameter form): parse V like the default — JSON for
+    lists, numbers and booleans; a list may also be written "30,60".  A value of the wrong
+    kind raises `PlanError` naming the parameter and what it expects."""
     if isinstance(default, str):
         return text
+    example = json.dumps(default if not isinstance(default, list) else default[:3])
     try:
         value = json.loads(text)
     except json.JSONDecodeError:
-        if isinstance(default, list):
-            value = [json.loads(v) if v.strip().lstrip("-").replace(".", "", 1).isdigit() else v
-                     for v in text.split(",")]
+        if isinstance(default, list) and not any(c in text for c in "[]{}"):
+            parts = [p.strip() for p in text.split(",") if p.strip()]
+            value = []
+            for p in parts:
+                try:
+                    value.append(json.loads(p))
+                except json.JSONDecodeError:
+                    value.append(p)
+        elif isinstance(default, list):
+            raise PlanError(f"{name}: {text!r} is not a valid value (JSON, e.g. {example})"
+                            ) from None
         else:
-            value = text
-    if isinstance(default, bool) and not isinstance(value, bool):
-        raise PlanError(f"expected true/false, got {text!r}")
-    if isinstance(default, float) and isinstance(value, int) and not isinstance(value, bool):
-        value = float(value)
+            value = text                      # the type checks below name what is expected
+
+    def number(v: Any) -> bool:
+        return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+    if isinstance(default, bool):
+        if not isinstance(value, bool):
+            raise PlanError(f"{name}: expected true or false, got {text!r}")
+    elif number(default):
+        if not number(value):
+            raise PlanError(f"{name}: expected a number (e.g. {example}), got {text!r}")
+        if isinstance(default, float):
+            value = float(value)
+        elif isinstance(value, float):
+            if not value.is_integer():
+                raise PlanError(f"{name}: expected a whole number, got {text!r}")
+            value = int(value)
+    elif isinstance(default, list):
+        if not isinstance(value, list):
+            value = [value]
+        numeric = bool(default) and all(number(v) for v in default)
+        for v in value:
+            ok = number(v) if numeric else (number(v) or isinstance(v, str))
+            if not ok:
+                kind = "numbers" if numeric else "numbers or names"
+                raise PlanError(f"{name}: expected a list of {kind} (e.g. {example}), got "
+                                f"{text!r} ({json.dumps(v)} is not one)")
     return value
 
 

@@ -84,7 +84,7 @@ def _parse_overrides(protocol: str | None, items: list[str]) -> dict:
             raise PlanError(f"--param expects K=V, got {item!r}")
         if key not in parameters:
             raise PlanError(f"unknown parameter {key!r}; known: {', '.join(parameters)}")
-        out[key] = coerce_param(parameters[key], value)
+        out[key] = coerce_param(parameters[key], value, key)
     return out
 
 

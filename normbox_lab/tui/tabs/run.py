@@ -14,10 +14,12 @@ class RunPane(TabPane):
     DEFAULT_CSS = """
     #run-top { height: 1; }
     #run-top Select { width: 26; }
-    #params { height: 6; border: round $surface-lighten-2; }
+    #params { height: auto; min-height: 3; max-height: 30vh;
+              border: round $surface-lighten-2; }
     .param { height: 1; }
-    .param Label { width: 16; }
     .param Input { width: 1fr; }
+    .param Input.-invalid { color: $error; }
+    #param-error { height: auto; color: $error; padding: 0 1; }
     #run-info { height: 2; padding: 0 1; }
     #progress { height: 1; padding: 0 1; }
     #progress Bar { width: 1fr; }
@@ -35,6 +37,7 @@ class RunPane(TabPane):
                          allow_blank=False, compact=True, type_to_search=False, id="protocol")
             yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
         yield VerticalScroll(id="params")
+        yield Static("", id="param-error")
         yield Static("idle", id="run-info")
         with Horizontal(id="progress"):
             yield ProgressBar(total=1, show_eta=False, id="bar")
@@ -48,17 +51,63 @@ class RunPane(TabPane):
 
     def show_params(self, params: dict[str, Any] | Exception,
                     prefill: dict[str, str]) -> None:
-        """One line per parameter (JSON text, as `--param K=V` takes it), or the error of a
-        protocol file that cannot be read."""
+        """One line per parameter (JSON text, as `--param K=V` takes it), each checked as it
+        is typed against its default's kind; or the error of a protocol file that cannot be
+        read.  Labels are as wide as the longest name."""
+        from textual.validation import Function
+
+        from normbox_lab.acquire.plan import PlanError, coerce_param
+
         box = self.query_one("#params", VerticalScroll)
         box.remove_children()
+        self.query_one("#param-error", Static).update("")
+        self.query_one("#param-error", Static).display = False
         if isinstance(params, Exception):
             box.mount(Label(f"[red]{params}[/]"))
             return
+        width = max((len(k) for k in params), default=8) + 2
+
+        def check(key: str, default: Any) -> Function:
+            def ok(text: str) -> bool:
+                try:
+                    coerce_param(default, text, key)
+                except PlanError:
+                    return False
+                return True
+            return Function(ok, f"{key}: not a value of its kind")
+
         for k, v in params.items():
             text = prefill.get(k, v if isinstance(v, str) else json.dumps(v))
-            box.mount(Horizontal(Label(k), Input(text, id=f"param-{k}", compact=True),
+            label = Label(k)
+            label.styles.width = width
+            box.mount(Horizontal(label, Input(text, id=f"param-{k}", compact=True,
+                                              validators=[check(k, v)], validate_on=["changed"]),
                                  classes="param"))
+        self.defaults = dict(params)
+
+    def on_input_changed(self, event: Input.Changed) -> None:
+        if str(event.input.id or "").startswith("param-"):
+            self.check_parameters()
+
+    def check_parameters(self) -> str:
+        """The first parameter that does not parse, named with what it expects, shown under
+        the form ("" when all do)."""
+        from normbox_lab.acquire.plan import PlanError, coerce_param
+
+        message = ""
+        defaults = getattr(self, "defaults", {})
+        for key, text in self.parameter_texts().items():
+            if key not in defaults:
+                continue
+            try:
+                coerce_param(defaults[key], text, key)
+            except PlanError as exc:
+                message = str(exc)
+                break
+        line = self.query_one("#param-error", Static)
+        line.update(message)
+        line.display = bool(message)
+        return message
 
     def parameter_texts(self) -> dict[str, str]:
         return {str(inp.id).removeprefix("param-"): inp.value
