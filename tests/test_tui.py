@@ -336,9 +336,10 @@ def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
         assert paused[0]["next"] == "a30/p03"
 
 
-def test_fault_prompt_retry_skip_and_the_run_stays_resumable(lab_env):
+def test_fault_prompt_at_preparation_offers_retry_and_abort_only(lab_env):
     """A radiometer that never answers (emulator fault `no-reply=1.0`): after the engine's
-    retries the console asks retry / skip / abort; skipping leaves an `interrupted` run."""
+    retries the console asks; preparing an instrument is not a reading, so there is no
+    "skip" (s does nothing), only retry or abort."""
     text = SIM_CONFIG_TEMPLATE.replace('port = "sim://cs1000a"',
                                        'port = "sim://cs1000a?faults=no-reply=1.0"')
     assert "no-reply=1.0" in text
@@ -351,8 +352,9 @@ def test_fault_prompt_retry_skip_and_the_run_stays_resumable(lab_env):
                     and app.screen.request.kind == "fault" and app.screen.request.key == key,
                     f"the fault prompt at {key}")
         screen = app.screen
-        assert screen.request.choices == ("retry", "skip", "abort")
-        assert "retry, skip" in str(screen.query_one("#prompt-message").render())
+        assert screen.request.choices == ("retry", "abort")
+        message = str(screen.query_one("#prompt-message").render())
+        assert "retry, or abort the run?" in message and "skip" not in message
         return screen
 
     async def scenario() -> None:
@@ -362,25 +364,23 @@ def test_fault_prompt_retry_skip_and_the_run_stays_resumable(lab_env):
             app.set_parameter("patches", "[1]")
             await pilot.press("s")
             screen = await fault(pilot, "prepare/radiometer")
+            await pilot.press("s")                          # no skip here: nothing happens
+            await pilot.pause(0.2)
+            assert app.screen is screen
             await pilot.press("r")                          # retry: it fails again
             await until(pilot, lambda: app.screen is not screen, "the retry")
             screen = await fault(pilot, "prepare/radiometer")
-            await pilot.press("s")                          # skip preparing it
-            await until(pilot, lambda: app.screen is not screen, "the skip")
-            await answer_prompt(pilot, app, "Place patch 1")
-            screen = await fault(pilot, "a30/p01")
-            await pilot.press("s")                          # skip the reading
-            await until(pilot, lambda: app.run_status == "interrupted", "the end of the run")
+            await pilot.press("a")                          # abort the run
+            await until(pilot, lambda: app.run_status == "aborted", "the end of the run")
     asyncio.run(scenario())
     assert session.wait(5.0)
     session.close()
     with Store(lab_env / "tui.sqlite") as s:
         (run,) = s.runs()
-        assert run.status == "interrupted" and run.done == 0
+        assert run.status == "aborted" and run.done == 0
         ops = [d["answer"] for _, k, d in s.events(run.id) if k == "operator"]
-        assert ops == ["retry", "skip", "skip"]
-        assert [d["key"] for _, k, d in s.events(run.id) if k == "skip"] == \
-            ["prepare/radiometer", "a30/p01"]
+        assert ops == ["retry", "abort"]
+        assert not [d for _, k, d in s.events(run.id) if k == "skip"]
 
 
 def test_brdf_protocol_prefilled_mount_prompt_and_brdf_plot(monkeypatch, tmp_path):

@@ -452,11 +452,7 @@ class Engine:
         self.lab.record_identities(self.store, self.run_id, segment=self.segment)
         for role in self.plan.roles:
             inst = self.instrument(role)
-            try:
-                self.with_retry(f"prepare/{role}", role,
-                                lambda inst=inst: self._prepare_one(inst))
-            except Skip:
-                self._emit("warning", f"prepare/{role}", message=f"{role} not prepared (skipped)")
+            self.with_retry(f"prepare/{role}", role, lambda inst=inst: self._prepare_one(inst))
 
     @staticmethod
     def _prepare_one(inst: Any) -> None:
@@ -632,18 +628,23 @@ class Engine:
 
     # --- faults and prompts ----------------------------------------------------------------------
     def _fault_decision(self, key: str, role: str, exc: BaseException, attempt: int) -> str:
+        # preparing an instrument (remote mode, homing) is not a reading: it cannot be skipped,
+        # the run can only go on once the instrument is ready
+        preparing = key.startswith("prepare/")
         if self.retry.persistent in ("skip", "abort"):
-            choice = self.retry.persistent
+            choice = "abort" if preparing else self.retry.persistent
             self._store_event("operator", key=key, prompt="fault", answer=choice, automatic=True)
             return choice
         kind = "device-error" if isinstance(exc, DeviceError) else type(exc).__name__
         detail = str(exc).removeprefix(f"{role}: ")        # errors often name the role already
         hint = ("check the instrument's own display or error state" if isinstance(exc, DeviceError)
                 else "check the cable, the port and that the instrument is powered on")
+        question, choices = (("retry, or abort the run?", ("retry", "abort")) if preparing else
+                             ("retry, skip this reading, or abort the run?",
+                              ("retry", "skip", "abort")))
         req = PromptRequest(next(self._prompt_ids), key, "fault",
-                            f"{role}: {detail} (after {attempt} attempt(s); {hint}) — retry, "
-                            "skip this reading, or abort the run?", ("retry", "skip", "abort"),
-                            {"role": role, "error": kind})
+                            f"{role}: {detail} (after {attempt} attempt(s); {hint}) — {question}",
+                            choices, {"role": role, "error": kind})
         return self._ask(req)
 
     def _ask(self, req: PromptRequest) -> str:

@@ -38,7 +38,9 @@ class PromptScreen(ModalScreen[str]):
     def compose(self) -> ComposeResult:
         req = self.request
         title = "Fault" if req.kind == "fault" else "Operator"
-        hint = ("r retry · s skip · a abort · Enter retry" if req.kind == "fault"
+        keys = {"retry": "r retry", "skip": "s skip this reading", "abort": "a abort"}
+        hint = (" · ".join(keys[c] for c in req.choices if c in keys) + " · Enter retry"
+                if req.kind == "fault"
                 else "Enter done · p pause after this reading · a abort · q quit")
         with Vertical():
             yield Label(f"[b]{title}[/b]  {req.key}")
