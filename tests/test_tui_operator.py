@@ -278,8 +278,7 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
                         "the table to follow the run")
             assert state("rotator") == "30.00° (homed)", (before, state("rotator"))
             assert state("sphere") == "on, stable"
-            screen = app.screen
-            assert isinstance(screen, PromptScreen)            # the prompt still waits
+            assert app.waiting_prompt is not None             # the prompt still waits
     asyncio.run(scenario())
     app.session.close()
 
@@ -314,5 +313,43 @@ def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):  # 
                          if str(w.render()) == "threshold_percent")
             await until(pilot, lambda: label.size.width > 0, "the layout")
             assert label.size.width >= len("threshold_percent")
+    asyncio.run(scenario())
+    app.session.close()
+
+
+def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env):  # noqa: F811
+    """80×24: the prompt sits at the bottom, the Run tab's progress line stays in view; 4
+    shows the Runs tab while the prompt keeps waiting (the run line says so), 2 brings it
+    back; p at the prompt is acknowledged."""
+    from textual.widgets import TabbedContent
+
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await start_and_wait_for_the_second_prompt(pilot, app)
+            prompt = app.screen
+            box = prompt.query_one("Vertical").region
+            main = app.screen_stack[0]
+            for wid in ("#progress", "#run-info"):
+                region = main.query_one(wid).region
+                assert not region.overlaps(box), (wid, region, box)
+            message = str(prompt.query_one("#prompt-message").render())
+            assert message.startswith("Place patch 9 (moderate red) on the holder")
+            await pilot.press("4")
+            await until(pilot, lambda: app.screen is not prompt, "the prompt to step aside")
+            assert app.query_one(TabbedContent).active == "runs"
+            assert app.waiting_prompt is not None and app.session.busy
+            assert "prompt waiting: w" in str(app.query_one("#run-info", Static).render())
+            await pilot.press("2")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "the prompt back")
+            assert app.screen.request.key == prompt.request.key
+            await pilot.press("p")
+            await pilot.pause(0.2)
+            toasts = [str(n.message) for n in app._notifications]
+            assert any("pause: the run stops after the current reading" in t for t in toasts)
+            await answer_prompt(pilot, app, "patch 9")
+            await until(pilot, lambda: app.run_status == "paused", "the pause")
+            assert app.waiting_prompt is None
     asyncio.run(scenario())
     app.session.close()

@@ -20,7 +20,7 @@ from textual.message import Message
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.tui.controller import Session
-from normbox_lab.tui.screens import DrillScreen, PromptScreen, ResumeScreen, prompt_text
+from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
     ImagesPane,
     InstrumentsPane,
@@ -78,6 +78,7 @@ class NormboxConsole(App):
         Binding("r", "resume_selected", "resume"),
         Binding("e", "export", "export"),
         Binding("i", "poll", "poll"),
+        Binding("w", "show_prompt", "prompt", show=False),
         Binding("escape", "leave_input", "", show=False),
         *[Binding(str(k + 1), f"tab('{t}')", t, show=False) for k, t in enumerate(TABS)],
     ]
@@ -98,6 +99,8 @@ class NormboxConsole(App):
         self.prefill_protocol = protocol
         self.quitting = False
         self.prompt_screen: PromptScreen | None = None
+        #: the operator prompt the engine waits for (also while it steps aside)
+        self.waiting_prompt: Any = None
         self.latest: Any = None          # (key, wavelength, radiance) of the latest reading
         self.previous: Any = None
         self._spectrum_dirty = False
@@ -212,8 +215,15 @@ class NormboxConsole(App):
         self.pane(RunPane).set_parameter(key, value)
 
     # --- actions -----------------------------------------------------------------------------
+    def action_show_prompt(self) -> None:
+        """Bring back a prompt that stepped aside."""
+        if self.waiting_prompt is not None and self.prompt_screen is None:
+            self._push_prompt(self.waiting_prompt)
+
     def action_tab(self, tab: str) -> None:
         self.query_one(TabbedContent).active = tab
+        if tab == "run":
+            self.action_show_prompt()
 
     def action_leave_input(self) -> None:
         if isinstance(self.focused, Input):
@@ -323,6 +333,9 @@ class NormboxConsole(App):
             self.session.pause()
             self._log("pause requested: after the current reading")
             self._set_run_status("pausing…")
+            self.notify("pause: the run stops after the current reading"
+                        + (" — answer the prompt first" if self.waiting_prompt is not None
+                           else ""), markup=False)
 
     #: seconds within which a second `a` confirms the abort
     ABORT_CONFIRM_S = 5.0
@@ -459,6 +472,7 @@ class NormboxConsole(App):
         elif k == "prompt":
             self._show_prompt(d["prompt"])
         elif k == "answer":
+            self.waiting_prompt = None
             self._log("", f"{ev.key}: answered {d.get('answer')}")
         elif k in ("warning", "fault", "suspended", "unsuspended"):
             msg = d.get("message") or d.get("error") or d.get("role") or ""
@@ -476,6 +490,7 @@ class NormboxConsole(App):
             self._runs_dirty = True
 
     def _finished(self, result: Any) -> None:
+        self.waiting_prompt = None
         if self.prompt_screen is not None:
             self.prompt_screen.dismiss("")
         self._runs_dirty = True
@@ -521,9 +536,11 @@ class NormboxConsole(App):
 
     def _update_run_info(self) -> None:
         remaining = self.remaining_text()
+        waiting = ("  [b reverse] prompt waiting: w [/]"
+                   if self.waiting_prompt is not None and self.prompt_screen is None else "")
         self.pane(RunPane).set_info(
             f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings"
-            f"{' · ' + remaining if remaining else ''}\nstep: {self.current_step}")
+            f"{' · ' + remaining if remaining else ''}{waiting}\nstep: {self.current_step}")
 
     def _show_prompt(self, req: Any) -> None:
         if self.session.operator is None:      # the virtual operator answered already
@@ -532,17 +549,26 @@ class NormboxConsole(App):
         if self.quitting:
             return
         self._log("[b]prompt[/b] ", f"{req.key}: {req.message}")
+        self.waiting_prompt = req
+        self._push_prompt(req)
+
+    def _push_prompt(self, req: Any) -> None:
         screen = PromptScreen(req)
         self.prompt_screen = screen
 
         def answered(choice: str | None) -> None:
             if self.prompt_screen is screen:
                 self.prompt_screen = None
+            if choice == HIDDEN:               # stepped aside: it keeps waiting
+                self._update_run_info()
+                return
+            self.waiting_prompt = None
             if choice:
                 try:
                     self.session.answer(choice)
                 except Exception as exc:  # noqa: BLE001 - the prompt was withdrawn
                     self._log("answer not taken: ", str(exc))
+            self._update_run_info()
         self.push_screen(screen, answered)
 
     # --- periodic refresh (throttled: at time scale 0 readings arrive in bursts) -------------

@@ -12,6 +12,9 @@ from textual.containers import Horizontal, Vertical, VerticalScroll
 from textual.screen import ModalScreen
 from textual.widgets import Button, DataTable, Label, Static
 
+#: what a prompt that steps aside (to let the operator look at another tab) returns
+HIDDEN = "<hidden>"
+
 
 class PromptScreen(ModalScreen[str]):
     """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
@@ -21,9 +24,16 @@ class PromptScreen(ModalScreen[str]):
                           Binding("s", "pick('skip')", "skip", show=False),
                           Binding("a", "pick('abort')", "abort", show=False),
                           Binding("p", "app.pause_resume", "pause", show=False),
-                          Binding("q", "app.quit_console", "quit", show=False)]
+                          Binding("q", "app.quit_console", "quit", show=False),
+                          # look at another tab: the prompt steps aside and keeps waiting
+                          # (2 or w brings it back)
+                          *[Binding(str(k), f"look('{t}')", t, show=False) for k, t in
+                            ((1, "instruments"), (3, "spectrum"), (4, "runs"), (5, "results"),
+                             (6, "images"))]]
+    #: bottom of the screen, above the footer: the Run tab's progress line stays in view
     DEFAULT_CSS = """
-    PromptScreen { align: center middle; }
+    PromptScreen { align: center bottom; }
+    PromptScreen > Vertical { margin-bottom: 1; }
     PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
                               background: $panel; }
     PromptScreen.fault > Vertical { border: thick $error; }
@@ -41,7 +51,7 @@ class PromptScreen(ModalScreen[str]):
         keys = {"retry": "r retry", "skip": "s skip this reading", "abort": "a abort"}
         hint = (" · ".join(keys[c] for c in req.choices if c in keys) + " · Enter retry"
                 if req.kind == "fault"
-                else "Enter done · p pause after this reading · a abort · q quit")
+                else "Enter done · p pause after this reading · a abort · 1–6 look (w back)")
         with Vertical():
             yield Label(f"[b]{title}[/b]  {req.key}")
             yield Static(prompt_text(req), id="prompt-message")
@@ -51,6 +61,11 @@ class PromptScreen(ModalScreen[str]):
                     yield Button(c, id=f"choice-{c}", compact=True,
                                  variant="primary" if i == 0 else
                                  ("error" if c == "abort" else "default"))
+
+    def action_look(self, tab: str) -> None:
+        """Step aside (the prompt keeps waiting) and show another tab."""
+        self.dismiss(HIDDEN)
+        self.app.action_tab(tab)
 
     def action_choose(self, index: int) -> None:
         self.dismiss(self.request.choices[int(index)])
