@@ -353,3 +353,59 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
             assert app.waiting_prompt is None
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_repeatability_summary_event_log_and_a_readings_spectrum(lab_env):  # noqa: F811
+    """A repeatability run ends with σ / CV / flags; in the Runs tab Enter on the run shows
+    its event log, Enter on a reading its spectrum with geometry, Lv and flags."""
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.tui.controller import Session
+    from normbox_lab.tui.screens import DrillScreen, SpectrumScreen
+
+    session = Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), lab_env / "tui.sqlite",
+                      world="analytic", time_scale=0.0, virtual_operator=True)
+    app = NormboxConsole(session, protocol="repeatability", prefill={"repeats": "3"})
+
+    async def scenario() -> None:
+        async with app.run_test(size=(100, 30)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("s")
+            await until(pilot, lambda: app.run_status == "done", "the end of the run")
+            await until(pilot, lambda: any("repeatability: 3 readings" in str(n.message)
+                                           for n in app._notifications), "the summary")
+            summary = next(str(n.message) for n in app._notifications
+                           if "repeatability:" in str(n.message))
+            assert "σ " in summary and "CV " in summary and "flags " in summary, summary
+            await pilot.press("4")
+            await until(pilot, lambda: app.query_one("#readings-table").row_count == 3,
+                        "the readings")
+            row = [str(c) for c in app.query_one("#readings-table").get_row("rep01")]
+            assert row[1] == "90.0°" and "e+" not in row[3] and row[7] in ("—", "0E 1W"), row
+            await pilot.press("enter")                      # on the run
+            await until(pilot, lambda: isinstance(app.screen, DrillScreen), "the event log")
+            log = str(app.screen.query_one("#drill-text").render())
+            assert "event log" in log and "status:done" in log, log[:300]
+            await pilot.press("escape")
+            await until(pilot, lambda: not isinstance(app.screen, DrillScreen), "closed")
+            app.query_one("#readings-table").focus()
+            await pilot.press("enter")                      # on reading rep01
+            await until(pilot, lambda: isinstance(app.screen, SpectrumScreen), "the spectrum")
+            head = str(app.screen.query_one("#reading-head").render())
+            assert "rep01" in head and "90.0°" in head and "Lv" in head, head
+    asyncio.run(scenario())
+    session.close()
+
+
+def test_reading_rows_format_luminance_and_brdf_geometry():
+    from types import SimpleNamespace
+
+    from normbox_lab.tui.views import luminance_text, reading_row
+
+    assert luminance_text(2990.46) == "2990.5" and luminance_text(3000.0) == "3000.0"
+    assert luminance_text(0.71234) == "0.712" and luminance_text(None) == "-"
+    brdf = SimpleNamespace(key="p07/i-30/o10", metadata={"theta_i_deg": -30.0,
+                                                         "theta_o_deg": 10.0, "material": "p07",
+                                                         "integration_time_s": 0.1})
+    flag = SimpleNamespace(severity="warning")
+    row = reading_row(brdf, [flag])
+    assert row[1] == "θi -30 θo 10" and row[2] == "p07" and row[7] == "0E 1W"

@@ -491,12 +491,27 @@ class NormboxConsole(App):
 
     def _finished(self, result: Any) -> None:
         self.waiting_prompt = None
+        self._repeatability_summary()
         if self.prompt_screen is not None:
             self.prompt_screen.dismiss("")
         self._runs_dirty = True
         self._poll_after_run()
         if self.quitting:
             self.exit()
+
+    def _repeatability_summary(self) -> None:
+        """A repeatability run ends with its spread: σ, CV and flags (log and toast)."""
+        from normbox_lab.tui.views import repeatability_summary
+
+        engine, store = self.session.engine, self.session.store
+        run_id = getattr(engine, "run_id", None)
+        if run_id is None or store is None:
+            return
+        if not str(store.get_run(run_id).protocol).endswith("repeatability"):
+            return
+        text = repeatability_summary(store, run_id)
+        self._log("[b]summary[/b] ", text)
+        self.notify(text, timeout=30, markup=False)
 
     def _poll_after_run(self) -> None:
         if self.lab_ready and not self.session.busy:

@@ -134,12 +134,13 @@ class ResumeScreen(ModalScreen[int | None]):
 
 
 class DrillScreen(ModalScreen[None]):
-    """Per-patch drill-down of the Results heat map."""
+    """Lines of text in a scrollable box: the Results heat map's per-patch drill-down, a
+    run's event log."""
 
     BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
     DEFAULT_CSS = """
     DrillScreen { align: center middle; }
-    DrillScreen > VerticalScroll { width: 78; height: auto; max-height: 22;
+    DrillScreen > VerticalScroll { width: 95%; max-width: 120; height: auto; max-height: 90%;
                                    border: thick $accent; background: $panel; }
     """
 
@@ -154,3 +155,42 @@ class DrillScreen(ModalScreen[None]):
 
     def action_close(self) -> None:
         self.dismiss(None)
+
+
+class SpectrumScreen(ModalScreen[None]):
+    """One stored reading: its spectrum (radiance or BRDF) with what it is and its flags."""
+
+    BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
+    DEFAULT_CSS = """
+    SpectrumScreen { align: center middle; }
+    SpectrumScreen > Vertical { width: 90%; height: 80%; border: thick $accent;
+                                background: $panel; }
+    SpectrumScreen #reading-head { height: auto; padding: 0 1; }
+    """
+
+    def __init__(self, head: str, wavelength_nm: Any, values: Any, title: str) -> None:
+        super().__init__()
+        self.head, self.wavelength_nm, self.values, self.title = head, wavelength_nm, values, title
+
+    def compose(self) -> ComposeResult:
+        from textual_plotext import PlotextPlot
+
+        with Vertical():
+            yield Static(self.head, id="reading-head")
+            yield PlotextPlot(id="reading-plot")
+            yield Label("[dim]Esc / Enter: close[/dim]")
+
+    def on_mount(self) -> None:
+        from textual_plotext import PlotextPlot
+
+        plot = self.query_one("#reading-plot", PlotextPlot)
+        plt = plot.plt
+        plt.title(self.title)
+        plt.xlabel("wavelength nm")
+        step = max(1, len(self.wavelength_nm) // 100)
+        plt.plot(list(self.wavelength_nm[::step]), list(self.values[::step]), marker="braille",
+                 color="cyan")
+
+    def action_close(self) -> None:
+        self.dismiss(None)
+

@@ -3,7 +3,8 @@
 - `heatmap(artifact)`: ΔE00 patches × angles from a pipeline `comparison` artifact
   (`normbox_lab.analyze.compare.ComparisonResult.store`), coloured by the paper's rating scale, with the
   NRMSE per angle and a per-patch drill-down.
-- `reading_row(stored)`: one line of the Runs tab's readings table.
+- `reading_row(stored, flags)`: one line of the Runs tab's readings table; `event_lines`,
+  `repeatability_summary`, `luminance_text`, `geometry_text`.
 """
 
 from __future__ import annotations
@@ -101,18 +102,74 @@ def latest_heatmap(store: Any) -> HeatMap | None:
     return heatmap(found[-1]) if found else None
 
 
-def reading_row(r: Any) -> tuple[str, ...]:
-    """key, angle, patch, Lv, x, y, integration time — for the Runs tab."""
+def luminance_text(lv_cd_m2: float | None) -> str:
+    """Lv as an operator reads it: 2990.5, 45.3, 0.712 (never "3e+03")."""
+    if lv_cd_m2 is None or (isinstance(lv_cd_m2, float) and math.isnan(lv_cd_m2)):
+        return "-"
+    v = float(lv_cd_m2)
+    return f"{v:.1f}" if abs(v) >= 10 else f"{v:.3f}"
+
+
+def geometry_text(metadata: dict[str, Any]) -> str:
+    """"30.0°" for a radiometer reading, "θi −30 θo 10" for a BRDF reading."""
+    m = metadata
+    if "theta_i_deg" in m and "theta_o_deg" in m:
+        return f"θi {float(m['theta_i_deg']):g} θo {float(m['theta_o_deg']):g}"
+    angle = m.get("angle_deg")
+    return "-" if angle is None else f"{float(angle):.1f}°"
+
+
+def reading_row(r: Any, flags: Any = ()) -> tuple[str, ...]:
+    """key, geometry, patch / material, Lv, x, y, integration time, flags — for the Runs
+    tab.  `flags`: this reading's `qa.Flag`s."""
     m = r.metadata
     colo = m.get("colorimetry") or {}
 
     def num(v: Any, fmt: str) -> str:
         return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
-    angle = m.get("angle_deg", m.get("theta_o_deg"))
     patch = m.get("patch", m.get("material", ""))
-    return (r.key, num(angle, ".1f"), str(patch), num(colo.get("Lv_cd_m2"), ".3g"),
+    flags = list(flags)
+    errors = sum(1 for f in flags if f.severity == "error")
+    flag_text = (f"{errors}E {len(flags) - errors}W" if flags else "—")
+    return (r.key, geometry_text(m), str(patch), luminance_text(colo.get("Lv_cd_m2")),
             num(colo.get("x"), ".4f"), num(colo.get("y"), ".4f"),
-            num(m.get("integration_time_s"), ".2f"))
+            num(m.get("integration_time_s"), ".2f"), flag_text)
+
+
+def event_lines(events: list[tuple[float, str, dict[str, Any]]]) -> list[str]:
+    """A run's stored events, one line each: local time, kind, key and what happened."""
+    import time
+
+    out = []
+    for t, kind, detail in events:
+        d = dict(detail)
+        key = str(d.pop("key", "") or "")
+        text = d.pop("message", None) or d.pop("error", None) or ""
+        rest = ", ".join(f"{k}={v}" for k, v in d.items()
+                         if not isinstance(v, (dict, list)) and k not in ("in_process",))
+        stamp = time.strftime("%m-%d %H:%M:%S", time.localtime(t))
+        out.append(f"{stamp} {kind:<12} {key:<14} {text}{' · ' if text and rest else ''}{rest}")
+    return out
+
+
+def repeatability_summary(store: Any, run_id: int) -> str:
+    """σ and CV of the luminance over a repeatability run's readings, and its flags."""
+    from normbox_lab.analyze import qa
+
+    lv = []
+    for r in store.readings(run_id):
+        colo = r.metadata.get("colorimetry") or {}
+        if colo.get("Lv_cd_m2") is not None:
+            lv.append(float(colo["Lv_cd_m2"]))
+    flagged = [e for _, k, e in store.events(run_id) if k == "flag"]
+    n_flags = len(qa.flags(store, run_id)) + len(flagged)
+    if len(lv) < 2:
+        return f"repeatability: {len(lv)} reading(s), too few for a spread · flags {n_flags}"
+    a = np.asarray(lv)
+    sd = float(a.std(ddof=1))
+    return (f"repeatability: {a.size} readings · Lv mean {luminance_text(float(a.mean()))} "
+            f"cd/m² · σ {sd:.3g} cd/m² · CV {100 * sd / float(a.mean()):.3f} % · "
+            f"range {100 * (a.max() - a.min()) / float(a.mean()):.3f} % · flags {n_flags}")
 
 
 def run_row(run: Any, flags: Any = None) -> tuple[str, ...]:

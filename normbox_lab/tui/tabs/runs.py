@@ -1,4 +1,6 @@
-"""Tab 4, Runs: the store's runs (status, readings, flags) and the selected run's readings."""
+"""Tab 4, Runs: the store's runs (status, readings, flags) and the selected run's readings
+(geometry, Lv, flags each).  Enter on a run shows its event log, Enter on a reading its
+spectrum."""
 
 from __future__ import annotations
 
@@ -24,7 +26,8 @@ class RunsPane(TabPane):
         self.mount_all([
             table("runs-table", ("id", "uuid", "protocol", "status", "readings", "flags",
                                  "created"), cursor_type="row", zebra_stripes=True),
-            table("readings-table", ("key", "angle°", "patch", "Lv cd/m²", "x", "y", "t_int s"),
+            table("readings-table", ("key", "geometry", "patch", "Lv cd/m²", "x", "y",
+                                     "t_int s", "flags"),
                   cursor_type="row", zebra_stripes=True)])
 
     @property
@@ -64,12 +67,59 @@ class RunsPane(TabPane):
             self.show_readings(int(str(event.row_key.value)))
 
     def show_readings(self, run_id: int) -> None:
+        from normbox_lab.analyze import qa
         from normbox_lab.tui.views import reading_row
 
         tab = self.query_one("#readings-table", DataTable)
         if self._readings_shown == (run_id, self.store.get_run(run_id).done):
             return
         tab.clear()
+        by_key: dict[str, list] = {}
+        for f in qa.flags(self.store, run_id):
+            if f.key:
+                by_key.setdefault(f.key, []).append(f)
         for r in self.store.readings(run_id):
-            tab.add_row(*reading_row(r))
+            tab.add_row(*reading_row(r, by_key.get(r.key, ())), key=r.key)
         self._readings_shown = (run_id, tab.row_count)
+        self.shown_run_id = run_id
+
+    @on(DataTable.RowSelected, "#runs-table")
+    def _run_selected(self, event: DataTable.RowSelected) -> None:
+        """Enter on a run: its event log."""
+        from normbox_lab.tui.screens import DrillScreen
+        from normbox_lab.tui.views import event_lines
+
+        if event.row_key.value is None:
+            return
+        run = self.store.get_run(int(str(event.row_key.value)))
+        lines = [(f"run {run.id} {run.uuid[:8]} {run.protocol}: {run.status}, "
+                  f"{run.done}/{run.planned} readings — event log")]
+        self.app.push_screen(DrillScreen(lines + event_lines(self.store.events(run.id))))
+
+    @on(DataTable.RowSelected, "#readings-table")
+    def _reading_selected(self, event: DataTable.RowSelected) -> None:
+        """Enter on a reading: its spectrum, what it is, and its flags."""
+        from normbox_lab.analyze import qa
+        from normbox_lab.tui.screens import SpectrumScreen
+        from normbox_lab.tui.views import geometry_text, luminance_text
+
+        run_id = getattr(self, "shown_run_id", None)
+        if run_id is None or event.row_key.value is None:
+            return
+        key = str(event.row_key.value)
+        r = self.store.reading(run_id, key)
+        if "brdf_per_sr" in r.arrays:
+            values, title = r.arrays["brdf_per_sr"], "BRDF sr⁻¹"
+        else:
+            values = r.arrays.get("radiance_W_sr_m2_nm")
+            title = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
+        if values is None:
+            return
+        colo = r.metadata.get("colorimetry") or {}
+        flags = [f for f in qa.flags(self.store, run_id) if f.key == key]
+        head = (f"run {run_id} · {key} · {geometry_text(r.metadata)} · patch "
+                f"{r.metadata.get('patch', r.metadata.get('material', '-'))} · Lv "
+                f"{luminance_text(colo.get('Lv_cd_m2'))} cd/m²\n"
+                + ("flags: " + "; ".join(f"{f.severity} {f.gate}: {f.message}" for f in flags)
+                   if flags else "no flags"))
+        self.app.push_screen(SpectrumScreen(head, r.arrays["wavelength_nm"], values, title))
