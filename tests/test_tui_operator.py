@@ -409,3 +409,53 @@ def test_reading_rows_format_luminance_and_brdf_geometry():
     flag = SimpleNamespace(severity="warning")
     row = reading_row(brdf, [flag])
     assert row[1] == "θi -30 θo 10" and row[2] == "p07" and row[7] == "0E 1W"
+
+
+def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env):  # noqa: F811
+    """h homes, g asks an angle and goes there, k jogs +5°, o / f switch the lamp, m takes a
+    single reading (shown, not stored) — each through the instrument's capabilities; while a
+    run owns the instruments each is refused with the reason."""
+    from normbox_lab.tui.screens import NumberScreen
+
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    def toasts() -> list[str]:
+        return [str(n.message) for n in app._notifications]
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            rot, lamp = (session.lab.instrument(r) for r in ("rotator", "sphere"))
+            await pilot.press("1")
+            await pilot.press("h")
+            await until(pilot, lambda: any("rotator homed" in t for t in toasts()), "homing")
+            assert rot.is_homed()
+            await pilot.press("g")
+            await until(pilot, lambda: isinstance(app.screen, NumberScreen), "the question")
+            await pilot.press("4", "5", "enter")
+            await until(pilot, lambda: any("rotator at 45.00°" in t for t in toasts()), "goto")
+            await pilot.press("k")
+            await until(pilot, lambda: any("rotator at 50.00°" in t for t in toasts()), "jog")
+            assert rot.position_deg() == 50.0
+            await pilot.press("o")
+            await until(pilot, lambda: lamp.state() != "off", "lamp on")
+            await pilot.press("f")
+            await until(pilot, lambda: lamp.state() == "off", "lamp off")
+            await pilot.press("m")
+            await until(pilot, lambda: any("single reading taken" in t and "Lv" in t
+                                           for t in toasts()), "the reading")
+            assert app.latest[0] == "manual"
+            # a run owns the instruments: refused, with the reason
+            await pilot.press("2")
+            await start_and_wait_for_the_second_prompt(pilot, app)
+            await pilot.press("1")                          # the prompt steps aside
+            await until(pilot, lambda: not isinstance(app.screen, PromptScreen), "aside")
+            app.query_one("#inst-table").focus()
+            before = rot.position_deg()
+            await pilot.press("h")
+            await until(pilot, lambda: any("refused: the run owns the instruments" in t
+                                           for t in toasts()), "the refusal")
+            assert rot.position_deg() == before
+    asyncio.run(scenario())
+    session.close()

@@ -382,6 +382,47 @@ class NormboxConsole(App):
                     + (" — run paused, r resumes" if self.session.busy else ""),
                     severity="error", markup=False)
 
+    def manual(self, action: str, value: float | None = None) -> None:
+        """A manual action from the Instruments tab (in a worker: a move or a reading takes
+        time); refused at once while a run owns the instruments."""
+        if not self.lab_ready:
+            self.notify("the lab is still loading", severity="warning")
+            return
+        if self.session.busy:
+            self.notify("refused: the run owns the instruments (p pauses it; manual control "
+                        "after it has stopped)", severity="warning", markup=False)
+            return
+        self._manual(action, value)
+
+    @work(thread=True, exclusive=True, group="manual")
+    def _manual(self, action: str, value: float | None) -> None:
+        from normbox_lab.core.errors import NormboxError
+
+        try:
+            text, reading = self.session.manual(action, value)
+        except (NormboxError, OSError) as exc:
+            self.call_from_thread(self.notify, str(exc), severity="error", markup=False)
+            self.call_from_thread(self._log, "[red]manual:[/] ", str(exc))
+            return
+        self.call_from_thread(self._manual_done, text, reading)
+
+    def _manual_done(self, text: str, reading: Any) -> None:
+        from normbox_lab.tui.views import luminance_text
+
+        if reading is not None:
+            colo = getattr(reading, "colorimetry", None)
+            if colo is not None:
+                text += (f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · x {colo.x:.4f} "
+                         f"y {colo.y:.4f}")
+            self.previous = self.latest if self.latest and self.latest[4] == RADIANCE_TITLE \
+                else None
+            self.latest = ("manual", reading.wavelength_nm, reading.radiance_W_sr_m2_nm,
+                           colo, RADIANCE_TITLE)
+            self._spectrum_dirty = True
+        self._log("[b]manual[/b] ", text)
+        self.notify(text, markup=False)
+        self._poll()                       # the table shows the new state
+
     def action_poll(self) -> None:
         if self.lab_ready:
             self._poll()

@@ -19,7 +19,7 @@ import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 from normbox_lab.core.errors import NormboxError, OperatorAbort
 
@@ -263,6 +263,73 @@ class Session:
             except (NormboxError, OSError) as exc:
                 failed.append(f"{role}: {exc}")
         return failed
+
+    # --- manual control (Instruments tab) ------------------------------------------------------
+    #: what each manual action needs of the instrument, and how the console names it
+    MANUAL: ClassVar[dict[str, tuple[str, str]]] = {
+        "home": ("rotator", "home"), "goto": ("rotator", "go to"), "jog": ("rotator", "jog"),
+        "lamp-on": ("sphere", "lamp on"), "lamp-off": ("sphere", "lamp off"),
+        "lamp-level": ("sphere", "lamp level"), "measure": ("radiometer", "single reading")}
+
+    def manual(self, action: str, value: float | None = None) -> tuple[str, Any]:
+        """One manual action on an idle lab, through the instrument's capabilities: `home`,
+        `goto` (value: angle °), `jog` (value: ±°), `lamp-on`, `lamp-off`, `lamp-level`
+        (value: %), `measure` (a single radiometer reading, not stored).  Refused with a
+        `NotReady` naming why while a run owns the instruments, or when the instrument cannot
+        do it.  Returns (what was done, the reading or None).  Call from a worker thread."""
+        from normbox_lab.core.capabilities import (
+            Homeable,
+            LampLevel,
+            Movable,
+            SpectrumReadable,
+            Switchable,
+        )
+        from normbox_lab.core.errors import NotReady
+
+        if action not in self.MANUAL:
+            raise ValueError(f"unknown manual action {action!r}")
+        role, name = self.MANUAL[action]
+        if self.busy:
+            raise NotReady(f"{name} refused: the run owns the instruments (pause it and let it "
+                           "end its segment, or wait for the end)", instrument=role)
+        lab = self.ensure_lab()
+        if role not in lab.roles():
+            raise NotReady(f"{name}: this lab has no {role}", instrument=role)
+        inst = lab.instrument(role)
+        need = {"home": Homeable, "goto": Movable, "jog": Movable, "lamp-on": Switchable,
+                "lamp-off": Switchable, "lamp-level": LampLevel,
+                "measure": SpectrumReadable}[action]
+        if not isinstance(inst, need):
+            raise NotReady(f"{name}: the {role} cannot do that ({type(inst).__name__})",
+                           instrument=role)
+        live = self.live
+        if action == "home":
+            inst.home(wait=True)
+            live.angle_deg = float(inst.position_deg()) if isinstance(inst, Movable) else 0.0
+            return f"{role} homed at {live.angle_deg:.2f}°", None
+        if action in ("goto", "jog"):
+            if isinstance(inst, Homeable) and not inst.is_homed():
+                raise NotReady(f"{name}: home the {role} first (h)", instrument=role)
+            target = float(value or 0.0)
+            if action == "jog":
+                target += float(inst.position_deg())
+            inst.move_to(target, wait=True)
+            live.angle_deg = float(inst.position_deg())
+            return f"{role} at {live.angle_deg:.2f}°", None
+        if action in ("lamp-on", "lamp-off"):
+            inst.set_output(action == "lamp-on")
+            live.lamp = str(inst.state())
+            return f"{role} {live.lamp}", None
+        if action == "lamp-level":
+            inst.set_level_percent(float(value if value is not None else 100.0))
+            return f"{role} level {float(value or 100.0):g} %", None
+        reading = inst.measure()
+        colo = getattr(reading, "colorimetry", None)
+        live.last_key = "manual"
+        if colo is not None:
+            live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
+            live.last_xy = (float(colo.x), float(colo.y))
+        return "single reading taken (not stored)", reading
 
     def quit(self) -> None:
         """Leave safely: the current reading finishes and is committed, the segment ends

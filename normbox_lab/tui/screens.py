@@ -194,3 +194,51 @@ class SpectrumScreen(ModalScreen[None]):
     def action_close(self) -> None:
         self.dismiss(None)
 
+
+class NumberScreen(ModalScreen[float | None]):
+    """Ask for one number (go to angle, lamp level): Enter takes it, Esc cancels; a value that
+    is not a number or out of range is refused in place, naming the range."""
+
+    BINDINGS: ClassVar = [Binding("escape", "cancel", "cancel")]
+    DEFAULT_CSS = """
+    NumberScreen { align: center middle; }
+    NumberScreen > Vertical { width: 60; height: auto; border: thick $accent; padding: 0 1;
+                              background: $panel; }
+    NumberScreen #number-error { color: $error; height: auto; }
+    """
+
+    def __init__(self, question: str, low: float, high: float, value: float | None = None
+                 ) -> None:
+        super().__init__()
+        self.question, self.low, self.high, self.value = question, low, high, value
+
+    def compose(self) -> ComposeResult:
+        from textual.widgets import Input
+
+        with Vertical():
+            yield Label(f"{self.question} ({self.low:g} … {self.high:g})")
+            yield Input("" if self.value is None else f"{self.value:g}", id="number")
+            yield Static("", id="number-error")
+            yield Label("[dim]Enter: go · Esc: cancel[/dim]")
+
+    def on_mount(self) -> None:
+        from textual.widgets import Input
+
+        self.query_one("#number", Input).focus()
+
+    def on_input_submitted(self, event: Any) -> None:
+        text = str(event.value).strip()
+        try:
+            value = float(text)
+        except ValueError:
+            self.query_one("#number-error", Static).update(f"not a number: {text!r}")
+            return
+        if not self.low <= value <= self.high:
+            self.query_one("#number-error", Static).update(
+                f"{value:g} is outside {self.low:g} … {self.high:g}")
+            return
+        self.dismiss(value)
+
+    def action_cancel(self) -> None:
+        self.dismiss(None)
+

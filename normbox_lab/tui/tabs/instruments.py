@@ -1,11 +1,14 @@
 """Tab 1, Instruments: every instrument's connection, identity, state and when it last
-answered (a red row when it did not), and the live state of the box."""
+answered (a red row when it did not), the live state of the box, and manual control: home,
+go to / jog the rotator, lamp on / off / level, a single reading — each refused, with the
+reason, while a run owns the instruments."""
 
 from __future__ import annotations
 
 import time
-from typing import Any
+from typing import Any, ClassVar
 
+from textual.binding import Binding
 from textual.widgets import DataTable, Static, TabPane
 
 from normbox_lab.tui.tabs.common import table
@@ -20,6 +23,16 @@ def connection_text(row: dict[str, Any]) -> str:
 
 
 class InstrumentsPane(TabPane):
+    BINDINGS: ClassVar = [
+        Binding("h", "manual('home')", "home"),
+        Binding("g", "goto", "go to"),
+        Binding("j", "manual('jog', -5)", "jog −5°"),
+        Binding("k", "manual('jog', 5)", "jog +5°"),
+        Binding("o", "manual('lamp-on')", "lamp on"),
+        Binding("f", "manual('lamp-off')", "lamp off"),
+        Binding("v", "level", "level"),
+        Binding("m", "manual('measure')", "reading"),
+    ]
     DEFAULT_CSS = """
     #inst-table { height: auto; max-height: 10; }
     #live { height: auto; padding: 0 1; }
@@ -67,3 +80,25 @@ class InstrumentsPane(TabPane):
         self.query_one("#live", Static).update(
             f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
             f"spectrometer temperature {temp}\nlast reading {last}")
+
+    # --- manual control ------------------------------------------------------------------------
+    def action_manual(self, action: str, value: float | None = None) -> None:
+        self.app.manual(action, value)
+
+    def action_goto(self) -> None:
+        from normbox_lab.tui.screens import NumberScreen
+
+        def chosen(angle: float | None) -> None:
+            if angle is not None:
+                self.app.manual("goto", angle)
+        self.app.push_screen(NumberScreen("rotator: go to angle, degrees", -180.0, 180.0),
+                             chosen)
+
+    def action_level(self) -> None:
+        from normbox_lab.tui.screens import NumberScreen
+
+        def chosen(level: float | None) -> None:
+            if level is not None:
+                self.app.manual("lamp-level", level)
+        self.app.push_screen(NumberScreen("lamp level, percent", 0.0, 100.0, 100.0), chosen)
+
