@@ -450,7 +450,8 @@ def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
     with Store(lab_env / "tui.sqlite") as store:
         ImageFigure("fig-camera", "virtual camera", "c",
                     [ImagePanel("truth", rgb), ImagePanel("ΔE00", np.ones((24, 32)), vmax=5.0,
-                                                          unit="ΔE00")]).store(store)
+                                                          unit="ΔE00")],
+                    "patch 19 at 30°").store(store)
     session = new_session(lab_env)
     app = NormboxConsole(session, offer_resume=False)
 
@@ -463,7 +464,11 @@ def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
                         "the image preview")
             figure = app.query_one("#images-text").content.renderables[0]
             title, grid = figure.renderables
-            assert title.plain.startswith("virtual camera")
+            assert title.plain.startswith("virtual camera — patch 19 at 30°")
+            # the ΔE00 map has its colour scale under it, 0 … 5 ΔE00
+            scale = grid.columns[1]._cells[2]
+            assert scale.plain.startswith("█") and scale.plain.rstrip().endswith("5 ΔE00")
+            assert "0" in scale.plain.split("\n")[1]
             labels = [c._cells[0].plain for c in grid.columns]
             assert labels == ["truth", "ΔE00 (0…5 ΔE00)"]
             block = grid.columns[0]._cells[1]

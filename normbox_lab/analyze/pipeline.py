@@ -385,7 +385,7 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
                     [ImagePanel("truth", balanced[0]),
                      ImagePanel("prediction (fits)", balanced[1]),
                      ImagePanel("ΔE00, region means", de_map, vmax=vmax, unit="ΔE00"),
-                     ImagePanel("noise floor", nf_map, vmax=vmax, unit="ΔE00")]),
+                     ImagePanel("noise floor", nf_map, vmax=vmax, unit="ΔE00")], where),
         ImageFigure("fig-whitebalance", "Wilkie & Weidlich white balance of the truth image",
                     f"Left: the raw rendering (scaled to the white patch, no adaptation: the "
                     f"lamp's colour shows); middle: the 1−Chroma weights from the CWNI image "
@@ -394,7 +394,7 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
                     f"(plain gray world on the raw image: ({gw[0]:.4f}, {gw[1]:.4f})).",
                     [ImagePanel("raw", fig.truth_srgb),
                      ImagePanel("1 − Chroma", est.one_minus_chroma, vmax=1.0),
-                     ImagePanel("W&W balanced", balanced[0])]),
+                     ImagePanel("W&W balanced", balanced[0])], where),
     ]
     ids = [f.store(store, run_ref=run_id) for f in figures]
     out = Path(out_dir)

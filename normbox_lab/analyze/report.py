@@ -101,12 +101,13 @@ class ImageFigure:
     title: str
     caption: str
     panels: list[ImagePanel]
+    subject: str = ""          # what it shows, e.g. "patch 19 at 30°" (the console's header)
 
     def store(self, store: Any, run_ref: int | str | None = None) -> int:
         # the store keeps float64: sRGB panels go in as encoded values in [0, 1]
         arrays = {f"p{k}": (np.asarray(p.data) / 255.0 if np.asarray(p.data).dtype == np.uint8
                             else np.asarray(p.data)) for k, p in enumerate(self.panels)}
-        meta = {"title": self.title, "caption": self.caption,
+        meta = {"title": self.title, "caption": self.caption, "subject": self.subject,
                 "panels": [{"label": p.label, "vmax": p.vmax, "unit": p.unit}
                            for p in self.panels]}
         return store.add_artifact("image-figure", self.fid, arrays, metadata=meta,
@@ -117,7 +118,7 @@ class ImageFigure:
         m = a.metadata
         panels = [ImagePanel(p["label"], np.asarray(a.arrays[f"p{k}"]), p.get("vmax"),
                              p.get("unit", "")) for k, p in enumerate(m["panels"])]
-        return cls(a.name, m["title"], m["caption"], panels)
+        return cls(a.name, m["title"], m["caption"], panels, m.get("subject", ""))
 
 
 # -- colour conventions ------------------------------------------------------------------------

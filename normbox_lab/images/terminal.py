@@ -76,7 +76,28 @@ def figure_renderable(title: str, panels: list[tuple[str, Any, float | None, str
     grid.add_row(*[Text(_panel_label(label, vmax, unit), overflow="ellipsis", no_wrap=True)
                    for label, _data, vmax, unit in panels])
     grid.add_row(*[half_block_text(data, each, vmax) for _label, data, vmax, _unit in panels])
+    if any(np.asarray(data).ndim == 2 for _l, data, _v, _u in panels):
+        grid.add_row(*[colour_bar(each, vmax, unit) if np.asarray(data).ndim == 2 else Text("")
+                       for _label, data, vmax, unit in panels])
     return Group(Text(title, style="bold"), grid)
+
+
+def colour_bar(width_cells: int, vmax: float | None, unit: str = "") -> Any:
+    """The scale of a scalar map: the 'magma' colours from 0 to vmax across `width_cells`,
+    with the ends labelled underneath."""
+    from matplotlib import colormaps
+    from rich.style import Style
+    from rich.text import Text
+
+    n = max(2, int(width_cells))
+    rgba = colormaps["magma"](np.linspace(0.0, 1.0, n))
+    bar = Text()
+    for r, g, b, _a in np.round(rgba * 255).astype(int):
+        bar.append("█", Style(color=f"rgb({r},{g},{b})"))
+    top = f"{vmax:g}" if vmax else "max"
+    right = f"{top}{' ' + unit if unit else ''}"
+    bar.append("\n0" + " " * max(1, n - 1 - len(right)) + right)
+    return bar
 
 
 def _panel_label(label: str, vmax: float | None, unit: str) -> str:

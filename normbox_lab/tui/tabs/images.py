@@ -40,6 +40,8 @@ class ImagesPane(TabPane):
         for a in order:
             panels = [(p["label"], a.arrays[f"p{k}"], p.get("vmax"), p.get("unit", ""))
                       for k, p in enumerate(a.metadata.get("panels", []))]
-            title = f"{a.metadata.get('title', a.name)} (artifact {a.id}, run {a.run_id})"
+            subject = a.metadata.get("subject") or ""
+            title = (f"{a.metadata.get('title', a.name)}{' — ' + subject if subject else ''}"
+                     f" (artifact {a.id}, run {a.run_id})")
             figures.append(figure_renderable(title, panels, width))
         self.query_one("#images-text", Static).update(Group(*figures))

@@ -59,8 +59,10 @@ class ResultsPane(TabPane):
         tab.add_column("patch", key="patch")
         for a in hm.angle_deg:
             tab.add_column(f"{a:g}°", key=f"{a:g}")
+        # names as long as the terminal allows (13 characters at 80 columns)
+        room = max(13, self.app.size.width - 6 * int(hm.angle_deg.size) - 6)
         for i, name in enumerate(hm.patch_names):
-            cells: list[Any] = [Text(name[:13])]
+            cells: list[Any] = [Text(name if len(name) <= room else name[:room - 1] + "…")]
             for j in range(hm.angle_deg.size):
                 de = float(hm.delta_e00[i, j])
                 cells.append(Text(f"{de:4.1f}", style=RATING_STYLES[rating_class(de)][0]))
