@@ -459,3 +459,14 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
             assert rot.position_deg() == before
     asyncio.run(scenario())
     session.close()
+
+
+def test_the_first_paint_is_the_complete_screen_with_the_footer(lab_env):  # noqa: F811
+    app = NormboxConsole(new_session(lab_env), exit_after_paint=True)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.first_paint_wall_s is not None, "the first paint")
+    asyncio.run(scenario())
+    assert app.first_paint_footer_keys >= 5          # x E-STOP, q quit, s start, d, p, …
+    app.session.close()
