@@ -60,8 +60,16 @@ def test_rating_colours_are_four_distinct_colour_blind_safe_colours():
 
 
 def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F811
+    """The console's clock is injected: the remaining time is the observed rate (40 s for the
+    first of 6 readings → 5 × 40 s left), a first `a` asks, a second `a` after the 5 s window
+    asks again (the window expired), a second `a` within it aborts; no estimate afterwards."""
+    import datetime
+
+    from normbox_lab.core.clock import VirtualClock
+
+    clock = VirtualClock(epoch_s=1_767_225_600.0)          # 2026-01-01T00:00:00Z
     session = new_session(lab_env)
-    app = NormboxConsole(session)
+    app = NormboxConsole(session, clock=clock)
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
@@ -71,14 +79,22 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
                 app.query_one("#run-info", Static).render()), "the dry run")
             assert "ETA" not in str(app.query_one("#run-info", Static).render())
             await start_and_wait_for_the_second_prompt(pilot, app, parameters=False)
-            text = app.remaining_text()
-            # one reading taken on the virtual clock: the estimate is the observed rate
-            assert text.startswith("remaining ") and "done ≈ " in text, text
+            clock.advance(40.0)                  # the first reading took 40 s of wall time
+            finish = datetime.datetime.fromtimestamp(clock.wall_time_s() + 200.0)
+            assert app.remaining_text() == f"remaining 3:20 · done ≈ {finish:%H:%M}"
+
+            def aborts_asked() -> int:
+                return sum("abort the run?" in str(n.message) for n in app._notifications)
             await pilot.press("a")
-            await pilot.pause(0.1)
+            await until(pilot, lambda: aborts_asked() == 1, "the question")
+            clock.advance(app.ABORT_CONFIRM_S + 1.0)                   # too late
+            await pilot.press("a")
+            await until(pilot, lambda: aborts_asked() == 2, "the question again")
             assert app.session.busy and app.run_status != "aborted"    # asked, not done
+            clock.advance(app.ABORT_CONFIRM_S - 1.0)                   # within the window
             await pilot.press("a")                                      # confirmed
             await until(pilot, lambda: app.run_status == "aborted", "the abort")
+            assert aborts_asked() == 2
             assert app.remaining_text() == ""
             assert "remaining" not in str(app.query_one("#run-info", Static).render())
     asyncio.run(scenario())

@@ -19,6 +19,7 @@ from textual.css.query import NoMatches
 from textual.message import Message
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
+from normbox_lab.core.clock import Clock, RealClock
 from normbox_lab.tui.controller import Session
 from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
@@ -85,9 +86,12 @@ class NormboxConsole(App):
 
     def __init__(self, session: Session, *, exit_after_paint: bool = False,
                  offer_resume: bool = True, protocol: str = "reference-sweep",
-                 prefill: dict[str, str] | None = None) -> None:
+                 prefill: dict[str, str] | None = None, clock: Clock | None = None) -> None:
         super().__init__()
         self.session = session
+        #: the console's own clock (abort confirmation window, remaining time, poll times);
+        #: tests inject a VirtualClock and move it instead of sleeping
+        self.clock: Clock = clock if clock is not None else RealClock()
         session.post = lambda ev: self.post_message(EngineMessage(ev))
         self.exit_after_paint = exit_after_paint
         self.offer_resume = offer_resume
@@ -353,12 +357,12 @@ class NormboxConsole(App):
         if not self.session.busy:
             return
         armed = getattr(self, "_abort_armed_until", 0.0)
-        if time.monotonic() <= armed:
+        if self.clock.now_s() <= armed:
             self._abort_armed_until = 0.0
             self.session.abort()
             self._log("[red]abort requested[/]")
             return
-        self._abort_armed_until = time.monotonic() + self.ABORT_CONFIRM_S
+        self._abort_armed_until = self.clock.now_s() + self.ABORT_CONFIRM_S
         self.notify("abort the run? press a again within 5 s (p pauses instead; x is the "
                     "emergency stop)", severity="warning", markup=False)
 
@@ -490,7 +494,7 @@ class NormboxConsole(App):
             self.progress_planned, self.progress_done = d["planned"], d["done"]
             self._bar(d["done"], d["planned"])
             self._set_run_status("running")
-            self._eta_start = (time.monotonic(), d["done"])
+            self._eta_start = (self.clock.now_s(), d["done"])
             self._lab_remaining_s = float(d["eta_s"])
             self._log(f"run {d['run_uuid'][:8]} segment {d['segment']}: {d['done']}/"
                       f"{d['planned']} done, lab time left {format_duration(d['eta_s'])}")
@@ -590,12 +594,12 @@ class NormboxConsole(App):
         if scale is None:                           # real clock: the timing model
             remaining_s = getattr(self, "_lab_remaining_s", None)
         else:                                       # simulated: the observed rate
-            t0, done0 = getattr(self, "_eta_start", (time.monotonic(), self.progress_done))
+            t0, done0 = getattr(self, "_eta_start", (self.clock.now_s(), self.progress_done))
             taken = self.progress_done - done0
-            remaining_s = ((time.monotonic() - t0) / taken * left) if taken > 0 else None
+            remaining_s = ((self.clock.now_s() - t0) / taken * left) if taken > 0 else None
         if remaining_s is None:
             return "remaining: measuring…"
-        finish = datetime.datetime.now() + datetime.timedelta(seconds=remaining_s)
+        finish = datetime.datetime.fromtimestamp(self.clock.wall_time_s() + remaining_s)
         return f"remaining {format_duration(remaining_s)} · done ≈ {finish:%H:%M}"
 
     def _update_run_info(self) -> None:
@@ -663,7 +667,8 @@ class NormboxConsole(App):
         self.pane(InstrumentsPane).show_instruments(rows, self.size.width)
         self._show_live()
         bad = [r["role"] for r in rows if r.get("ok") is False]
-        self.notify(f"instruments polled at {time.strftime('%H:%M:%S')}: "
+        polled = time.strftime("%H:%M:%S", time.localtime(self.clock.wall_time_s()))
+        self.notify(f"instruments polled at {polled}: "
                     + (f"no answer from {', '.join(bad)}" if bad else "all answered"),
                     severity="error" if bad else "information", markup=False)
 
