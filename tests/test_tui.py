@@ -65,6 +65,12 @@ async def answer_prompt(pilot, app, expect: str | None = None) -> str:
     return text
 
 
+def screen_text(app) -> str:
+    """What the terminal shows now (the top screen composited), as plain text lines."""
+    strips = app.screen._compositor.render_strips()
+    return "\n".join("".join(seg.text for seg in strip) for strip in strips)
+
+
 async def set_reduced_parameters(pilot, app) -> None:
     await until(pilot, lambda: app.lab_ready, "the lab")
     app.set_parameter("angles_deg", ANGLES)

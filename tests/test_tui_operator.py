@@ -6,7 +6,14 @@ from __future__ import annotations
 
 import asyncio
 
-from test_tui import answer_prompt, lab_env, new_session, set_reduced_parameters, until  # noqa: F401
+from test_tui import (  # noqa: F401
+    answer_prompt,
+    lab_env,
+    new_session,
+    screen_text,
+    set_reduced_parameters,
+    until,
+)
 from textual.widgets import Static, TabbedContent
 
 from normbox_lab.tui.app import NormboxConsole, PromptScreen
@@ -214,6 +221,13 @@ def test_emergency_stop_during_a_run_switches_the_lamp_off_and_pauses(tmp_path, 
             await pilot.press("x")
             await until(pilot, lambda: not session.busy, "the run to stop", timeout_s=10.0)
             assert sphere.state() == "off"                       # asked over the wire
+            # the table tells the truth after the stop: the poll after the run (which waits
+            # for the engine thread to end) reads the lamp off, not "on, stable"
+            await pilot.press("1")
+            await until(pilot, lambda: "sphere" in screen_text(app) and any(
+                "sphere" in line and " off " in line + " " and "stable" not in line
+                for line in screen_text(app).splitlines()), "the table to show the lamp off",
+                timeout_s=10.0)
             rotator = session.lab.instrument("rotator")
             assert isinstance(rotator, Movable)
             p1 = rotator.position_deg()
@@ -352,11 +366,22 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
                 assert not region.overlaps(box), (wid, region, box)
             message = str(prompt.query_one("#prompt-message").render())
             assert message.startswith("Place patch 9 (moderate red) on the holder")
+            shown = screen_text(app)
+            # what to do and which keys, whole (the hint wraps, it is not cut at 80 columns)
+            assert "on the holder — then Enter" in shown
+            inside = [line[line.index("█") + 1:line.rindex("█")] for line in
+                      shown.splitlines() if line.count("█") >= 2]    # the prompt box
+            flat = " ".join(" ".join(inside).split())
+            assert "a abort · 1–6 look (w back)" in flat, shown
+            lines = shown.splitlines()
+            assert any(line.lstrip().startswith("━") and "%" in line for line in lines)
             await pilot.press("4")
             await until(pilot, lambda: app.screen is not prompt, "the prompt to step aside")
             assert app.query_one(TabbedContent).active == "runs"
             assert app.waiting_prompt is not None and app.session.busy
             assert "prompt waiting: w" in str(app.query_one("#run-info", Static).render())
+            # on the Runs tab too: the top line says a prompt waits
+            assert screen_text(app).splitlines()[0].startswith(" prompt waiting: w")
             await pilot.press("2")
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "the prompt back")
             assert app.screen.request.key == prompt.request.key
@@ -486,3 +511,23 @@ def test_the_first_paint_is_the_complete_screen_with_the_footer(lab_env):  # noq
     asyncio.run(scenario())
     assert app.first_paint_footer_keys >= 5          # x E-STOP, q quit, s start, d, p, …
     app.session.close()
+
+
+def test_the_e_stop_key_is_on_screen_on_every_tab_at_80x24(lab_env):  # noqa: F811
+    """The footer's first key is x E-STOP on every tab (the Instruments tab's manual keys
+    are listed in the pane, not in front of it), so it is never cut at 80 columns."""
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            for key in "123456":
+                await pilot.press(key)
+                await pilot.pause(0.1)
+                lines = screen_text(app).splitlines()
+                assert lines[-1].lstrip().startswith("x E-STOP"), (key, lines[-1])
+                if key == "1":
+                    assert any("h home · g go to · j/k jog" in line for line in lines), lines
+    asyncio.run(scenario())
+    app.session.close()
+

@@ -200,8 +200,17 @@ class NormboxConsole(App):
         self._refresh_results()
 
     # --- helpers -----------------------------------------------------------------------------
-    def _set_status(self, text: str) -> None:
-        self.query_one("#status", Static).update(text)
+    def _set_status(self, text: str | None = None) -> None:
+        """The top line: the lab (`text`), and — on every tab — a prompt that waits while the
+        operator looks elsewhere."""
+        from rich.text import Text
+
+        if text is not None:
+            self._status_text = text
+        line = Text(getattr(self, "_status_text", ""))
+        if self.waiting_prompt is not None and self.prompt_screen is None:
+            line = Text.assemble(("prompt waiting: w ", "bold reverse"), " ", line)
+        self.query_one("#status", Static).update(line)
 
     def _log(self, markup: str, detail: str = "") -> None:
         """One line in the Run tab's log: `markup` (ours) + `detail` (plain)."""
@@ -386,6 +395,7 @@ class NormboxConsole(App):
         if not self.lab_ready:
             return
         failed = self.session.emergency_stop()
+        self._live_dirty = True
         if self.prompt_screen is not None:
             self.prompt_screen.dismiss("")
         self._log("[b red]EMERGENCY STOP[/] ", "axes halted, lamps off"
@@ -440,7 +450,11 @@ class NormboxConsole(App):
             self._poll()
 
     @work(thread=True, exclusive=True, group="poll")
-    def _poll(self) -> None:
+    def _poll(self, after_run: bool = False) -> None:
+        # after a run: its "finished" message is posted from the engine thread just before
+        # that thread ends; the poll waits for the end (the engine no longer owns the ports)
+        if after_run and not self.session.wait(5.0):
+            return
         try:
             rows = self.session.poll_instruments()
         except Exception as exc:  # noqa: BLE001
@@ -526,6 +540,7 @@ class NormboxConsole(App):
             self._show_prompt(d["prompt"])
         elif k == "answer":
             self.waiting_prompt = None
+            self._set_status()
             self._log("", f"{ev.key}: answered {d.get('answer')}")
         elif k in ("warning", "fault", "suspended", "unsuspended"):
             msg = d.get("message") or d.get("error") or d.get("role") or ""
@@ -544,6 +559,7 @@ class NormboxConsole(App):
 
     def _finished(self, result: Any) -> None:
         self.waiting_prompt = None
+        self._set_status()
         self._repeatability_summary()
         if self.prompt_screen is not None:
             self.prompt_screen.dismiss("")
@@ -567,8 +583,8 @@ class NormboxConsole(App):
         self.notify(text, timeout=30, markup=False)
 
     def _poll_after_run(self) -> None:
-        if self.lab_ready and not self.session.busy:
-            self._poll()
+        if self.lab_ready:
+            self._poll(after_run=True)
 
     def _bar(self, done: int, planned: int) -> None:
         self.pane(RunPane).bar(done, planned)
@@ -603,6 +619,7 @@ class NormboxConsole(App):
         return f"remaining {format_duration(remaining_s)} · done ≈ {finish:%H:%M}"
 
     def _update_run_info(self) -> None:
+        self._set_status()
         remaining = self.remaining_text()
         waiting = ("  [b reverse] prompt waiting: w [/]"
                    if self.waiting_prompt is not None and self.prompt_screen is None else "")
@@ -675,6 +692,7 @@ class NormboxConsole(App):
     def _show_live(self) -> None:
         pane = self.pane(InstrumentsPane)
         pane.show_live(self.session.live)
+        pane.show_manual_keys(self.session.busy)
         if self.session.busy:          # the table follows the run (no polling during it)
             pane.show_instruments(self.session.instrument_rows(), self.size.width)
 

@@ -251,6 +251,7 @@ class Session:
             self.engine.emergency_stop()
             if self.operator is not None:
                 self.operator.cancel("abort")
+            self._mark_stopped()
             return []
         failed = []
         lab = self.lab
@@ -263,6 +264,21 @@ class Session:
             except (NormboxError, OSError) as exc:
                 failed.append(f"{role}: {exc}")
         return failed
+
+    def _mark_stopped(self) -> None:
+        """The live state after an emergency stop during a run (the table shows it until the
+        poll after the run has asked the instruments themselves)."""
+        from normbox_lab.core.capabilities import Movable, Switchable
+
+        live = self.live
+        lab = self.lab
+        for role in (lab.roles() if lab is not None else []):
+            inst = lab.instrument(role)
+            if isinstance(inst, Switchable):
+                live.run_state[role] = "off (emergency stop)"
+                live.lamp, live.lamp_stable = "off", False
+            elif isinstance(inst, Movable):
+                live.run_state[role] = "halted (emergency stop)"
 
     # --- manual control (Instruments tab) ------------------------------------------------------
     #: what each manual action needs of the instrument, and how the console names it

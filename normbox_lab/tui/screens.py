@@ -34,7 +34,7 @@ class PromptScreen(ModalScreen[str]):
     DEFAULT_CSS = """
     PromptScreen { align: center bottom; }
     PromptScreen > Vertical { margin-bottom: 1; }
-    PromptScreen > Vertical { width: 70; height: auto; border: thick $accent; padding: 0 1;
+    PromptScreen > Vertical { width: 90%; max-width: 120; height: auto; border: thick $accent; padding: 0 1;
                               background: $panel; }
     PromptScreen.fault > Vertical { border: thick $error; }
     PromptScreen Horizontal { height: auto; }
@@ -55,7 +55,7 @@ class PromptScreen(ModalScreen[str]):
         with Vertical():
             yield Label(f"[b]{title}[/b]  {req.key}")
             yield Static(prompt_text(req), id="prompt-message")
-            yield Label(f"[dim]{hint}[/dim]")
+            yield Static(f"[dim]{hint}[/dim]", id="prompt-hint")    # wraps, never cut
             with Horizontal():
                 for i, c in enumerate(req.choices):
                     yield Button(c, id=f"choice-{c}", compact=True,

@@ -23,19 +23,25 @@ def connection_text(row: dict[str, Any]) -> str:
 
 
 class InstrumentsPane(TabPane):
+    # not in the footer (it would push the global keys, E-STOP among them, off an 80-column
+    # screen): the pane's own key line lists them
     BINDINGS: ClassVar = [
-        Binding("h", "manual('home')", "home"),
-        Binding("g", "goto", "go to"),
-        Binding("j", "manual('jog', -5)", "jog −5°"),
-        Binding("k", "manual('jog', 5)", "jog +5°"),
-        Binding("o", "manual('lamp-on')", "lamp on"),
-        Binding("f", "manual('lamp-off')", "lamp off"),
-        Binding("v", "level", "level"),
-        Binding("m", "manual('measure')", "reading"),
+        Binding("h", "manual('home')", "home", show=False),
+        Binding("g", "goto", "go to", show=False),
+        Binding("j", "manual('jog', -5)", "jog −5°", show=False),
+        Binding("k", "manual('jog', 5)", "jog +5°", show=False),
+        Binding("o", "manual('lamp-on')", "lamp on", show=False),
+        Binding("f", "manual('lamp-off')", "lamp off", show=False),
+        Binding("v", "level", "level", show=False),
+        Binding("m", "manual('measure')", "reading", show=False),
     ]
+    #: the manual-control keys, shown under the table
+    KEYS_TEXT = ("[b]h[/b] home · [b]g[/b] go to · [b]j[/b]/[b]k[/b] jog −5°/+5° · "
+                 "[b]o[/b]/[b]f[/b] lamp on/off · [b]v[/b] level · [b]m[/b] reading")
     DEFAULT_CSS = """
     #inst-table { height: auto; max-height: 10; }
     #live { height: auto; padding: 0 1; }
+    #manual-keys { height: auto; padding: 0 1; color: $text-muted; }
     """
 
     def __init__(self) -> None:
@@ -46,7 +52,8 @@ class InstrumentsPane(TabPane):
         self.mount_all([
             table("inst-table", ("role", "connection", "identity", "state", "last seen"),
                   cursor_type="row", zebra_stripes=True),
-            Static("", id="live")])
+            Static("", id="live"),
+            Static("manual: " + self.KEYS_TEXT, id="manual-keys")])
 
     def show_instruments(self, rows: list[dict[str, Any]], width_cells: int) -> None:
         from rich.text import Text
@@ -65,6 +72,8 @@ class InstrumentsPane(TabPane):
             tab.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
 
     def show_live(self, live: Any) -> None:
+        from normbox_lab.tui.views import luminance_text
+
         angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
         lamp = live.lamp
         if live.lamp_stable is not None and live.lamp != "stable":
@@ -72,7 +81,8 @@ class InstrumentsPane(TabPane):
         temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
         last = "-"
         if live.last_key:
-            lv = "?" if live.last_Lv_cd_m2 is None else f"{live.last_Lv_cd_m2:.3g} cd/m²"
+            lv = ("?" if live.last_Lv_cd_m2 is None
+                  else f"{luminance_text(live.last_Lv_cd_m2)} cd/m²")
             xy = ("" if live.last_xy is None
                   else f"  x {live.last_xy[0]:.4f} y {live.last_xy[1]:.4f}")
             last = f"{live.last_key}: Lv {lv}{xy}"
@@ -80,6 +90,11 @@ class InstrumentsPane(TabPane):
         self.query_one("#live", Static).update(
             f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
             f"spectrometer temperature {temp}\nlast reading {last}")
+
+    def show_manual_keys(self, run_owns: bool) -> None:
+        self.query_one("#manual-keys", Static).update(
+            ("manual (refused while the run owns the instruments): " if run_owns
+             else "manual: ") + self.KEYS_TEXT)
 
     # --- manual control ------------------------------------------------------------------------
     def action_manual(self, action: str, value: float | None = None) -> None:

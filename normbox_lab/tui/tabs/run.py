@@ -41,7 +41,7 @@ class RunPane(TabPane):
         yield Static("idle", id="run-info")
         with Horizontal(id="progress"):
             yield ProgressBar(total=1, show_eta=False, id="bar")
-        yield RichLog(id="events", max_lines=500, wrap=False, markup=True)
+        yield RichLog(id="events", max_lines=500, wrap=True, markup=True)
 
     def set_protocols(self, names: list[str], current: str) -> None:
         select = self.query_one("#protocol", Select)
