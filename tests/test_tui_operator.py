@@ -308,6 +308,8 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
                         "the table to follow the run")
             assert state("rotator") == "30.00° (homed)", (before, state("rotator"))
             assert state("sphere") == "on, stable"
+            live = str(app.query_one("#live", Static).render())
+            assert "last reading a30/p01: Lv " in live and "e+" not in live, live
             assert app.waiting_prompt is not None             # the prompt still waits
     asyncio.run(scenario())
     app.session.close()
@@ -450,6 +452,9 @@ def test_reading_rows_format_luminance_and_brdf_geometry():
     flag = SimpleNamespace(severity="warning")
     row = reading_row(brdf, [flag])
     assert row[1] == "θi -30 θo 10" and row[2] == "p07" and row[7] == "0E 1W"
+    from normbox_lab.tui.views import xy_text
+    assert xy_text(0.56981, 0.40312) == "x 0.5698 y 0.4031"
+    assert xy_text(float("nan"), float("nan")) == "x — y — (no light)"     # a dark reading
 
 
 def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env):  # noqa: F811
@@ -487,6 +492,9 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
             await until(pilot, lambda: any("single reading taken" in t and "Lv" in t
                                            for t in toasts()), "the reading")
             assert app.latest[0] == "manual"
+            assert not any("nan" in t for t in toasts()), toasts()
+            # one toast per action: the poll after it refreshes the table silently
+            assert sum("instruments polled" in t for t in toasts()) == 1, toasts()
             # a run owns the instruments: refused, with the reason
             await pilot.press("2")
             await start_and_wait_for_the_second_prompt(pilot, app)
@@ -531,3 +539,31 @@ def test_the_e_stop_key_is_on_screen_on_every_tab_at_80x24(lab_env):  # noqa: F8
     asyncio.run(scenario())
     app.session.close()
 
+
+def test_a_silent_radiometer_is_retried_and_logged_naming_the_role_once(lab_env):  # noqa: F811
+    """The radiometer's emulator stops answering: each engine retry shows in the Run tab's log
+    as a warning that names the role once ('radiometer: no reply …', not 'radiometer:
+    radiometer:'), then the fault prompt; it answers again, r retries, the reading is stored."""
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    def warnings() -> list[str]:
+        return [str(line) for line in app.query_one("#events").lines if "— retry" in str(line)]
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await start_and_wait_for_the_second_prompt(pilot, app)
+            faults = session.lab.instrument("radiometer").port.emulator.faults
+            faults.add("no-reply", probability=1.0)
+            await answer_prompt(pilot, app, "patch 9")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                        and app.screen.request.key == "a30/p09", "the fault prompt")
+            faults.clear("no-reply")
+            assert len(warnings()) >= 1
+            assert all(w.count("radiometer") == 1 and "radiometer: no reply" in w
+                       for w in warnings()), warnings()
+            await pilot.press("r")
+            await until(pilot, lambda: "a30/p09" in session.store.keys(session.engine.run_id),
+                        "the reading after the retry")
+    asyncio.run(scenario())
+    session.close()

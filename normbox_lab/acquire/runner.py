@@ -240,7 +240,8 @@ class Engine:
                 # corrupted on the wire and refused after re-reads: a quality flag too
                 self._gates.device_error(key, role, "implausible-data", str(exc))
             if transient and attempt < self.retry.attempts:
-                self._emit("warning", key, message=f"{role}: {exc} — retry "
+                detail = str(exc).removeprefix(f"{role}: ")    # the role named once
+                self._emit("warning", key, message=f"{role}: {detail} — retry "
                            f"{attempt}/{self.retry.attempts - 1}")
 
         try:

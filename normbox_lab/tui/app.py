@@ -429,13 +429,12 @@ class NormboxConsole(App):
         self.call_from_thread(self._manual_done, text, reading)
 
     def _manual_done(self, text: str, reading: Any) -> None:
-        from normbox_lab.tui.views import luminance_text
+        from normbox_lab.tui.views import chromaticity_text, luminance_text
 
         if reading is not None:
             colo = getattr(reading, "colorimetry", None)
             if colo is not None:
-                text += (f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · x {colo.x:.4f} "
-                         f"y {colo.y:.4f}")
+                text += f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · {chromaticity_text(colo)}"
             self.previous = self.latest if self.latest and self.latest[4] == RADIANCE_TITLE \
                 else None
             self.latest = ("manual", reading.wavelength_nm, reading.radiance_W_sr_m2_nm,
@@ -443,14 +442,14 @@ class NormboxConsole(App):
             self._spectrum_dirty = True
         self._log("[b]manual[/b] ", text)
         self.notify(text, markup=False)
-        self._poll()                       # the table shows the new state
+        self._poll(announce=False)         # the table shows the new state (no second toast)
 
     def action_poll(self) -> None:
         if self.lab_ready:
             self._poll()
 
     @work(thread=True, exclusive=True, group="poll")
-    def _poll(self, after_run: bool = False) -> None:
+    def _poll(self, after_run: bool = False, announce: bool = True) -> None:
         # after a run: its "finished" message is posted from the engine thread just before
         # that thread ends; the poll waits for the end (the engine no longer owns the ports)
         if after_run and not self.session.wait(5.0):
@@ -460,7 +459,7 @@ class NormboxConsole(App):
         except Exception as exc:  # noqa: BLE001
             self.call_from_thread(self._log, "[red]poll failed:[/] ", str(exc))
             return
-        self.call_from_thread(self._show_instruments, rows)
+        self.call_from_thread(self._show_instruments, rows, announce)
 
     def action_export(self) -> None:
         run_id = self._selected_run_id()
@@ -680,10 +679,14 @@ class NormboxConsole(App):
             self._pending_resume = None
             self.resume_run(pending)
 
-    def _show_instruments(self, rows: list[dict[str, Any]]) -> None:
+    def _show_instruments(self, rows: list[dict[str, Any]], announce: bool = True) -> None:
+        """The poll's rows in the table; a toast with the poll's time and who did not answer
+        (always when someone did not; after a manual action's poll otherwise not)."""
         self.pane(InstrumentsPane).show_instruments(rows, self.size.width)
         self._show_live()
         bad = [r["role"] for r in rows if r.get("ok") is False]
+        if not (announce or bad):
+            return
         polled = time.strftime("%H:%M:%S", time.localtime(self.clock.wall_time_s()))
         self.notify(f"instruments polled at {polled}: "
                     + (f"no answer from {', '.join(bad)}" if bad else "all answered"),

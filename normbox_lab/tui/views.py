@@ -110,6 +110,17 @@ def luminance_text(lv_cd_m2: float | None) -> str:
     return f"{v:.1f}" if abs(v) >= 10 else f"{v:.3f}"
 
 
+def xy_text(x: float | None, y: float | None) -> str:
+    """"x 0.5698 y 0.4031"; "x — y — (no light)" for a dark reading (its xy is undefined)."""
+    if x is None or y is None or math.isnan(float(x)) or math.isnan(float(y)):
+        return "x — y — (no light)"
+    return f"x {float(x):.4f} y {float(y):.4f}"
+
+
+def chromaticity_text(colorimetry: Any) -> str:
+    return xy_text(colorimetry.x, colorimetry.y)
+
+
 def geometry_text(metadata: dict[str, Any]) -> str:
     """"30.0°" for a radiometer reading, "θi −30 θo 10" for a BRDF reading."""
     m = metadata

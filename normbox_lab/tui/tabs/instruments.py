@@ -72,7 +72,7 @@ class InstrumentsPane(TabPane):
             tab.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
 
     def show_live(self, live: Any) -> None:
-        from normbox_lab.tui.views import luminance_text
+        from normbox_lab.tui.views import luminance_text, xy_text
 
         angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
         lamp = live.lamp
@@ -83,8 +83,7 @@ class InstrumentsPane(TabPane):
         if live.last_key:
             lv = ("?" if live.last_Lv_cd_m2 is None
                   else f"{luminance_text(live.last_Lv_cd_m2)} cd/m²")
-            xy = ("" if live.last_xy is None
-                  else f"  x {live.last_xy[0]:.4f} y {live.last_xy[1]:.4f}")
+            xy = "" if live.last_xy is None else "  " + xy_text(*live.last_xy)
             last = f"{live.last_key}: Lv {lv}{xy}"
         patch = "-" if live.patch is None else str(live.patch)
         self.query_one("#live", Static).update(

@@ -22,10 +22,13 @@ class SpectrumPane(TabPane):
 
     def draw(self, latest: tuple, previous: tuple | None) -> None:
         """latest / previous: (key, wavelength_nm, values, colorimetry or None, title)."""
+        from normbox_lab.tui.views import chromaticity_text, luminance_text
+
         key, wl, values, colo, title = latest
         head = f"latest {key}"
         if colo is not None:
-            head += f" · Lv {colo.Lv_cd_m2:.3g} cd/m² · x {colo.x:.4f} y {colo.y:.4f}"
+            head += (f" · Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · "
+                     f"{chromaticity_text(colo)}")
         if previous is not None:
             head += f" · previous {previous[0]}"
         self.query_one("#spectrum-head", Static).update(head)
