@@ -548,7 +548,8 @@ def test_a_silent_radiometer_is_retried_and_logged_naming_the_role_once(lab_env)
     app = NormboxConsole(session)
 
     def warnings() -> list[str]:
-        return [str(line) for line in app.query_one("#events").lines if "— retry" in str(line)]
+        lines = [line.text for line in app.query_one("#events").lines]     # wrapped lines
+        return [line for line in lines if line.startswith("warning ") and "— retry" in line]
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
