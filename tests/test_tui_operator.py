@@ -568,3 +568,42 @@ def test_a_silent_radiometer_is_retried_and_logged_naming_the_role_once(lab_env)
                         "the reading after the retry")
     asyncio.run(scenario())
     session.close()
+
+
+def test_emergency_stop_during_a_move_and_a_lamp_warm_up(tmp_path, monkeypatch):
+    """Every instrument its real driver against its emulator: the rotator on its way to 90°
+    and both gonio arms moving, the sphere's lamp warming up; x halts every axis short of its
+    target and switches the lamp off, within 1 s of lab time (the emulators' own state)."""
+    from normbox_lab.core.capabilities import Homeable, Movable, Settling, Switchable
+
+    monkeypatch.chdir(tmp_path)
+    session = _real_sim_session(tmp_path)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            lab = session.lab
+            axes = {role: lab.instrument(role) for role in lab.roles()
+                    if isinstance(lab.instrument(role), Movable)}
+            assert {"rotator", "gonio_light_arm", "gonio_detector_arm"} <= set(axes)
+            for axis in axes.values():
+                if isinstance(axis, Homeable) and not axis.is_homed():
+                    axis.home()
+                axis.move_to(90.0, wait=False)
+            sphere = lab.instrument("sphere")
+            assert isinstance(sphere, Switchable) and isinstance(sphere, Settling)
+            sphere.set_output(True)
+            assert all(axis.is_moving() for axis in axes.values())
+            assert sphere.state() != "off" and not sphere.is_stable()      # warming up
+            t0 = lab.clock.now_s()
+            await pilot.press("x")
+            await until(pilot, lambda: any("EMERGENCY STOP" in str(n.message)
+                                           for n in app._notifications), "the stop")
+            assert lab.clock.now_s() - t0 < 1.0
+            for role, axis in axes.items():
+                assert not axis.is_moving(), role
+                assert abs(axis.position_deg() - 90.0) > 1.0, (role, axis.position_deg())
+            assert sphere.state() == "off"
+    asyncio.run(scenario())
+    session.close()
