@@ -607,3 +607,39 @@ def test_emergency_stop_during_a_move_and_a_lamp_warm_up(tmp_path, monkeypatch):
             assert sphere.state() == "off"
     asyncio.run(scenario())
     session.close()
+
+
+def test_instruments_table_fits_80_columns_state_and_last_seen_whole(tmp_path, monkeypatch):
+    """At 80×24 the seven instruments of the simulated lab (long identities) fit: role, state
+    and last seen are whole on screen, the identity gives up width first (…); at 160 columns
+    nothing is cut."""
+    from test_tui import screen_text
+
+    from normbox_lab.tui.tabs.instruments import INSTRUMENT_MIN_WIDTHS, fit_widths
+
+    assert fit_widths([18, 17, 50, 17, 9], INSTRUMENT_MIN_WIDTHS, 66) == [18, 14, 8, 17, 9]
+    assert fit_widths([18, 17, 50, 17, 9], INSTRUMENT_MIN_WIDTHS, 200) == [18, 17, 50, 17, 9]
+    monkeypatch.chdir(tmp_path)
+    session = _real_sim_session(tmp_path)
+    app = NormboxConsole(session, offer_resume=False)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("1")
+            await until(pilot, lambda: app.query_one("#inst-table").row_count == 7, "the poll")
+            await pilot.pause(0.1)
+            lines = screen_text(app).splitlines()
+            header = next(line for line in lines if line.lstrip().startswith("role"))
+            assert header.rstrip().endswith("last seen"), header
+            row = next(line for line in lines if line.lstrip().startswith("rotator "))
+            assert "0.00° unhomed" in row and row.rstrip()[-8:].count(":") == 2, row
+            assert any("in-plane" in line and "…" in line for line in lines)
+            await pilot.resize_terminal(160, 45)
+            await pilot.press("i")
+            await until(pilot, lambda: sum("instruments polled" in str(n.message)
+                                           for n in app._notifications) >= 2, "the poll")
+            await pilot.pause(0.1)
+            assert "in-plane gonioreflectometer (QE Pro) QEP-SIM-0001" in screen_text(app)
+    asyncio.run(scenario())
+    session.close()

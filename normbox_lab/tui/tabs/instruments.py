@@ -22,6 +22,29 @@ def connection_text(row: dict[str, Any]) -> str:
     return ("sim " if row["simulated"] else "real ") + port
 
 
+INSTRUMENT_COLUMNS = ("role", "connection", "identity", "state", "last seen")
+#: the narrowest each column gets (role and last seen are never shortened)
+INSTRUMENT_MIN_WIDTHS = (99, 10, 8, 14, 99)
+#: the order in which columns give up width when the terminal is narrow
+SHRINK_ORDER = (2, 1, 3)
+
+
+def fit_widths(natural: list[int], minimum: tuple[int, ...], available: int) -> list[int]:
+    """Column widths within `available` cells: each column its natural width, then the
+    columns of SHRINK_ORDER give up width in turn, down to their minimum."""
+    widths = list(natural)
+    for i in SHRINK_ORDER:
+        excess = sum(widths) - available
+        if excess <= 0:
+            break
+        widths[i] = max(min(minimum[i], natural[i]), widths[i] - excess)
+    return widths
+
+
+def shorten(text: str, width: int) -> str:
+    return text if len(text) <= width else text[:max(1, width - 1)] + "…"
+
+
 class InstrumentsPane(TabPane):
     # not in the footer (it would push the global keys, E-STOP among them, off an 80-column
     # screen): the pane's own key line lists them
@@ -50,26 +73,33 @@ class InstrumentsPane(TabPane):
     def build(self) -> None:
         """Filled after the first paint (less to lay out before it)."""
         self.mount_all([
-            table("inst-table", ("role", "connection", "identity", "state", "last seen"),
+            table("inst-table", INSTRUMENT_COLUMNS,
                   cursor_type="row", zebra_stripes=True),
             Static("", id="live"),
             Static("manual: " + self.KEYS_TEXT, id="manual-keys")])
 
     def show_instruments(self, rows: list[dict[str, Any]], width_cells: int) -> None:
+        """The rows, their columns fitted to the terminal: role, state and last seen whole
+        (what the operator looks for), identity then connection shortened with … first."""
         from rich.text import Text
 
         tab = self.query_one("#inst-table", DataTable)
         tab.clear()
-        width = max(24, width_cells - 60)
+        cells_of = []
         for r in rows:
-            ident = r["identity"] or "-"
             seen = r.get("last_seen")
             seen_text = time.strftime("%H:%M:%S", time.localtime(seen)) if seen else "never"
+            cells_of.append([r["role"], connection_text(r), r["identity"] or "-",
+                             r["state"] or "-", seen_text])
+        natural = [max([len(h)] + [len(c[i]) for c in cells_of])
+                   for i, h in enumerate(INSTRUMENT_COLUMNS)]
+        # each column has one cell of padding either side; 2 for the scroll bar
+        widths = fit_widths(natural, INSTRUMENT_MIN_WIDTHS, width_cells - 2 * len(natural) - 2)
+        for r, cells in zip(rows, cells_of, strict=True):
             style = "bold white on #D55E00" if r.get("ok") is False else ""
-            cells = (r["role"], connection_text(r),
-                     ident if len(ident) <= width else ident[:width - 1] + "…",
-                     r["state"] or "-", seen_text)
-            tab.add_row(*[Text(str(c), style=style) for c in cells], key=r["role"])
+            tab.add_row(*[Text(shorten(c, w), style=style) for c, w in zip(cells, widths,
+                                                                           strict=True)],
+                        key=r["role"])
 
     def show_live(self, live: Any) -> None:
         from normbox_lab.tui.views import luminance_text, xy_text
