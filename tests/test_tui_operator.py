@@ -17,6 +17,7 @@ from test_tui import (  # noqa: F401
 from textual.widgets import Static, TabbedContent
 
 from normbox_lab.tui.app import NormboxConsole, PromptScreen
+from normbox_lab.tui.tabs.instruments import INSTRUMENT_COLUMNS
 from normbox_lab.tui.views import RATING_STYLES
 
 
@@ -186,9 +187,10 @@ def test_dead_radiometer_is_a_red_row_not_connected(lab_env):  # noqa: F811
             await pilot.press("i")
             table = app.query_one("#inst-table")
             await until(pilot, lambda: table.row_count > 0, "the instruments table")
-            cells = table.get_row("radiometer")
-            assert "no answer" in str(cells[3]) and "D55E00" in str(cells[0].style).upper()
-            assert str(cells[4]) == "never"
+            cells = dict(zip(INSTRUMENT_COLUMNS, table.get_row("radiometer"), strict=True))
+            assert "no answer" in str(cells["state"])
+            assert "D55E00" in str(cells["role"].style).upper()
+            assert str(cells["last seen"]) == "never"
     asyncio.run(scenario())
     session.close()
 
@@ -294,7 +296,7 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
 
     def state(role: str) -> str:
         table = app.query_one("#inst-table", DataTable)
-        return str(table.get_row(role)[3])
+        return str(table.get_row(role)[INSTRUMENT_COLUMNS.index("state")])
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
@@ -310,6 +312,13 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
             assert state("sphere") == "on, stable"
             live = str(app.query_one("#live", Static).render())
             assert "last reading a30/p01: Lv " in live and "e+" not in live, live
+            # the state column is in view at 80 columns, whole
+            await pilot.pause(0.6)
+            shown = screen_text(app)
+            for role, text in (("radiometer", "measured a30/p01"),
+                               ("rotator", "30.00° (homed)"), ("sphere", "on, stable")):
+                assert any(line.split()[:1] == [role] and text in line
+                           for line in shown.splitlines()), (role, shown)
             assert app.waiting_prompt is not None             # the prompt still waits
     asyncio.run(scenario())
     app.session.close()
@@ -359,8 +368,13 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("i")                          # a toast…
+            await until(pilot, lambda: len(app._notifications) > 0, "the poll's toast")
             await start_and_wait_for_the_second_prompt(pilot, app)
+            await pilot.pause(0.1)                          # the prompt laid out
             prompt = app.screen
+            assert len(app._notifications) == 0             # …is not drawn over the prompt
             box = prompt.query_one("Vertical").region
             main = app.screen_stack[0]
             for wid in ("#progress", "#run-info"):
@@ -376,7 +390,7 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
             flat = " ".join(" ".join(inside).split())
             assert "a abort · 1–6 look (w back)" in flat, shown
             lines = shown.splitlines()
-            assert any(line.lstrip().startswith("━") and "%" in line for line in lines)
+            assert any(line.lstrip().startswith("━") and "%" in line for line in lines), shown
             await pilot.press("4")
             await until(pilot, lambda: app.screen is not prompt, "the prompt to step aside")
             assert app.query_one(TabbedContent).active == "runs"

@@ -639,6 +639,7 @@ class NormboxConsole(App):
     def _push_prompt(self, req: Any) -> None:
         screen = PromptScreen(req)
         self.prompt_screen = screen
+        self.clear_notifications()      # toasts are drawn above the prompt: none hides it
 
         def answered(choice: str | None) -> None:
             if self.prompt_screen is screen:
