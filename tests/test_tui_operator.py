@@ -92,7 +92,7 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
             assert app.remaining_text() == f"remaining 3:20 · done ≈ {finish:%H:%M}"
 
             def aborts_asked() -> int:
-                return sum("abort the run?" in str(n.message) for n in app._notifications)
+                return sum("abort the run?" in t for t in app.toasts_shown)
             await pilot.press("a")
             await until(pilot, lambda: aborts_asked() == 1, "the question")
             clock.advance(app.ABORT_CONFIRM_S + 1.0)                   # too late
@@ -403,7 +403,7 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
             assert app.screen.request.key == prompt.request.key
             await pilot.press("p")
             await pilot.pause(0.2)
-            toasts = [str(n.message) for n in app._notifications]
+            toasts = app.toasts_shown
             assert any("pause: the run stops after the current reading" in t for t in toasts)
             await answer_prompt(pilot, app, "patch 9")
             await until(pilot, lambda: app.run_status == "paused", "the pause")
@@ -428,10 +428,9 @@ def test_repeatability_summary_event_log_and_a_readings_spectrum(lab_env):  # no
             await until(pilot, lambda: app.lab_ready, "the lab")
             await pilot.press("s")
             await until(pilot, lambda: app.run_status == "done", "the end of the run")
-            await until(pilot, lambda: any("repeatability: 3 readings" in str(n.message)
-                                           for n in app._notifications), "the summary")
-            summary = next(str(n.message) for n in app._notifications
-                           if "repeatability:" in str(n.message))
+            await until(pilot, lambda: any("repeatability: 3 readings" in t
+                                           for t in app.toasts_shown), "the summary")
+            summary = next(t for t in app.toasts_shown if "repeatability:" in t)
             assert "σ " in summary and "CV " in summary and "flags " in summary, summary
             await pilot.press("4")
             await until(pilot, lambda: app.query_one("#readings-table").row_count == 3,
@@ -481,7 +480,7 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
     app = NormboxConsole(session)
 
     def toasts() -> list[str]:
-        return [str(n.message) for n in app._notifications]
+        return app.toasts_shown
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
@@ -507,6 +506,8 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
                                            for t in toasts()), "the reading")
             assert app.latest[0] == "manual"
             assert not any("nan" in t for t in toasts()), toasts()
+            # seven toasts so far, two on screen (at 80×24 each covers half the width)
+            assert len(toasts()) >= 7 and len(list(app._notifications)) <= app.MAX_TOASTS
             # one toast per action: the poll after it refreshes the table silently
             assert sum("instruments polled" in t for t in toasts()) == 1, toasts()
             # a run owns the instruments: refused, with the reason
@@ -612,8 +613,8 @@ def test_emergency_stop_during_a_move_and_a_lamp_warm_up(tmp_path, monkeypatch):
             assert sphere.state() != "off" and not sphere.is_stable()      # warming up
             t0 = lab.clock.now_s()
             await pilot.press("x")
-            await until(pilot, lambda: any("EMERGENCY STOP" in str(n.message)
-                                           for n in app._notifications), "the stop")
+            await until(pilot, lambda: any("EMERGENCY STOP" in t
+                                           for t in app.toasts_shown), "the stop")
             assert lab.clock.now_s() - t0 < 1.0
             for role, axis in axes.items():
                 assert not axis.is_moving(), role
@@ -651,8 +652,8 @@ def test_instruments_table_fits_80_columns_state_and_last_seen_whole(tmp_path, m
             assert any("in-plane" in line and "…" in line for line in lines)
             await pilot.resize_terminal(160, 45)
             await pilot.press("i")
-            await until(pilot, lambda: sum("instruments polled" in str(n.message)
-                                           for n in app._notifications) >= 2, "the poll")
+            await until(pilot, lambda: sum("instruments polled" in t
+                                           for t in app.toasts_shown) >= 2, "the poll")
             await pilot.pause(0.1)
             assert "in-plane gonioreflectometer (QE Pro) QEP-SIM-0001" in screen_text(app)
     asyncio.run(scenario())

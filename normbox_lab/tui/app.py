@@ -114,6 +114,7 @@ class NormboxConsole(App):
         self.run_status = "idle"
         self.current_step = ""
         self.events_seen: list[str] = []
+        self.toasts_shown: list[str] = []
 
     # --- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -200,6 +201,22 @@ class NormboxConsole(App):
         self._refresh_results()
 
     # --- helpers -----------------------------------------------------------------------------
+    #: toasts on screen at once: at 80×24 each covers half the width, a burst of them (a few
+    #: manual actions, a poll) would hide the table or the log they are about
+    MAX_TOASTS = 2
+
+    def notify(self, message: str, *, title: str = "", severity: Any = "information",
+               timeout: float | None = None, markup: bool = True) -> None:
+        """A toast; the oldest goes when more than MAX_TOASTS would show (errors last).
+        Every toast's text is kept in `toasts_shown`, in order."""
+        self.toasts_shown.append(str(message))
+        shown = list(self._notifications)
+        while len(shown) >= self.MAX_TOASTS:
+            oldest = next((n for n in shown if n.severity != "error"), shown[0])
+            self._unnotify(oldest, refresh=False)
+            shown.remove(oldest)
+        super().notify(message, title=title, severity=severity, timeout=timeout, markup=markup)
+
     def _set_status(self, text: str | None = None) -> None:
         """The top line: the lab (`text`), and — on every tab — a prompt that waits while the
         operator looks elsewhere."""
