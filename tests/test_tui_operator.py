@@ -650,6 +650,17 @@ def test_instruments_table_fits_80_columns_state_and_last_seen_whole(tmp_path, m
             row = next(line for line in lines if line.lstrip().startswith("rotator "))
             assert "0.00° unhomed" in row and row.rstrip()[-8:].count(":") == 2, row
             assert any("in-plane" in line and "…" in line for line in lines)
+            # longer states later (a run): the columns shrink again, last seen stays whole
+            from normbox_lab.tui.tabs import InstrumentsPane
+
+            rows = [dict(r, state="in use by the run") for r in session.instrument_rows()]
+            app.pane(InstrumentsPane).show_instruments(rows, 80)
+            await pilot.pause(0.1)
+            lines = screen_text(app).splitlines()
+            header = next(line for line in lines if line.lstrip().startswith("role"))
+            assert header.rstrip().endswith("last seen"), header
+            row = next(line for line in lines if line.lstrip().startswith("gonio_detector"))
+            assert "in use by the run" in row and row.rstrip()[-8:].count(":") == 2, row
             await pilot.resize_terminal(160, 45)
             await pilot.press("i")
             await until(pilot, lambda: sum("instruments polled" in t

@@ -84,7 +84,7 @@ class InstrumentsPane(TabPane):
         from rich.text import Text
 
         tab = self.query_one("#inst-table", DataTable)
-        tab.clear()
+        cursor_row = tab.cursor_row
         cells_of = []
         for r in rows:
             seen = r.get("last_seen")
@@ -95,11 +95,18 @@ class InstrumentsPane(TabPane):
                    for i, h in enumerate(INSTRUMENT_COLUMNS)]
         # each column has one cell of padding either side; 2 for the scroll bar
         widths = fit_widths(natural, INSTRUMENT_MIN_WIDTHS, width_cells - 2 * len(natural) - 2)
+        # columns made anew with these widths (a DataTable's automatic widths only grow: a
+        # long state once seen would push the last column off an 80-column screen for good)
+        tab.clear(columns=True)
+        for header, w in zip(INSTRUMENT_COLUMNS, widths, strict=True):
+            tab.add_column(header, width=w)
         for r, cells in zip(rows, cells_of, strict=True):
             style = "bold white on #D55E00" if r.get("ok") is False else ""
             tab.add_row(*[Text(shorten(c, w), style=style) for c, w in zip(cells, widths,
                                                                            strict=True)],
                         key=r["role"])
+        if 0 < cursor_row < tab.row_count:
+            tab.move_cursor(row=cursor_row)
 
     def show_live(self, live: Any) -> None:
         from normbox_lab.tui.views import luminance_text, xy_text
