@@ -669,3 +669,31 @@ def test_instruments_table_fits_80_columns_state_and_last_seen_whole(tmp_path, m
             assert "in-plane gonioreflectometer (QE Pro) QEP-SIM-0001" in screen_text(app)
     asyncio.run(scenario())
     session.close()
+
+
+def test_run_progress_remaining_time_on_a_real_and_a_virtual_lab_clock():
+    """RunProgress (the Run tab's state, no Textual): on a real lab clock the remaining time
+    is the engine's timing model; on a virtual one the observed rate on the console's clock;
+    nothing before a start, after an abort or at the end."""
+    import datetime
+
+    from normbox_lab.core.clock import VirtualClock
+    from normbox_lab.tui.tabs.run import RunProgress
+
+    clock = VirtualClock()
+    progress = RunProgress(clock)
+    assert progress.remaining_text(None) == ""                          # idle
+    progress.started(done=0, planned=10, lab_remaining_s=600.0)
+    assert progress.remaining_text(0.0) == "remaining: measuring…"     # nothing taken yet
+    clock.advance(30.0)
+    progress.progressed(done=2, lab_remaining_s=480.0)
+    finish = datetime.datetime.fromtimestamp(clock.wall_time_s() + 480.0)
+    assert progress.remaining_text(None) == f"remaining 8:00 · done ≈ {finish:%H:%M}"
+    finish = datetime.datetime.fromtimestamp(clock.wall_time_s() + 120.0)   # 15 s × 8
+    assert progress.remaining_text(0.0) == f"remaining 2:00 · done ≈ {finish:%H:%M}"
+    info = progress.info_markup(0.0, prompt_waiting=True)
+    assert info.startswith("[b]running[/b] · 2/10 readings · remaining 2:00") \
+        and "prompt waiting: w" in info
+    progress.status = "aborted"
+    assert progress.remaining_text(None) == "" and "remaining" not in progress.info_markup(
+        None, prompt_waiting=False)

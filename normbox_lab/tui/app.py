@@ -31,6 +31,7 @@ from normbox_lab.tui.tabs import (
     SpectrumPane,
 )
 from normbox_lab.tui.tabs.instruments import connection_text
+from normbox_lab.tui.tabs.run import RunProgress
 
 __all__ = ["DrillScreen", "NormboxConsole", "PromptScreen", "ResumeScreen", "connection_text",
            "prompt_text"]
@@ -109,10 +110,7 @@ class NormboxConsole(App):
         self.previous: Any = None
         self._spectrum_dirty = False
         self._runs_dirty = True
-        self.progress_done = 0
-        self.progress_planned = 0
-        self.run_status = "idle"
-        self.current_step = ""
+        self.progress = RunProgress(self.clock)
         self.events_seen: list[str] = []
         self.toasts_shown: list[str] = []
 
@@ -521,20 +519,17 @@ class NormboxConsole(App):
         if k in ("run-started", "step-finished", "suspended", "unsuspended"):
             self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
-            self.progress_planned, self.progress_done = d["planned"], d["done"]
+            self.progress.started(d["done"], d["planned"], float(d["eta_s"]))
             self._bar(d["done"], d["planned"])
-            self._set_run_status("running")
-            self._eta_start = (self.clock.now_s(), d["done"])
-            self._lab_remaining_s = float(d["eta_s"])
+            self._update_run_info()
             self._log(f"run {d['run_uuid'][:8]} segment {d['segment']}: {d['done']}/"
                       f"{d['planned']} done, lab time left {format_duration(d['eta_s'])}")
             self._runs_dirty = True
         elif k == "step-started":
-            self.current_step = f"{ev.key} · {d.get('label', d.get('kind', ''))}"
+            self.progress.step = f"{ev.key} · {d.get('label', d.get('kind', ''))}"
             self._update_run_info()
         elif k == "progress":
-            self.progress_done = d["done"]
-            self._lab_remaining_s = float(d["eta_s"])
+            self.progress.progressed(d["done"], float(d["eta_s"]))
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":
@@ -606,42 +601,33 @@ class NormboxConsole(App):
         self.pane(RunPane).bar(done, planned)
 
     def _set_run_status(self, status: str) -> None:
-        self.run_status = status
+        self.progress.status = status
         self._update_run_info()
 
+    # the run's state for tests and the footer logic (RunProgress holds it)
+    @property
+    def run_status(self) -> str:
+        return self.progress.status
+
+    @property
+    def progress_done(self) -> int:
+        return self.progress.done
+
+    @property
+    def progress_planned(self) -> int:
+        return self.progress.planned
+
+    def _lab_time_scale(self) -> float | None:
+        """None on a real clock; the virtual clock's time scale in a simulated lab."""
+        return getattr(getattr(self.session.lab, "clock", None), "time_scale", None)
+
     def remaining_text(self) -> str:
-        """"remaining 0:04:10 · done ≈ 14:32" while a run goes; "" when none does (after an
-        abort or the end no estimate is shown).  On a real clock the remaining time is the
-        engine's timing model (instrument and operator time); on a virtual clock (a simulated
-        lab) it is the observed wall-clock rate of this segment × the readings left, since
-        the lab clock says nothing about how long a person waits."""
-        import datetime
-
-        from normbox_lab.acquire.engine import format_duration
-
-        if self.run_status not in ("running", "suspended", "paused"):
-            return ""
-        left = max(0, self.progress_planned - self.progress_done)
-        scale = getattr(getattr(self.session.lab, "clock", None), "time_scale", None)
-        if scale is None:                           # real clock: the timing model
-            remaining_s = getattr(self, "_lab_remaining_s", None)
-        else:                                       # simulated: the observed rate
-            t0, done0 = getattr(self, "_eta_start", (self.clock.now_s(), self.progress_done))
-            taken = self.progress_done - done0
-            remaining_s = ((self.clock.now_s() - t0) / taken * left) if taken > 0 else None
-        if remaining_s is None:
-            return "remaining: measuring…"
-        finish = datetime.datetime.fromtimestamp(self.clock.wall_time_s() + remaining_s)
-        return f"remaining {format_duration(remaining_s)} · done ≈ {finish:%H:%M}"
+        return self.progress.remaining_text(self._lab_time_scale())
 
     def _update_run_info(self) -> None:
         self._set_status()
-        remaining = self.remaining_text()
-        waiting = ("  [b reverse] prompt waiting: w [/]"
-                   if self.waiting_prompt is not None and self.prompt_screen is None else "")
-        self.pane(RunPane).set_info(
-            f"[b]{self.run_status}[/b] · {self.progress_done}/{self.progress_planned} readings"
-            f"{' · ' + remaining if remaining else ''}{waiting}\nstep: {self.current_step}")
+        waiting = self.waiting_prompt is not None and self.prompt_screen is None
+        self.pane(RunPane).set_info(self.progress.info_markup(self._lab_time_scale(), waiting))
 
     def _show_prompt(self, req: Any) -> None:
         if self.session.operator is None:      # the virtual operator answered already

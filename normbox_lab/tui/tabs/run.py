@@ -9,6 +9,66 @@ from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Input, Label, ProgressBar, RichLog, Select, Static, TabPane
 
+from normbox_lab.core.clock import Clock
+
+
+class RunProgress:
+    """The run's state and progress as the Run tab shows them, from the engine's events (no
+    Textual: the app feeds it, the pane draws `info_markup`)."""
+
+    #: statuses during which a remaining time is shown (none after an abort, a failure, the end)
+    ACTIVE = ("running", "suspended", "paused")
+
+    def __init__(self, clock: Clock) -> None:
+        self.clock = clock
+        self.status = "idle"
+        self.done = 0
+        self.planned = 0
+        self.step = ""
+        self.segment_start: tuple[float, int] | None = None   # (clock s, done) at its start
+        self.lab_remaining_s: float | None = None             # the engine's timing model
+
+    def started(self, done: int, planned: int, lab_remaining_s: float) -> None:
+        """A segment starts: the observed rate is measured from here."""
+        self.done, self.planned, self.status = done, planned, "running"
+        self.segment_start = (self.clock.now_s(), done)
+        self.lab_remaining_s = lab_remaining_s
+
+    def progressed(self, done: int, lab_remaining_s: float) -> None:
+        self.done, self.lab_remaining_s = done, lab_remaining_s
+
+    def remaining_text(self, lab_time_scale: float | None) -> str:
+        """"remaining 0:04:10 · done ≈ 14:32" while a run goes; "" when none does (after an
+        abort or the end no estimate is shown).  On a real clock (`lab_time_scale` None) the
+        remaining time is the engine's timing model (instrument and operator time); on a
+        virtual clock (a simulated lab) it is the observed rate of this segment on the
+        console's clock × the readings left, since the lab clock says nothing about how long
+        a person waits."""
+        import datetime
+
+        from normbox_lab.acquire.estimate import format_duration
+
+        if self.status not in self.ACTIVE:
+            return ""
+        left = max(0, self.planned - self.done)
+        if lab_time_scale is None:
+            remaining_s = self.lab_remaining_s
+        else:
+            t0, done0 = self.segment_start or (self.clock.now_s(), self.done)
+            taken = self.done - done0
+            remaining_s = ((self.clock.now_s() - t0) / taken * left) if taken > 0 else None
+        if remaining_s is None:
+            return "remaining: measuring…"
+        finish = datetime.datetime.fromtimestamp(self.clock.wall_time_s() + remaining_s)
+        return f"remaining {format_duration(remaining_s)} · done ≈ {finish:%H:%M}"
+
+    def info_markup(self, lab_time_scale: float | None, prompt_waiting: bool) -> str:
+        """The Run tab's two status lines."""
+        remaining = self.remaining_text(lab_time_scale)
+        waiting = "  [b reverse] prompt waiting: w [/]" if prompt_waiting else ""
+        return (f"[b]{self.status}[/b] · {self.done}/{self.planned} readings"
+                f"{' · ' + remaining if remaining else ''}{waiting}\nstep: {self.step}")
+
 
 class RunPane(TabPane):
     DEFAULT_CSS = """
