@@ -21,8 +21,12 @@ waitfor() {  # waitfor TEXT [seconds]
   done
   echo "timed out waiting for: $1" >&2; tmux capture-pane -p -t "$S" >&2; return 1
 }
-start() { tmux kill-session -t "$S" 2>/dev/null || true
-          tmux new-session -d -s "$S" -x "$COLS" -y "$ROWS" "$*; echo '[console closed]'; sleep 600"; }
+N=0
+start() {  # a new session before the old one goes: killing the last session stops the tmux
+           # server, and a session started at that moment fails ("server exited unexpectedly")
+  local old="$S"; N=$((N + 1)); S="normbox-tui-capture-$N"
+  tmux new-session -d -s "$S" -x "$COLS" -y "$ROWS" "$*; echo '[console closed]'; sleep 600"
+  tmux kill-session -t "=$old" 2>/dev/null || true; }
 answer() {  # answer the operator prompt on screen, then wait until that prompt has gone
   waitfor "then Enter" 30
   local key; key="$(tmux capture-pane -p -t "$S" | grep -o 'Operator  [^ ]*' | head -1)"
