@@ -87,6 +87,9 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
                 app.query_one("#run-info", Static).render()), "the dry run")
             assert "ETA" not in str(app.query_one("#run-info", Static).render())
             await start_and_wait_for_the_second_prompt(pilot, app, parameters=False)
+            log = [line.text for line in app.query_one("#events").lines]
+            assert any(line.startswith("starting reference-sweep angles_deg=[30, 90] "
+                                       "patches=[1, 9, 19] ") for line in log), log
             clock.advance(40.0)                  # the first reading took 40 s of wall time
             finish = datetime.datetime.fromtimestamp(clock.wall_time_s() + 200.0)
             assert app.remaining_text() == f"remaining 3:20 · done ≈ {finish:%H:%M}"

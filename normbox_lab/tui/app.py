@@ -9,6 +9,7 @@ milliseconds), as does the plot library.
 
 from __future__ import annotations
 
+import json
 import time
 from typing import Any, ClassVar
 
@@ -323,7 +324,8 @@ class NormboxConsole(App):
             self.notify(str(exc), severity="error", markup=False)
             return
         self.action_tab("run")
-        self._log("", f"starting {self.protocol} {params}")
+        self._log("", f"starting {self.protocol} " + " ".join(
+            f"{key}={json.dumps(value)}" for key, value in params.items()))
 
     def action_resume_selected(self) -> None:
         """Resume the run selected in the Runs tab (or the latest unfinished one)."""
