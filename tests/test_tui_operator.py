@@ -700,3 +700,18 @@ def test_run_progress_remaining_time_on_a_real_and_a_virtual_lab_clock():
     progress.status = "aborted"
     assert progress.remaining_text(None) == "" and "remaining" not in progress.info_markup(
         None, prompt_waiting=False)
+
+
+def test_the_footer_fits_80_columns_from_e_stop_to_poll(lab_env):  # noqa: F811
+    from test_tui import screen_text
+
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.pause(0.1)
+            footer = screen_text(app).splitlines()[-1].strip()
+            assert footer.startswith("x E-STOP") and footer.endswith("i poll"), footer
+    asyncio.run(scenario())
+    app.session.close()

@@ -79,7 +79,7 @@ class NormboxConsole(App):
         Binding("p", "pause_resume", "pause"),
         Binding("a", "abort", "abort"),
         Binding("r", "resume_selected", "resume"),
-        Binding("e", "export", "export"),
+        Binding("e", "export", "csv"),
         Binding("i", "poll", "poll"),
         Binding("w", "show_prompt", "prompt", show=False),
         Binding("escape", "leave_input", "", show=False),
