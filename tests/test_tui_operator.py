@@ -396,7 +396,8 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
             assert any(line.lstrip().startswith("━") and "%" in line for line in lines), shown
             await pilot.press("4")
             await until(pilot, lambda: app.screen is not prompt, "the prompt to step aside")
-            assert app.query_one(TabbedContent).active == "runs"
+            await until(pilot, lambda: app.query_one(TabbedContent).active == "runs",
+                        "the Runs tab")
             assert app.waiting_prompt is not None and app.session.busy
             assert "prompt waiting: w" in str(app.query_one("#run-info", Static).render())
             # on the Runs tab too: the top line says a prompt waits
@@ -713,5 +714,38 @@ def test_the_footer_fits_80_columns_from_e_stop_to_poll(lab_env):  # noqa: F811
             await pilot.pause(0.1)
             footer = screen_text(app).splitlines()[-1].strip()
             assert footer.startswith("x E-STOP") and footer.endswith("i poll"), footer
+    asyncio.run(scenario())
+    app.session.close()
+
+
+def test_a_prompt_over_the_runs_tab_steps_aside_to_another_tab(lab_env):  # noqa: F811
+    """The prompt came back (w) over the Runs tab, whose table had the focus; at the next
+    prompt 1 must show the Instruments tab (the focus given back to the Runs table when the
+    prompt closed used to switch the tabs back to Runs)."""
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 1")
+            tabs = app.query_one(TabbedContent)
+            await pilot.press("4")
+            await until(pilot, lambda: tabs.active == "runs" and app.prompt_screen is None,
+                        "the Runs tab")
+            await pilot.pause(0.6)            # the Runs tab refreshed (its table has rows)
+            await pilot.press("w")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 1 back")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await pilot.pause(0.6)
+            await pilot.press("1")
+            await until(pilot, lambda: app.prompt_screen is None, "the prompt to step aside")
+            seen = []
+            for _ in range(10):                   # and it stays there (no back and forth)
+                await pilot.pause(0.05)
+                seen.append(tabs.active)
+            assert set(seen) == {"instruments"}, seen
+            assert screen_text(app).splitlines()[3].split()[:2] == ["role", "connection"]
     asyncio.run(scenario())
     app.session.close()

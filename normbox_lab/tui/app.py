@@ -651,6 +651,9 @@ class NormboxConsole(App):
                 self.prompt_screen = None
             if choice == HIDDEN:               # stepped aside: it keeps waiting
                 self._update_run_info()
+                tab = getattr(screen, "look_tab", None)
+                if tab is not None:
+                    self.call_after_refresh(self.action_tab, tab)
                 return
             self.waiting_prompt = None
             if choice:
@@ -729,12 +732,17 @@ class NormboxConsole(App):
         pane = event.pane.id
         target = {"instruments": "#inst-table", "runs": "#runs-table",
                   "results": "#heatmap"}.get(str(pane))
+        # the tabs' own screen (a prompt may be above it: its focus stays the prompt's, or a
+        # table below would take the prompt's Enter)
+        base = self.screen_stack[0]
         if target is not None:
-            self.query_one(target).focus()
-        elif self.focused is not None and not self._in_pane(self.focused, str(pane)):
+            # at once (Widget.focus() is deferred: two deferred focuses in different panes
+            # would switch the tabs back and forth for ever)
+            base.set_focus(base.query_one(target))
+        elif base.focused is not None and not self._in_pane(base.focused, str(pane)):
             # focus must not stay in the pane just hidden: Textual's TabbedContent would
             # switch back to the pane that holds the focused widget (the Runs-tab trap)
-            self.set_focus(None)
+            base.set_focus(None)
         if pane == "results":
             self._refresh_results()
         elif pane == "images":

@@ -63,9 +63,11 @@ class PromptScreen(ModalScreen[str]):
                                  ("error" if c == "abort" else "default"))
 
     def action_look(self, tab: str) -> None:
-        """Step aside (the prompt keeps waiting) and show another tab."""
+        """Step aside (the prompt keeps waiting) and show another tab — once the prompt has
+        gone (the app switches after the screen below has its focus back: switching first,
+        the focus given back to a table of the old tab would switch the tabs back)."""
+        self.look_tab = tab
         self.dismiss(HIDDEN)
-        self.app.action_tab(tab)
 
     def action_choose(self, index: int) -> None:
         self.dismiss(self.request.choices[int(index)])
