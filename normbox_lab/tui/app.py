@@ -33,13 +33,12 @@ from normbox_lab.tui.tabs import (
 )
 from normbox_lab.tui.tabs.instruments import connection_text
 from normbox_lab.tui.tabs.run import RunProgress
+from normbox_lab.tui.tabs.spectrum import BRDF_TITLE, RADIANCE_TITLE
 
 __all__ = ["DrillScreen", "NormboxConsole", "PromptScreen", "ResumeScreen", "connection_text",
            "prompt_text"]
 
 TABS = ("instruments", "run", "spectrum", "runs", "results", "images")
-RADIANCE_TITLE = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
-BRDF_TITLE = "BRDF sr⁻¹"
 
 
 class EngineMessage(Message):
@@ -107,9 +106,6 @@ class NormboxConsole(App):
         self.prompt_screen: PromptScreen | None = None
         #: the operator prompt the engine waits for (also while it steps aside)
         self.waiting_prompt: Any = None
-        self.latest: Any = None          # (key, wavelength, radiance) of the latest reading
-        self.previous: Any = None
-        self._spectrum_dirty = False
         self._runs_dirty = True
         self.progress = RunProgress(self.clock)
         self.events_seen: list[str] = []
@@ -421,46 +417,6 @@ class NormboxConsole(App):
                     + (" — run paused, r resumes" if self.session.busy else ""),
                     severity="error", markup=False)
 
-    def manual(self, action: str, value: float | None = None) -> None:
-        """A manual action from the Instruments tab (in a worker: a move or a reading takes
-        time); refused at once while a run owns the instruments."""
-        if not self.lab_ready:
-            self.notify("the lab is still loading", severity="warning")
-            return
-        if self.session.busy:
-            self.notify("refused: the run owns the instruments (p pauses it; manual control "
-                        "after it has stopped)", severity="warning", markup=False)
-            return
-        self._manual(action, value)
-
-    @work(thread=True, exclusive=True, group="manual")
-    def _manual(self, action: str, value: float | None) -> None:
-        from normbox_lab.core.errors import NormboxError
-
-        try:
-            text, reading = self.session.manual(action, value)
-        except (NormboxError, OSError) as exc:
-            self.call_from_thread(self.notify, str(exc), severity="error", markup=False)
-            self.call_from_thread(self._log, "[red]manual:[/] ", str(exc))
-            return
-        self.call_from_thread(self._manual_done, text, reading)
-
-    def _manual_done(self, text: str, reading: Any) -> None:
-        from normbox_lab.tui.views import chromaticity_text, luminance_text
-
-        if reading is not None:
-            colo = getattr(reading, "colorimetry", None)
-            if colo is not None:
-                text += f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · {chromaticity_text(colo)}"
-            self.previous = self.latest if self.latest and self.latest[4] == RADIANCE_TITLE \
-                else None
-            self.latest = ("manual", reading.wavelength_nm, reading.radiance_W_sr_m2_nm,
-                           colo, RADIANCE_TITLE)
-            self._spectrum_dirty = True
-        self._log("[b]manual[/b] ", text)
-        self.notify(text, markup=False)
-        self._poll(announce=False)         # the table shows the new state (no second toast)
-
     def action_poll(self) -> None:
         if self.lab_ready:
             self._poll()
@@ -540,13 +496,8 @@ class NormboxConsole(App):
             if values is None:
                 values, title = getattr(r, "brdf_per_sr", None), BRDF_TITLE
             if values is not None:
-                if self.latest is None or self.latest[4] == title:
-                    self.previous = self.latest
-                else:                         # a different quantity: nothing to compare
-                    self.previous = None
-                self.latest = (ev.key, r.wavelength_nm, values,
-                               getattr(r, "colorimetry", None), title)
-                self._spectrum_dirty = True
+                self.pane(SpectrumPane).add_reading(ev.key, r.wavelength_nm, values,
+                                                    getattr(r, "colorimetry", None), title)
             self._runs_dirty = True
             self._live_dirty = True
         elif k == "prompt":
@@ -674,9 +625,7 @@ class NormboxConsole(App):
     def _refresh_dirty(self) -> None:
         if not self.panes_built:
             return
-        if self._spectrum_dirty:
-            self._spectrum_dirty = False
-            self._draw_spectrum()
+        self.pane(SpectrumPane).redraw_if_dirty()
         if getattr(self, "_live_dirty", False):
             self._live_dirty = False
             self._show_live()
@@ -708,18 +657,14 @@ class NormboxConsole(App):
         if self.session.busy:          # the table follows the run (no polling during it)
             pane.show_instruments(self.session.instrument_rows(), self.size.width)
 
-    def _draw_spectrum(self) -> None:
-        if self.latest is not None:
-            self.pane(SpectrumPane).draw(self.latest, self.previous)
+    @property
+    def latest(self) -> tuple | None:
+        """The latest reading drawn in the Spectrum tab (key, wavelength_nm, values, …)."""
+        return self.pane(SpectrumPane).latest
 
     def spectrum_series(self) -> list[str]:
         """Labels of the plotted series (tests)."""
-        out = []
-        if self.previous is not None:
-            out.append(self.previous[0])
-        if self.latest is not None:
-            out.append(self.latest[0])
-        return out
+        return self.pane(SpectrumPane).series()
 
     def _refresh_runs(self) -> None:
         self.pane(RunsPane).refresh_runs()
@@ -750,7 +695,7 @@ class NormboxConsole(App):
         elif pane == "runs":
             self._runs_dirty = True
         elif pane == "spectrum":
-            self._spectrum_dirty = self.latest is not None
+            self.pane(SpectrumPane).dirty = self.latest is not None
 
     def _in_pane(self, widget: Any, pane_id: str) -> bool:
         return any(getattr(node, "id", None) == pane_id for node in widget.ancestors)

@@ -8,6 +8,7 @@ from __future__ import annotations
 import time
 from typing import Any, ClassVar
 
+from textual import work
 from textual.binding import Binding
 from textual.widgets import DataTable, Static, TabPane
 
@@ -134,14 +135,56 @@ class InstrumentsPane(TabPane):
 
     # --- manual control ------------------------------------------------------------------------
     def action_manual(self, action: str, value: float | None = None) -> None:
-        self.app.manual(action, value)
+        self.manual(action, value)
+
+    def manual(self, action: str, value: float | None = None) -> None:
+        """A manual action (in a worker: a move or a reading takes time); refused at once
+        while a run owns the instruments."""
+        app: Any = self.app
+        if not app.lab_ready:
+            app.notify("the lab is still loading", severity="warning")
+            return
+        if app.session.busy:
+            app.notify("refused: the run owns the instruments (p pauses it; manual control "
+                       "after it has stopped)", severity="warning", markup=False)
+            return
+        self._manual(action, value)
+
+    @work(thread=True, exclusive=True, group="manual")
+    def _manual(self, action: str, value: float | None) -> None:
+        from normbox_lab.core.errors import NormboxError
+
+        app: Any = self.app
+        try:
+            text, reading = app.session.manual(action, value)
+        except (NormboxError, OSError) as exc:
+            app.call_from_thread(app.notify, str(exc), severity="error", markup=False)
+            app.call_from_thread(app._log, "[red]manual:[/] ", str(exc))
+            return
+        app.call_from_thread(self._manual_done, text, reading)
+
+    def _manual_done(self, text: str, reading: Any) -> None:
+        from normbox_lab.tui.tabs.spectrum import RADIANCE_TITLE, SpectrumPane
+        from normbox_lab.tui.views import chromaticity_text, luminance_text
+
+        app: Any = self.app
+        if reading is not None:
+            colo = getattr(reading, "colorimetry", None)
+            if colo is not None:
+                text += f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · {chromaticity_text(colo)}"
+            app.query_one(SpectrumPane).add_reading("manual", reading.wavelength_nm,
+                                                    reading.radiance_W_sr_m2_nm, colo,
+                                                    RADIANCE_TITLE)
+        app._log("[b]manual[/b] ", text)
+        app.notify(text, markup=False)
+        app._poll(announce=False)          # the table shows the new state (no second toast)
 
     def action_goto(self) -> None:
         from normbox_lab.tui.screens import NumberScreen
 
         def chosen(angle: float | None) -> None:
             if angle is not None:
-                self.app.manual("goto", angle)
+                self.manual("goto", angle)
         self.app.push_screen(NumberScreen("rotator: go to angle, degrees", -180.0, 180.0),
                              chosen)
 
@@ -150,6 +193,6 @@ class InstrumentsPane(TabPane):
 
         def chosen(level: float | None) -> None:
             if level is not None:
-                self.app.manual("lamp-level", level)
+                self.manual("lamp-level", level)
         self.app.push_screen(NumberScreen("lamp level, percent", 0.0, 100.0, 100.0), chosen)
 

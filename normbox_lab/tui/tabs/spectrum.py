@@ -7,6 +7,9 @@ from typing import Any
 from textual.containers import Vertical
 from textual.widgets import Static, TabPane
 
+RADIANCE_TITLE = "spectral radiance W·sr⁻¹·m⁻²·nm⁻¹"
+BRDF_TITLE = "BRDF sr⁻¹"
+
 
 class SpectrumPane(TabPane):
     DEFAULT_CSS = """
@@ -16,6 +19,28 @@ class SpectrumPane(TabPane):
     def __init__(self) -> None:
         super().__init__("3 Spectrum", id="spectrum")
         self.plot: Any = None
+        #: (key, wavelength_nm, values, colorimetry or None, title) of the latest reading and
+        #: of the one before it (None when it is another quantity: nothing to compare)
+        self.latest: tuple | None = None
+        self.previous: tuple | None = None
+        self.dirty = False
+
+    def add_reading(self, key: str, wavelength_nm: Any, values: Any, colorimetry: Any,
+                    title: str) -> None:
+        """A new reading (from the run or a manual one); drawn at the next refresh."""
+        same = self.latest is not None and self.latest[4] == title
+        self.previous = self.latest if same else None
+        self.latest = (key, wavelength_nm, values, colorimetry, title)
+        self.dirty = True
+
+    def series(self) -> list[str]:
+        """Labels of the plotted series, previous first."""
+        return [s[0] for s in (self.previous, self.latest) if s is not None]
+
+    def redraw_if_dirty(self) -> None:
+        if self.dirty and self.latest is not None:
+            self.dirty = False
+            self.draw(self.latest, self.previous)
 
     def build(self) -> None:
         self.mount_all([Static("no reading yet", id="spectrum-head"), Vertical(id="plot-box")])
