@@ -85,7 +85,9 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
             await pilot.press("d")
             await until(pilot, lambda: "lab time" in str(
                 app.query_one("#run-info", Static).render()), "the dry run")
-            assert "ETA" not in str(app.query_one("#run-info", Static).render())
+            dry = str(app.query_one("#run-info", Static).render())
+            assert "ETA" not in dry
+            assert "in a simulated lab the remaining time is measured once the run goes" in dry
             await start_and_wait_for_the_second_prompt(pilot, app, parameters=False)
             log = [line.text for line in app.query_one("#events").lines]
             assert any(line.startswith("starting reference-sweep angles_deg=[30, 90] "

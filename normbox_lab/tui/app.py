@@ -287,10 +287,12 @@ class NormboxConsole(App):
         except Exception as exc:  # noqa: BLE001
             self.call_from_thread(self._log, "[red]dry-run failed:[/] ", str(exc))
             return
+        simulated = self._lab_time_scale() is not None
         text = (f"dry-run {protocol}: {len(dry.plan)} steps, {dry.plan.planned} readings, "
                 f"{len(dry.executed)} executed · lab time {format_duration(dry.total_s)} "
-                f"({dry.total_s:.0f} s of instrument and operator time; in a simulated lab "
-                f"the remaining time is measured once the run goes)")
+                f"({dry.total_s:.0f} s of instrument and operator time"
+                + ("; in a simulated lab the remaining time is measured once the run goes)"
+                   if simulated else ")"))
         self.dry = dry
         self.call_from_thread(self._after_dry, text)
 
