@@ -518,6 +518,7 @@ class NormboxConsole(App):
             self._set_run_status("running")
             self._log("resumed")
         elif k == "run-finished":
+            self.progress.ended = True         # ended paused too: no remaining time
             self._set_run_status(d.get("status", "finished"))
             self._log(f"run finished: {d.get('status')} ({d.get('done', '?')}/"
                       f"{d.get('planned', '?')} readings)")

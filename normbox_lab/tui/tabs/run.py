@@ -27,10 +27,13 @@ class RunProgress:
         self.step = ""
         self.segment_start: tuple[float, int] | None = None   # (clock s, done) at its start
         self.lab_remaining_s: float | None = None             # the engine's timing model
+        #: the segment has ended (also `paused`: an emergency stop, a quit): nothing to estimate
+        self.ended = False
 
     def started(self, done: int, planned: int, lab_remaining_s: float) -> None:
         """A segment starts: the observed rate is measured from here."""
         self.done, self.planned, self.status = done, planned, "running"
+        self.ended = False
         self.segment_start = (self.clock.now_s(), done)
         self.lab_remaining_s = lab_remaining_s
 
@@ -48,7 +51,7 @@ class RunProgress:
 
         from normbox_lab.acquire.estimate import format_duration
 
-        if self.status not in self.ACTIVE:
+        if self.status not in self.ACTIVE or self.ended:
             return ""
         left = max(0, self.planned - self.done)
         if lab_time_scale is None:
