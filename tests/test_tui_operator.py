@@ -247,7 +247,8 @@ def test_emergency_stop_during_a_run_switches_the_lamp_off_and_pauses(tmp_path, 
     with Store(tmp_path / "tui.sqlite") as s:
         (run,) = s.runs()
         assert run.status == "paused" and s.keys(run.id) == {"a30/p01"}
-        assert "emergency-stop" in [k for _, k, _ in s.events(run.id)]
+        (stop,) = [data for _, k, data in s.events(run.id) if k == "emergency-stop"]
+        assert stop["reason"] == "emergency stop at a30/p09/place", stop
 
 
 def test_emergency_stop_without_a_run_halts_the_lab(tmp_path, monkeypatch):

@@ -42,7 +42,7 @@ class ConsoleOperator:
         self.world = world
         self._event = threading.Event()
         self._choice: str | None = None
-        self._cancel: str | None = None      # "quit" | "abort"
+        self._cancel: str | None = None      # "quit" | "abort" | "emergency-stop"
         self.pending: Any = None             # the PromptRequest being asked
 
     def __call__(self, req: Any) -> str:
@@ -53,6 +53,8 @@ class ConsoleOperator:
             self._event.clear()
             if self._cancel == "quit":
                 raise _Quit("operator left the console at a prompt")
+            if self._cancel == "emergency-stop":
+                raise OperatorAbort(f"emergency stop at {req.key}")
             if self._cancel == "abort":
                 if "abort" in req.choices:
                     return "abort"
@@ -79,7 +81,7 @@ class ConsoleOperator:
 
     def cancel(self, why: str) -> None:
         """Release a waiting prompt, and refuse every later one: `quit` (the segment ends
-        paused) or `abort`."""
+        paused), `abort` or `emergency-stop` (the engine's emergency stop is under way)."""
         self._cancel = why
         self._event.set()
 
@@ -250,7 +252,7 @@ class Session:
         if self.engine is not None and self.busy:
             self.engine.emergency_stop()
             if self.operator is not None:
-                self.operator.cancel("abort")
+                self.operator.cancel("emergency-stop")
             self._mark_stopped()
             return []
         failed = []
