@@ -263,3 +263,46 @@ def test_report_opens_with_the_qa_summary(tmp_path):
     assert "tab-qa" in tables and "tec-off-setpoint" in html and found[0].key in html
     html, _, tables = build_html(ReportData())
     assert "0 flags: 0 errors, 0 warnings" in html and "tab-qa" not in tables
+
+
+def test_gates_on_the_committed_record_equal_gates_on_the_reading_read_back(tmp_path):
+    """The engine gates the record it committed instead of reading it back: every field a
+    gate reads must be what the store returns (NaN, out-of-range Lv, negative BRDF, numpy
+    scalars in the metadata, the lamp monitor)."""
+    import numpy as np
+
+    from normbox_lab.acquire.quality import QualityLimits, RunGates
+    from normbox_lab.acquire.store import Store, brdf_record, spectral_record
+    from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
+
+    wl = np.arange(380.0, 781.0)
+    rad = np.full(401, 1e-3)
+    rad[5] = np.nan
+    colo = Colorimetry(1.0, 1e6, 70.0, 80.0, 60.0, 0.33, 0.35, 0.2, 0.47, 5000.0, 0.001)
+    spectral = SpectralReading(wl, rad, colo, 1.5, 1_800_000_000.0, "CS-1000A#1", {})
+    brdf_values = np.full(401, 0.2)
+    brdf_values[:3] = -0.5
+    brdf = BrdfReading(-30.0, 40.0, 4.0, wl, brdf_values, raw_counts=np.arange(1044.0),
+                       instrument_id="QEP01234",
+                       metadata={"full_scale_counts": np.int64(200_000),
+                                 "peak_counts": np.float64(199_000.0),
+                                 "peak_signal_counts": 1500.0, "tec_temperature_c": -8.0,
+                                 "tec_setpoint_c": -10.0})
+    records = {"a30/p01": spectral_record(spectral, {"lamp_monitor_cd_m2": 500.0}),
+               "a30/p02": spectral_record(spectral, {"lamp_monitor_cd_m2": np.float64(510.0)}),
+               "g/1": brdf_record(brdf, {"segment": 1})}
+    with Store(tmp_path / "s.sqlite") as store:
+        in_memory, read_back = (RunGates(store, store.create_run("x").id, QualityLimits())
+                                for _ in range(2))
+        found_memory, found_back = [], []
+        for key, rec in records.items():
+            store.add_record(in_memory.run_id, key, rec)
+            stored = store.reading(in_memory.run_id, key)
+            assert stored.kind == rec.kind and stored.instrument == rec.instrument
+            assert set(stored.arrays) == set(rec.arrays)
+            found_memory += in_memory.reading(key, rec.kind, rec.metadata, rec.arrays)
+            found_back += read_back.reading(key, stored.kind, stored.metadata, stored.arrays)
+    gates = {f.gate for f in found_memory}
+    assert {"radiance-nonfinite", "radiometer-range", "lamp-drift", "brdf-negative",
+            "saturation", "noise-floor", "tec-off-setpoint"} <= gates
+    assert found_memory == found_back

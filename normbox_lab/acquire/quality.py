@@ -176,7 +176,7 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
     out: list[FlagSpec] = []
     brdf = np.asarray(arrays["brdf_per_sr"], dtype=float)
     blocked = bool(metadata.get("blocked", False))
-    bad = int(np.sum(~np.isfinite(brdf)))
+    bad = brdf.size - int(np.count_nonzero(np.isfinite(brdf)))
     if bad:
         out.append(FlagSpec(key, "brdf-nonfinite", "error", float(bad), 0.0,
                             f"{bad} BRDF values are NaN or infinite"))
@@ -226,7 +226,7 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
 
     out: list[FlagSpec] = []
     rad = np.asarray(arrays["radiance_W_sr_m2_nm"], dtype=float)
-    bad = int(np.sum(~np.isfinite(rad)))
+    bad = rad.size - int(np.count_nonzero(np.isfinite(rad)))
     if bad:
         out.append(FlagSpec(key, "radiance-nonfinite", "error", float(bad), 0.0,
                             f"{bad} radiance values are NaN or infinite"))

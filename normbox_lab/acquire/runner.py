@@ -38,6 +38,7 @@ from normbox_lab.acquire.steps import (
     require,
     wait_until_stable,
 )
+from normbox_lab.acquire.store import ReadingRecord
 from normbox_lab.core.capabilities import (
     Abortable,
     BrdfReadable,
@@ -135,6 +136,10 @@ class Engine:
         self._ratio = 1.0
         self._hook_context: dict[str, Any] = {}
         self._remaining_s = 0.0
+        #: per segment: (role, capability) → whether that instrument has it (drivers do not
+        #: change type while a segment runs; a reopened port is the same driver)
+        self._has: dict[tuple[str, type], bool] = {}
+        self._light_cache: dict[tuple[str, tuple[str, ...]], tuple[str, ...]] = {}
 
     # --- subscribers ---------------------------------------------------------------------------
     def subscribe(self, callback: Callable[[EngineEvent], None]) -> Callable[[], None]:
@@ -312,6 +317,7 @@ class Engine:
         self._gates = RunGates(self.store, self.run_id, limits_from_text(
             self.store.get_run(self.run_id).lab_config, "lab config"))
         self._known = {}     # physical state after a (re)start: unknown
+        self._has, self._light_cache = {}, {}
         self.state = "running"
         t0 = self.clock.now_s()
         taken = 0
@@ -518,13 +524,13 @@ class Engine:
         if step.requires:
             meta["requires"] = dict(step.requires)
         for role in (r for r, v in step.requires.items() if v == "stable"):
-            lamp = self.instrument(role)
-            if isinstance(lamp, LampMonitor):     # the lamp's own monitor, for the drift gate
+            if self._role_has(role, LampMonitor):  # the lamp's own monitor, for the drift gate
+                lamp = self.instrument(role)
                 meta["lamp_monitor_cd_m2"] = float(self.with_retry(step.key, role,
                                                                    lamp.luminance_cd_m2))
-        kind.commit(step, reading, self, meta)
+        record = kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
-        self._quality_gates(step.key)
+        self._quality_gates(step.key, record)
         took = self.clock.now_s() - t_start
         est = self._estimates.get(step.key, 0.0)
         if est > 0 and took > 0:
@@ -545,12 +551,13 @@ class Engine:
         self._emit("progress", step.key, done=len(self._committed), planned=self.plan.planned,
                    eta_s=remaining * self._ratio, remaining_estimate_s=remaining)
 
-    def _quality_gates(self, key: str) -> None:
-        """The acquisition quality gates on the reading just committed (flags are stored)."""
+    def _quality_gates(self, key: str, record: ReadingRecord) -> None:
+        """The acquisition quality gates on the reading just committed (flags are stored):
+        on the record the store committed, kind, metadata and arrays as stored, so nothing is
+        read back."""
         if self._gates is None:
             return
-        stored = self.store.reading(self.run_id, key)
-        for flag in self._gates.reading(key, stored.kind, stored.metadata, stored.arrays):
+        for flag in self._gates.reading(key, record.kind, record.metadata, record.arrays):
             self._store_event("flag", key=key, gate=flag.gate, severity=flag.severity,
                               message=flag.message)
             self._emit("warning", key, message=f"{flag.severity} {flag.gate}: {flag.message}",
@@ -574,22 +581,41 @@ class Engine:
                                 f"without requiring one of its calibrate steps' states; add a "
                                 f"calibrate step (sets=...) and require it")
 
-    def _light_roles(self, step: Step) -> list[str]:
+    def _role_has(self, role: str, capability: type) -> bool:
+        """`isinstance(instrument(role), capability)`, asked once per segment."""
+        key = (role, capability)
+        has = self._has.get(key)
+        if has is None:
+            has = self._has[key] = isinstance(self.instrument(role), capability)
+        return has
+
+    def _light_roles(self, step: Step) -> tuple[str, ...]:
         """Lamps that must be stable for this reading: those the step requires stable, and —
         for a radiometer reading — every light source of the plan and the lab's ``sphere``,
-        whether the protocol declared it or not (warm-up is a precondition, not a habit)."""
-        roles = [r for r, v in step.requires.items() if v == "stable"]
-        if not isinstance(self.instrument(step.role), SpectrumReadable):
+        whether the protocol declared it or not (warm-up is a precondition, not a habit).
+        Worked out once per segment for each (reading role, required lamps), unless a lamp
+        could not be reached (then asked again at the next reading)."""
+        required = tuple(r for r, v in step.requires.items() if v == "stable")
+        key = (step.role, required)
+        roles = self._light_cache.get(key)
+        if roles is not None:
             return roles
-        for r in (*self.plan.roles, "sphere"):
-            if r in roles or r == step.role:
-                continue
-            try:
-                inst = self.instrument(r)
-            except (KeyError, NormboxError):
-                continue
-            if isinstance(inst, Settling):
-                roles.append(r)
+        found = list(required)
+        complete = True
+        if self._role_has(step.role, SpectrumReadable):
+            for r in (*self.plan.roles, "sphere"):
+                if r in found or r == step.role:
+                    continue
+                try:
+                    if self._role_has(r, Settling):
+                        found.append(r)
+                except KeyError:          # the lab has no such role
+                    continue
+                except NormboxError:      # it could not be opened now
+                    complete = False
+        roles = tuple(found)
+        if complete:
+            self._light_cache[key] = roles
         return roles
 
     def _unstable_suspend(self, step: Step, after: bool = False) -> bool:

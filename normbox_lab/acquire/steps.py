@@ -22,6 +22,7 @@ from contextlib import AbstractContextManager
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
+from normbox_lab.acquire.store import ReadingRecord, brdf_record, spectral_record
 from normbox_lab.core.capabilities import (
     BrdfReadable,
     Calibratable,
@@ -189,7 +190,9 @@ class StepKind:
         raise NotImplementedError
 
     def commit(self, step: Step, reading: Any, run: StepRunner,
-               metadata: dict[str, Any]) -> None:
+               metadata: dict[str, Any]) -> ReadingRecord:
+        """Store `reading` under the step's key; returns what was stored (the quality gates
+        check it)."""
         raise NotImplementedError
 
 
@@ -312,11 +315,11 @@ class MeasureKind(StepKind):
             return require(inst, SpectrumReadable, step.role, step.key).measure()
 
     def commit(self, step: Step, reading: Any, run: StepRunner,
-               metadata: dict[str, Any]) -> None:
-        if isinstance(reading, BrdfReading):
-            run.store.add_brdf(run.run_id, step.key, reading, metadata=metadata)
-        else:
-            run.store.add_spectral(run.run_id, step.key, reading, metadata=metadata)
+               metadata: dict[str, Any]) -> ReadingRecord:
+        record = (brdf_record(reading, metadata) if isinstance(reading, BrdfReading)
+                  else spectral_record(reading, metadata))
+        run.store.add_record(run.run_id, step.key, record)
+        return record
 
 
 #: kind name → kind; a protocol's steps may use these names

@@ -175,6 +175,46 @@ class Artifact:
     arrays: dict[str, np.ndarray]
 
 
+@dataclass(frozen=True)
+class ReadingRecord:
+    """A reading as the store keeps it (kind, arrays, metadata), before it is committed."""
+
+    kind: str
+    arrays: dict[str, Any]
+    metadata: dict[str, Any]
+    instrument: str
+    time_s: float | None
+
+
+def spectral_record(reading: SpectralReading,
+                    metadata: Mapping[str, Any] | None = None) -> ReadingRecord:
+    """A radiometer reading as stored: its metadata, `metadata`, integration time and
+    colorimetry; arrays wavelength_nm, radiance_W_sr_m2_nm."""
+    meta = dict(reading.metadata)
+    meta.update(metadata or {})
+    meta["integration_time_s"] = reading.integration_time_s
+    if reading.colorimetry is not None:
+        meta["colorimetry"] = reading.colorimetry.as_dict()
+    return ReadingRecord("spectral", {"wavelength_nm": reading.wavelength_nm,
+                                      "radiance_W_sr_m2_nm": reading.radiance_W_sr_m2_nm},
+                         meta, reading.instrument_id, reading.timestamp_s)
+
+
+def brdf_record(reading: BrdfReading,
+                metadata: Mapping[str, Any] | None = None) -> ReadingRecord:
+    """A gonio reading as stored: geometry in the metadata; arrays wavelength_nm,
+    brdf_per_sr (and raw_counts when the instrument gives them)."""
+    meta = dict(reading.metadata)
+    meta.update(metadata or {})
+    meta.update(theta_i_deg=reading.theta_i_deg, theta_o_deg=reading.theta_o_deg,
+                tilt_deg=reading.tilt_deg, blocked=reading.blocked,
+                integration_time_s=reading.integration_time_s)
+    arrays = {"wavelength_nm": reading.wavelength_nm, "brdf_per_sr": reading.brdf_per_sr}
+    if reading.raw_counts is not None:
+        arrays["raw_counts"] = reading.raw_counts
+    return ReadingRecord("brdf", arrays, meta, reading.instrument_id, reading.timestamp_s)
+
+
 def _encode(arr: Any) -> tuple[str, bytes]:
     a = np.ascontiguousarray(np.asarray(arr, dtype="<f8"))
     return json.dumps(list(a.shape)), a.tobytes()
@@ -286,6 +326,33 @@ def _typed_store_errors(cls: type) -> type:
     return cls
 
 
+class _Transaction:
+    """``with store._tx() as db:`` — the store's lock held, BEGIN IMMEDIATE … COMMIT, or
+    ROLLBACK when the block raises."""
+
+    __slots__ = ("_db", "_lock")
+
+    def __init__(self, db: sqlite3.Connection, lock: Any) -> None:
+        self._db = db
+        self._lock = lock
+
+    def __enter__(self) -> sqlite3.Connection:
+        self._lock.acquire()
+        try:
+            self._db.execute("BEGIN IMMEDIATE")
+        except BaseException:
+            self._lock.release()
+            raise
+        return self._db
+
+    def __exit__(self, exc_type: object, exc: object, tb: object) -> bool:
+        try:
+            self._db.execute("ROLLBACK" if exc_type else "COMMIT")
+        finally:
+            self._lock.release()
+        return False
+
+
 @_typed_store_errors
 class Store:
     """The SQLite store.  Safe to share between threads (one connection behind a lock)."""
@@ -379,23 +446,8 @@ class Store:
         with self._lock:
             return str(self._db.execute("PRAGMA integrity_check").fetchone()[0])
 
-    def _tx(self):
-        store = self
-
-        class _Tx:
-            def __enter__(self_inner):
-                store._lock.acquire()
-                store._db.execute("BEGIN IMMEDIATE")
-                return store._db
-
-            def __exit__(self_inner, exc_type, exc, tb):
-                try:
-                    store._db.execute("ROLLBACK" if exc_type else "COMMIT")
-                finally:
-                    store._lock.release()
-                return False
-
-        return _Tx()
+    def _tx(self) -> _Transaction:
+        return _Transaction(self._db, self._lock)
 
     # --- runs ----------------------------------------------------------------------------------
     def create_run(self, protocol: str, *, parameters: Mapping[str, Any] | None = None,
@@ -570,32 +622,21 @@ class Store:
             arrays = self._arrays("reading", r[0])
         return StoredReading(r[0], r[1], r[2], r[3], r[4], r[5], json.loads(r[6]), arrays)
 
+    def add_record(self, run_ref: int | str, key: str, record: ReadingRecord) -> int:
+        """Commit a reading prepared by `spectral_record` / `brdf_record` (what the engine's
+        quality gates then check, without reading it back)."""
+        return self.add_reading(run_ref, key, record.kind, record.arrays,
+                                instrument=record.instrument, metadata=record.metadata,
+                                time_s=record.time_s)
+
     # typed helpers ------------------------------------------------------------------------------
     def add_spectral(self, run_ref: int | str, key: str, reading: SpectralReading,
                      metadata: Mapping[str, Any] | None = None) -> int:
-        meta = dict(reading.metadata)
-        meta.update(metadata or {})
-        meta["integration_time_s"] = reading.integration_time_s
-        if reading.colorimetry is not None:
-            meta["colorimetry"] = reading.colorimetry.as_dict()
-        return self.add_reading(run_ref, key, "spectral",
-                                {"wavelength_nm": reading.wavelength_nm,
-                                 "radiance_W_sr_m2_nm": reading.radiance_W_sr_m2_nm},
-                                instrument=reading.instrument_id, metadata=meta,
-                                time_s=reading.timestamp_s)
+        return self.add_record(run_ref, key, spectral_record(reading, metadata))
 
     def add_brdf(self, run_ref: int | str, key: str, reading: BrdfReading,
                  metadata: Mapping[str, Any] | None = None) -> int:
-        meta = dict(reading.metadata)
-        meta.update(metadata or {})
-        meta.update(theta_i_deg=reading.theta_i_deg, theta_o_deg=reading.theta_o_deg,
-                    tilt_deg=reading.tilt_deg, blocked=reading.blocked,
-                    integration_time_s=reading.integration_time_s)
-        arrays = {"wavelength_nm": reading.wavelength_nm, "brdf_per_sr": reading.brdf_per_sr}
-        if reading.raw_counts is not None:
-            arrays["raw_counts"] = reading.raw_counts
-        return self.add_reading(run_ref, key, "brdf", arrays, instrument=reading.instrument_id,
-                                metadata=meta, time_s=reading.timestamp_s)
+        return self.add_record(run_ref, key, brdf_record(reading, metadata))
 
     @staticmethod
     def as_spectral(r: StoredReading) -> SpectralReading:

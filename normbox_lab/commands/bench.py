@@ -44,17 +44,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 class _TimedCalls:
-    """Adds up the wall time spent in an instrument's public methods, by wrapping them on the
+    """Adds up the wall time spent in an instrument's capability methods (those the engine may
+    call: the members of `core.capabilities` and the lamp monitor), by wrapping them on the
     instance itself (only the outermost call of a nesting counts): the engine still sees the
-    driver object, so its capability checks cost what they cost in a real run."""
+    driver object, so its capability checks cost what they cost in a real run.  A driver's
+    other public methods (the per-line exchanges inside a reading) are left unwrapped, so the
+    timing adds no per-line cost of its own."""
 
     def __init__(self, inst, timer) -> None:
+        from normbox_lab.acquire.quality import LampMonitor
+        from normbox_lab.core.capabilities import CAPABILITIES
+
         self.spent_s = 0.0
         self._depth = 0
-        for name in dir(type(inst)):
-            if name.startswith("_") or not callable(getattr(type(inst), name, None)):
-                continue
-            setattr(inst, name, self._wrap(getattr(inst, name), timer))
+        names = {n for cap in (*CAPABILITIES, LampMonitor) for n in vars(cap)
+                 if not n.startswith("_")}
+        for name in sorted(names):
+            if callable(getattr(type(inst), name, None)):
+                setattr(inst, name, self._wrap(getattr(inst, name), timer))
 
     def _wrap(self, method, timer):
         def timed(*a, **k):
