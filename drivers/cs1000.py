@@ -49,7 +49,8 @@ from normbox_lab.core.errors import (
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import SpectralReading
 from normbox_lab.drivers.radiometer_common import (
     KonicaMinoltaRadiometer,
     Transfer,

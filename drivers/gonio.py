@@ -49,7 +49,8 @@ import numpy as np
 from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, NotReady
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, BrdfReading
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import BrdfReading
 
 THETA_I_DEG = tuple(range(-80, 1, 10))
 THETA_O_DEG = tuple(range(-80, 81, 10))

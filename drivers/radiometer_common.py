@@ -43,7 +43,8 @@ from normbox_lab.core.errors import (
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, Colorimetry, SpectralReading
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import Colorimetry, SpectralReading
 
 T = TypeVar("T")
 

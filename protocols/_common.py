@@ -1,11 +1,7 @@
-"""Helpers the shipped protocols share: ColorChecker patch names and key formatting.
-
-Patch numbers follow the ColorChecker Classic order (1 = dark skin … 24 = black), row by row.
-"""
+"""Helpers the shipped protocols share: reading-key formatting.  (Patch names and numbers,
+ColorChecker Classic order, are `normbox_lab.core.spectral`'s.)"""
 
 from __future__ import annotations
-
-from normbox_lab.core.spectral import PATCH_NAMES, WHITE_PATCH, patch_name  # noqa: F401
 
 
 def angle_key(angle_deg: float) -> str:

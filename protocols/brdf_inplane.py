@@ -12,7 +12,8 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.acquire.engine import Step, calibrate, measure, prompt
-from normbox_lab.protocols._common import patch_name, signed_key
+from normbox_lab.core.spectral import patch_name
+from normbox_lab.protocols._common import signed_key
 
 PARAMETERS: dict[str, Any] = {
     "materials": [*range(1, 25), "wall"],

@@ -13,7 +13,8 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
-from normbox_lab.protocols._common import angle_key, patch_name
+from normbox_lab.core.spectral import patch_name
+from normbox_lab.protocols._common import angle_key
 
 PARAMETERS: dict[str, Any] = {
     "angles_deg": [30, 35, 40, 45, 50, 55, 60, 65, 70, 75, 80, 85, 90],

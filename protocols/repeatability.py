@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
-from normbox_lab.protocols._common import WHITE_PATCH, patch_name
+from normbox_lab.core.spectral import WHITE_PATCH, patch_name
 
 PARAMETERS: dict[str, Any] = {
     "repeats": 10,

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 
 H_J_S = 6.62607015e-34
 C_M_S = 2.99792458e8

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import urllib.parse
 
-import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from normbox_lab.core.clock import VirtualClock
@@ -151,4 +150,4 @@ class Serial(SerialBase):
         return True
 
 
-__all__ = ["Serial", "serial"]
+__all__ = ["Serial"]

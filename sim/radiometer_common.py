@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 
 KM_LM_W = 683.0
 DEFAULT_CCT_K = 2856.0

@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.materials import (
     Material,
     holder_material,

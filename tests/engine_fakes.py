@@ -16,7 +16,8 @@ import numpy as np
 from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentTimeout
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import SpectralReading
 
 
 class FakeWorld:

@@ -21,7 +21,7 @@ from normbox_lab.core.errors import (
     OperatorAbort,
     ProtocolError,
 )
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.drivers.radiometer_common import ybar_1nm
 from normbox_lab.sim import core

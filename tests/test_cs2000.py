@@ -19,7 +19,7 @@ from normbox_lab.core.errors import (
     InstrumentTimeout,
     ProtocolError,
 )
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs2000 import CS2000A, ERRORS
 from normbox_lab.drivers.radiometer_common import ybar_1nm
 from normbox_lab.sim import core

@@ -7,7 +7,8 @@ from engine_fakes import FakeLab, add_gonio
 
 from normbox_lab.acquire import engine as eng
 from normbox_lab.acquire.store import Store
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM, SpectralReading
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.types import SpectralReading
 
 
 @pytest.fixture

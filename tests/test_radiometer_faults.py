@@ -17,7 +17,7 @@ import pytest
 
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentError, InstrumentTimeout
-from normbox_lab.core.types import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.drivers.cs2000 import CS2000A
 from normbox_lab.sim import core

@@ -11,10 +11,10 @@ from __future__ import annotations
 import sys
 
 import numpy as np
-from normbox_lab.protocols._common import patch_name
 
-from normbox_lab.analyze.compare import compare
 from normbox_lab.acquire.store import Store
+from normbox_lab.analyze.compare import compare
+from normbox_lab.core.spectral import patch_name
 
 
 def main(path: str) -> None:

@@ -10,8 +10,6 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM  # noqa: F401  (re-exported)
-
 
 def _as_1d_float(name: str, value: Any) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64)
