@@ -755,3 +755,17 @@ def test_a_prompt_over_the_runs_tab_steps_aside_to_another_tab(lab_env):  # noqa
             assert screen_text(app).splitlines()[3].split()[:2] == ["role", "connection"]
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_event_lines_leave_no_blank_key_column():
+    import time
+
+    from normbox_lab.tui.views import event_lines
+
+    t = time.mktime((2026, 11, 24, 2, 20, 3, 0, 0, -1))
+    lines = event_lines([(t, "status:paused", {"done": 2, "taken": 0}),
+                         (t, "emergency-stop", {"key": "a60/p07/place", "reason": "x"}),
+                         (t, "fault", {"key": "a30/p01", "message": "no reply", "try": 3})])
+    assert lines == ["11-24 02:20:03 status:paused  done=2, taken=0",
+                     "11-24 02:20:03 emergency-stop a60/p07/place · reason=x",
+                     "11-24 02:20:03 fault          a30/p01 · no reply · try=3"]

@@ -159,7 +159,8 @@ def event_lines(events: list[tuple[float, str, dict[str, Any]]]) -> list[str]:
         rest = ", ".join(f"{k}={v}" for k, v in d.items()
                          if not isinstance(v, (dict, list)) and k not in ("in_process",))
         stamp = time.strftime("%m-%d %H:%M:%S", time.localtime(t))
-        out.append(f"{stamp} {kind:<12} {key:<14} {text}{' · ' if text and rest else ''}{rest}")
+        # no blank key column (most events have no key): the line fits an 80-column box
+        out.append(f"{stamp} {kind:<14} " + " · ".join(x for x in (key, text, rest) if x))
     return out
 
 
