@@ -528,8 +528,10 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
             app.query_one("#inst-table").focus()
             before = rot.position_deg()
             await pilot.press("h")
-            await until(pilot, lambda: any("refused: the run owns the instruments" in t
-                                           for t in toasts()), "the refusal")
+            # named, and it says what frees them (a pause does not: the run waits to go on)
+            await until(pilot, lambda: any(
+                "home refused: the run owns the instruments until it ends" in t
+                for t in toasts()), "the refusal")
             assert rot.position_deg() == before
     asyncio.run(scenario())
     session.close()

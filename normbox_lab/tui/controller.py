@@ -308,8 +308,8 @@ class Session:
             raise ValueError(f"unknown manual action {action!r}")
         role, name = self.MANUAL[action]
         if self.busy:
-            raise NotReady(f"{name} refused: the run owns the instruments (pause it and let it "
-                           "end its segment, or wait for the end)", instrument=role)
+            raise NotReady(f"{name} refused: the run owns the instruments until it ends "
+                           "(a paused run too: it waits to go on)", instrument=role)
         lab = self.ensure_lab()
         if role not in lab.roles():
             raise NotReady(f"{name}: this lab has no {role}", instrument=role)

@@ -145,8 +145,10 @@ class InstrumentsPane(TabPane):
             app.notify("the lab is still loading", severity="warning")
             return
         if app.session.busy:
-            app.notify("refused: the run owns the instruments (p pauses it; manual control "
-                       "after it has stopped)", severity="warning", markup=False)
+            # a paused run still owns them (it waits to go on): only its end frees them
+            name = app.session.MANUAL[action][1]
+            app.notify(f"{name} refused: the run owns the instruments until it ends (a, a "
+                       "aborts it; r resumes it later)", severity="warning", markup=False)
             return
         self._manual(action, value)
 
