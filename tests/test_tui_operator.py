@@ -771,3 +771,32 @@ def test_event_lines_leave_no_blank_key_column():
     assert lines == ["11-24 02:20:03 status:paused  done=2, taken=0",
                      "11-24 02:20:03 emergency-stop a60/p07/place · reason=x",
                      "11-24 02:20:03 fault          a30/p01 · no reply · try=3"]
+
+
+def test_e_exports_the_selected_run_as_csv(lab_env):  # noqa: F811
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.tui.controller import Session
+
+    session = Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), lab_env / "tui.sqlite",
+                      world="analytic", time_scale=0.0, virtual_operator=True)
+    app = NormboxConsole(session, protocol="repeatability", prefill={"repeats": "2"})
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("e")                              # nothing selected yet
+            await until(pilot, lambda: any("select a run" in t for t in app.toasts_shown),
+                        "the hint")
+            await pilot.press("s")
+            await until(pilot, lambda: app.run_status == "done", "the end of the run")
+            await pilot.press("4")
+            await until(pilot, lambda: app.query_one("#runs-table").row_count == 1, "the run")
+            await pilot.press("e")
+            await until(pilot, lambda: any(t.startswith("exported run 1 → ")
+                                           for t in app.toasts_shown), "the export")
+    asyncio.run(scenario())
+    session.close()
+    (path,) = list(lab_env.glob("run-1-*.csv"))
+    lines = path.read_text().splitlines()
+    assert len(lines) >= 3 and "rep01" in "\n".join(lines) and "rep02" in "\n".join(lines), \
+        lines[:3]

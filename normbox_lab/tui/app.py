@@ -437,24 +437,7 @@ class NormboxConsole(App):
         self.call_from_thread(self._show_instruments, rows, announce)
 
     def action_export(self) -> None:
-        run_id = self._selected_run_id()
-        if run_id is None:
-            self.notify("select a run in the Runs tab (4) first")
-            return
-        self._export(run_id)
-
-    @work(thread=True, group="export")
-    def _export(self, run_id: int) -> None:
-        from normbox_lab.acquire.export import export_run
-
-        try:
-            path = export_run(self.session.open_store(), run_id, "csv")
-        except Exception as exc:  # noqa: BLE001
-            self.call_from_thread(self.notify, f"export failed: {exc}", severity="error",
-                                  markup=False)
-            return
-        self.call_from_thread(self.notify, f"exported run {run_id} → {path}", markup=False)
-        self.call_from_thread(self._log, "", f"exported run {run_id} → {path}")
+        self.pane(RunsPane).export_selected()
 
     # --- engine events -----------------------------------------------------------------------
     def on_engine_message(self, message: EngineMessage) -> None:

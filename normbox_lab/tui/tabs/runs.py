@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from textual import on
+from textual import on, work
 from textual.widgets import DataTable, TabPane
 
 from normbox_lab.tui.tabs.common import table
@@ -50,6 +50,29 @@ class RunsPane(TabPane):
             row = ids.index(selected) if selected in ids else len(ids) - 1
             tab.move_cursor(row=row)
             self.show_readings(ids[row])
+
+    def export_selected(self) -> None:
+        """e: the selected run as CSV (in a worker), `run-ID-PROTOCOL.csv` in the working
+        directory."""
+        run_id = self.selected_run_id()
+        if run_id is None:
+            self.app.notify("select a run in the Runs tab (4) first")
+            return
+        self._export(run_id)
+
+    @work(thread=True, group="export")
+    def _export(self, run_id: int) -> None:
+        from normbox_lab.acquire.export import export_run
+
+        app: Any = self.app
+        try:
+            path = export_run(app.session.open_store(), run_id, "csv")
+        except Exception as exc:  # noqa: BLE001 - shown to the operator, the console stays up
+            app.call_from_thread(app.notify, f"export failed: {exc}", severity="error",
+                                 markup=False)
+            return
+        app.call_from_thread(app.notify, f"exported run {run_id} → {path}", markup=False)
+        app.call_from_thread(app._log, "", f"exported run {run_id} → {path}")
 
     def selected_run_id(self) -> int | None:
         tab = self.query_one("#runs-table", DataTable)
