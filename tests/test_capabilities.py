@@ -66,7 +66,8 @@ def test_engine_fakes_are_the_roles_they_stand_for():
     assert not isinstance(gonio, caps.SpectrumReadable)
 
 
-ENGINE_MODULES = ("engine", "steps", "plan", "estimate", "retry", "runner", "events")
+ENGINE_MODULES = ("engine", "steps", "plan", "estimate", "retry", "runner", "events", "session",
+                  "quality")
 PROBE = re.compile(r"\b(hasattr|getattr)\s*\(")
 
 

@@ -1,7 +1,9 @@
 """The repository cites public sources only, and its tests cannot pass by skipping.
 
-- No file names an absolute path of a development machine or a path into a private
-  reference folder: sources are cited by title in docs/references.md.
+- No tracked file (code, docs, scripts, screen captures, images' text chunks: every file git
+  knows) names an absolute path of a development machine or a path into a private reference
+  folder: sources are cited by title in docs/references.md.
+- No tracked file speaks of how it was developed: no tracker issue numbers, no work sessions.
 - No test skips on an import of the project's own modules or of a hard dependency: a broken
   install must turn CI red, not green-with-skips.
 """
@@ -21,22 +23,57 @@ HARD_DEPENDENCIES = ("numpy", "scipy", "colour", "serial", "mitsuba", "textual",
                      "matplotlib", "thorlabs_apt_protocol", "normbox_lab")
 
 
-def tracked_text_files() -> list[Path]:
-    out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True,
-                         check=True).stdout.split()
-    return [ROOT / f for f in out
-            if Path(f).suffix in {".py", ".md", ".toml", ".cfg", ".txt", ".sh", ".ini", ""}]
+#: the development process showing through: tracker issues, work sessions.  (A document's own
+#: issue number, as in "Communications Protocol, issue 37", is its edition: allowed.)
+PROCESS_WORDS = re.compile(
+    r"(?i)((?<!protocol, )\bissues? ?#?\d+|\b(the|this|that|an|our|same|open) issues?\b(?! \d)"
+    r"|\bissue's\b|\b(this|that|previous|next|later|earlier|another|helper|lead|"
+    r"agent|coding|work|development) sessions?\b|\bsessions? \d+\b)")
+
+
+def tracked_files() -> list[Path]:
+    """Every file git tracks (text or not: a binary's text chunks can carry paths too)."""
+    out = subprocess.run(["git", "ls-files", "-z"], cwd=ROOT, capture_output=True, text=True,
+                         check=True).stdout.split("\0")
+    return [ROOT / f for f in out if f]
+
+
+def offending_lines(pattern: re.Pattern[str]) -> list[str]:
+    offenders = []
+    for path in tracked_files():
+        if path.name == Path(__file__).name or not path.is_file():
+            continue
+        text = path.read_bytes().decode("utf-8", errors="replace")
+        for lineno, line in enumerate(text.splitlines(), 1):
+            if pattern.search(line):
+                offenders.append(f"{path.relative_to(ROOT)}:{lineno}: {line.strip()[:120]}")
+    return offenders
+
+
+def test_the_scan_covers_every_kind_of_tracked_file():
+    suffixes = {p.suffix for p in tracked_files()}
+    assert {".py", ".md", ".txt", ".toml", ".sh", ".png"} <= suffixes
+    assert ROOT / "Makefile" in tracked_files()
 
 
 def test_no_machine_or_private_reference_paths():
-    offenders = []
-    for path in tracked_text_files():
-        if path.name == Path(__file__).name or not path.is_file():
-            continue
-        for lineno, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
-            if FORBIDDEN.search(line):
-                offenders.append(f"{path.relative_to(ROOT)}:{lineno}: {line.strip()}")
+    offenders = offending_lines(FORBIDDEN)
     assert offenders == [], "\n".join(offenders)
+
+
+def test_no_tracker_issue_or_work_session_words():
+    offenders = offending_lines(PROCESS_WORDS)
+    assert offenders == [], "\n".join(offenders)
+
+
+def test_process_words_pattern():
+    for bad in ("see issue 21", "issue #4", "The issue's acceptance test", "in this session",
+                "a later session will", "session 3", "fixed in the issue"):
+        assert PROCESS_WORDS.search(bad), bad
+    for fine in ("APT Communications Protocol, issue 37 or later", "the operator session",
+                 "tmux new-session", "once per session", "the light-map session",
+                 "microsteps it has issued", "session.py: open_run"):
+        assert not PROCESS_WORDS.search(fine), fine
 
 
 def test_bibliography_exists_and_is_cited():

@@ -173,7 +173,7 @@ def test_spectral_inputs_and_white_balanced_preview():
 
 
 def test_ww_on_a_rendered_box_lit_by_a_strongly_coloured_light():
-    """The issue's acceptance test, on the virtual camera's Cornell-like box: a 1800 K lamp
+    """The acceptance test, on the virtual camera's Cornell-like box: a 1800 K lamp
     (xy ≈ 0.549, 0.408: strongly orange), every wall, the floor and the ceiling strongly
     coloured (greens and teal), one flat white cube (ρ = 0.85).
 
