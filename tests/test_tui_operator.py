@@ -800,3 +800,26 @@ def test_e_exports_the_selected_run_as_csv(lab_env):  # noqa: F811
     lines = path.read_text().splitlines()
     assert len(lines) >= 3 and "rep01" in "\n".join(lines) and "rep02" in "\n".join(lines), \
         lines[:3]
+
+
+def test_x_stops_also_while_typing_in_a_parameter_field(lab_env):  # noqa: F811
+    """The emergency stop is never swallowed by a text field: x in a parameter field stops
+    (and is not typed); other letters are typed."""
+    from textual.widgets import Input
+
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            field = app.query_one("#param-rotator", Input)
+            field.focus()
+            await pilot.pause(0.1)
+            field.cursor_position = len(field.value)
+            await pilot.press("s", "x")
+            await until(pilot, lambda: any("EMERGENCY STOP" in t for t in app.toasts_shown),
+                        "the stop")
+            assert field.value == "rotators"                 # s typed, x not
+            assert not app.session.busy                      # and s did not start a run
+    asyncio.run(scenario())
+    app.session.close()

@@ -215,11 +215,11 @@ class NumberScreen(ModalScreen[float | None]):
         self.question, self.low, self.high, self.value = question, low, high, value
 
     def compose(self) -> ComposeResult:
-        from textual.widgets import Input
+        from normbox_lab.tui.tabs.common import StopSafeInput
 
         with Vertical():
             yield Label(f"{self.question} ({self.low:g} … {self.high:g})")
-            yield Input("" if self.value is None else f"{self.value:g}", id="number")
+            yield StopSafeInput("" if self.value is None else f"{self.value:g}", id="number")
             yield Static("", id="number-error")
             yield Label("[dim]Enter: go · Esc: cancel[/dim]")
 

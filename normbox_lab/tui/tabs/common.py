@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from textual.widgets import DataTable
+from textual.widgets import DataTable, Input
 
 
 def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
@@ -12,3 +12,11 @@ def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
     t: DataTable = DataTable(id=wid, **kw)
     t.add_columns(*columns)
     return t
+
+
+class StopSafeInput(Input):
+    """A text field that leaves `x` to the emergency stop: Textual skips even a priority
+    binding for a key the focused widget would consume (a printable one in an Input)."""
+
+    def check_consume_key(self, key: str, character: str | None) -> bool:
+        return key != "x" and super().check_consume_key(key, character)

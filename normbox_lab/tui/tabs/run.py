@@ -10,6 +10,7 @@ from textual.containers import Horizontal, VerticalScroll
 from textual.widgets import Input, Label, ProgressBar, RichLog, Select, Static, TabPane
 
 from normbox_lab.core.clock import Clock
+from normbox_lab.tui.tabs.common import StopSafeInput
 
 
 class RunProgress:
@@ -143,9 +144,9 @@ class RunPane(TabPane):
             text = prefill.get(k, v if isinstance(v, str) else json.dumps(v))
             label = Label(k)
             label.styles.width = width
-            box.mount(Horizontal(label, Input(text, id=f"param-{k}", compact=True,
-                                              validators=[check(k, v)], validate_on=["changed"]),
-                                 classes="param"))
+            field = StopSafeInput(text, id=f"param-{k}", compact=True,
+                                  validators=[check(k, v)], validate_on=["changed"])
+            box.mount(Horizontal(label, field, classes="param"))
         self.defaults = dict(params)
 
     def on_input_changed(self, event: Input.Changed) -> None:
