@@ -229,7 +229,9 @@ def test_emergency_stop_during_a_run_switches_the_lamp_off_and_pauses(tmp_path, 
             await until(pilot, lambda: not session.busy, "the run to stop", timeout_s=10.0)
             await until(pilot, lambda: app.run_status == "paused", "the run's end")
             assert app.remaining_text() == ""         # the segment has ended: no estimate
-            assert "remaining" not in str(app.query_one("#run-info", Static).render())
+            info = str(app.query_one("#run-info", Static).render())
+            assert "remaining" not in info
+            assert "step: stopped at a30/p09/place · r resumes" in info, info
             assert sphere.state() == "off"                       # asked over the wire
             # the table tells the truth after the stop: the poll after the run (which waits
             # for the engine thread to end) reads the lamp off, not "on, stable"

@@ -502,7 +502,13 @@ class NormboxConsole(App):
             self._log("resumed")
         elif k == "run-finished":
             self.progress.ended = True         # ended paused too: no remaining time
-            self._set_run_status(d.get("status", "finished"))
+            status = d.get("status", "finished")
+            if status != "done" and self.progress.step:   # where it stopped, not "step: …"
+                self.progress.step = (f"stopped at {self.progress.step.split(' · ')[0]}"
+                                      " · r resumes")
+            elif status == "done":
+                self.progress.step = ""
+            self._set_run_status(status)
             self._log(f"run finished: {d.get('status')} ({d.get('done', '?')}/"
                       f"{d.get('planned', '?')} readings)")
             self._runs_dirty = True
