@@ -20,8 +20,7 @@ import itertools
 import logging
 import os
 import threading
-from collections.abc import Callable, Iterable, Iterator, Mapping
-from contextlib import contextmanager
+from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol
 
 from normbox_lab.acquire.estimate import DryRun, dry_run
@@ -90,6 +89,22 @@ def halt(role: str, inst: Any) -> None:
             inst.stop()
     except (InstrumentError, OSError) as exc:
         log.warning("%s: halting during abort failed: %s", role, exc)
+
+
+class _Busy:
+    """``with engine.busy(role, inst):`` — `inst` is the one an abort must halt meanwhile."""
+
+    __slots__ = ("_engine", "_what")
+
+    def __init__(self, engine: Engine, what: tuple[str, Any]) -> None:
+        self._engine = engine
+        self._what = what
+
+    def __enter__(self) -> None:
+        self._engine._busy = self._what
+
+    def __exit__(self, *exc: object) -> None:
+        self._engine._busy = None
 
 
 class Engine:
@@ -217,13 +232,12 @@ class Engine:
     def instrument(self, role: str) -> Any:
         return self.lab.instrument(role)
 
-    @contextmanager
-    def busy(self, role: str, inst: Any) -> Iterator[None]:
-        self._busy = (role, inst)
-        try:
-            yield
-        finally:
-            self._busy = None
+    def busy(self, role: str, inst: Any) -> _Busy:
+        return _Busy(self, (role, inst))
+
+    def has(self, role: str, capability: type) -> bool:
+        """Whether the instrument of `role` has `capability` (asked once per segment)."""
+        return self._role_has(role, capability)
 
     def abort_requested(self) -> bool:
         return self._abort.is_set()
@@ -623,7 +637,9 @@ class Engine:
         True."""
         roles = self._light_roles(step)
         for role in roles:
-            lamp = require(self.instrument(role), Settling, role, step.key)
+            lamp = self.instrument(role)
+            if not self._role_has(role, Settling):
+                require(lamp, Settling, role, step.key)       # raises the PlanError
             # the check talks to the lamp: inside the retry loop like any instrument call
             if self.with_retry(step.key, role, lamp.is_stable):
                 continue

@@ -140,6 +140,9 @@ class StepRunner(Protocol):
         """Mark `inst` as the one an abort must halt while the block runs."""
         ...
     def with_retry(self, key: str, role: str, action: Callable[[], Any]) -> Any: ...
+    def has(self, role: str, capability: type) -> bool:
+        """`isinstance(instrument(role), capability)`, cached while the run goes on."""
+        ...
     def abort_requested(self) -> bool: ...
     def ask_operator(self, key: str, message: str, data: Mapping[str, Any]) -> str: ...
 
@@ -308,11 +311,14 @@ class MeasureKind(StepKind):
         return float(inst.estimate_measure_time_s(est.luminance_hint_cd_m2(step)))
 
     def execute(self, step: Step, run: StepRunner, for_key: str) -> Any:
-        inst = run.instrument(step.role)
-        with run.busy(step.role, inst):
-            if isinstance(inst, BrdfReadable):
+        role = step.role
+        inst = run.instrument(role)
+        with run.busy(role, inst):
+            if run.has(role, BrdfReadable):
                 return inst.measure_brdf(*self._geometry(step))
-            return require(inst, SpectrumReadable, step.role, step.key).measure()
+            if not run.has(role, SpectrumReadable):
+                require(inst, SpectrumReadable, role, step.key)   # raises the PlanError
+            return inst.measure()
 
     def commit(self, step: Step, reading: Any, run: StepRunner,
                metadata: dict[str, Any]) -> ReadingRecord:
