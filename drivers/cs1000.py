@@ -34,7 +34,6 @@ at 10 bits per byte.
 
 from __future__ import annotations
 
-import math
 import struct
 from typing import Any
 
@@ -56,6 +55,7 @@ from normbox_lab.drivers.radiometer_common import (
     Transfer,
     check_spectrum,
     colorimetry_from,
+    pre_measurement_s,
 )
 
 BAUD_RATES = (4800, 9600, 19200)
@@ -91,10 +91,6 @@ def integration_time_s(luminance_cd_m2: float, speed: str = "normal", time_mode:
         return float(time_s)
     k = 25.0 if speed == "fast" else 100.0
     return min(60.0, max(0.05, k / max(float(luminance_cd_m2), 1e-6)))
-
-
-def pre_measurement_s(luminance_cd_m2: float) -> float:
-    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
 
 
 class CS1000A(KonicaMinoltaRadiometer):
@@ -137,7 +133,7 @@ class CS1000A(KonicaMinoltaRadiometer):
 
     # --- the Spectroradiometer role ---------------------------------------------------------------
     def identify(self) -> InstrumentIdentity:
-        url = str(getattr(self.port, "port", "") or getattr(self.port, "portstr", "") or "")
+        url = str(self.port.port or "")
         return InstrumentIdentity("spectroradiometer", self.model, serial_number="",
                                   firmware="", simulated=url.startswith("sim://"),
                                   extra={"port": url, "baud": str(self.baud),
@@ -309,5 +305,4 @@ __all__ = [
     "CS1000A",
     "ERRORS",
     "integration_time_s",
-    "pre_measurement_s",
 ]

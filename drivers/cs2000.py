@@ -49,6 +49,7 @@ from normbox_lab.drivers.radiometer_common import (
     Transfer,
     check_spectrum,
     colorimetry_from,
+    pre_measurement_s,
 )
 
 ERRORS = {
@@ -89,10 +90,6 @@ def measurement_time_s(luminance_cd_m2: float, speed: str = "normal", time_s: fl
     else:
         t = math.ceil(2 * time_s) + 1
     return int(min(242, max(2, t)))
-
-
-def pre_measurement_s(luminance_cd_m2: float) -> float:
-    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
 
 
 class CS2000A(KonicaMinoltaRadiometer):
@@ -167,7 +164,7 @@ class CS2000A(KonicaMinoltaRadiometer):
         if len(fields) != 3 or fields[1] not in ("1", "2") \
                 or not fields[2].strip().isascii() or not fields[2].strip().isdigit():
             raise self._protocol("IDDR: expected OK00,<name>,<variation>,<serial>", raw)
-        url = str(getattr(self.port, "port", "") or "")
+        url = str(self.port.port or "")
         return InstrumentIdentity("spectroradiometer", fields[0].strip(),
                                   serial_number=fields[2].strip(),
                                   simulated=url.startswith("sim://"),
@@ -343,5 +340,4 @@ class CS2000A(KonicaMinoltaRadiometer):
 
 
 CS2000 = CS2000A
-__all__ = ["CS2000", "CS2000A", "ERRORS", "HEX_UNDEFINED", "SPEED_MODES", "measurement_time_s",
-           "pre_measurement_s"]
+__all__ = ["CS2000", "CS2000A", "ERRORS", "HEX_UNDEFINED", "SPEED_MODES", "measurement_time_s"]

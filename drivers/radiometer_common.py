@@ -34,6 +34,7 @@ from typing import Any, ClassVar, TypeVar
 import numpy as np
 from serial import SerialException
 
+from normbox_lab.core import transport
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import (
     DeviceError,
@@ -72,8 +73,8 @@ class SerialRadiometer:
     #: read twice and compared) for this long after each fault
     stale_horizon_s = 120.0
 
-    def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
-                 command_timeout_s: float = 10.0, attempts: int = 3,
+    def __init__(self, port: transport.Port, clock: Clock, *,
+                 instrument_id: str = "radiometer", command_timeout_s: float = 10.0, attempts: int = 3,
                  reconnect_timeout_s: float = 10.0) -> None:
         self.port = port
         self.clock = clock
@@ -156,21 +157,18 @@ class SerialRadiometer:
     def _reconnect(self) -> None:
         """Wait for the link to come back (bounded), reopen the port, re-enter remote mode."""
         self._mark_suspect()
-        deadline = self.clock.now_s() + self.reconnect_timeout_s
         self.remote = False
-        while True:
-            self.clock.sleep(1.0)
-            try:
-                if hasattr(self.port, "close") and hasattr(self.port, "open"):
-                    self.port.close()
-                    self.port.open()
-                self.port.reset_input_buffer()
-                self._enter_remote()
-                return
-            except (LinkLost, InstrumentTimeout, ProtocolError, SerialException, OSError):
-                if self.clock.now_s() >= deadline:
-                    raise self._timeout(
-                        f"link lost and not back within {self.reconnect_timeout_s:g} s") from None
+
+        def attempt() -> None:
+            transport.reopen(self.port)
+            self.port.reset_input_buffer()
+            self._enter_remote()
+
+        transport.recover_link(
+            self.clock, self.reconnect_timeout_s, attempt,
+            retry_on=(LinkLost, InstrumentTimeout, ProtocolError, SerialException, OSError),
+            instrument_id=self.instrument_id, error=InstrumentTimeout,
+            first_wait_s=1.0, interval_s=1.0)
 
     def _enter_remote(self) -> None:  # pragma: no cover - per model
         raise NotImplementedError
@@ -266,6 +264,12 @@ class SerialRadiometer:
         if not _plain_digits(text) or not lo <= int(text) <= hi:
             raise self._protocol(f"expected an integer in {lo}…{hi}: {text[:40]!r}", raw)
         return int(text)
+
+
+def pre_measurement_s(luminance_cd_m2: float) -> float:
+    """The timing model's pre-measurement (auto-exposure) time of both models, s (assumed, as
+    the emulators': docs/radiometers.md)."""
+    return min(10.0, max(1.0, 1.0 + 2.0 * math.log10(100.0 / max(luminance_cd_m2, 1e-6))))
 
 
 def _plain_digits(text: str) -> bool:

@@ -63,7 +63,7 @@ ERR_REPLY = re.compile(rb"^ERR[ \t]+([+-]?\d{1,6})$")
 class SphereLightSource:
     model = "LE7-4x (placeholder protocol)"
 
-    def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "sphere",
+    def __init__(self, port: transport.Port, clock: Clock, *, instrument_id: str = "sphere",
                  command_timeout_s: float = 2.0, poll_s: float = 5.0, attempts: int = 3,
                  resync_quiet_s: float = 0.5, reconnect_wait_s: float = 2.0) -> None:
         self.port = port
@@ -120,14 +120,13 @@ class SphereLightSource:
         raise last
 
     def _reopen(self) -> None:
-        """The link dropped (USB blip): wait, reopen the port (bounded by the attempts)."""
-        self.clock.sleep(self.reconnect_wait_s)
-        try:
-            if hasattr(self.port, "close") and hasattr(self.port, "open"):
-                self.port.close()
-                self.port.open()
-        except (SerialException, OSError):
-            pass
+        """The link dropped (USB blip): wait, reopen the port (bounded: `reconnect_wait_s`
+        more, then a typed error; the repeated command finds out whether the line is back)."""
+        transport.recover_link(self.clock, self.reconnect_wait_s,
+                               lambda: transport.reopen(self.port),
+                               retry_on=(SerialException, OSError),
+                               instrument_id=self.instrument_id,
+                               first_wait_s=self.reconnect_wait_s)
 
     def _decode(self, raw: bytes) -> str:
         try:

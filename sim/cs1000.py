@@ -53,6 +53,7 @@ import numpy as np
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    KonicaMinoltaCommands,
     RadiometerOptics,
     Scene,
     colorimetry,
@@ -80,8 +81,9 @@ def integration_time_s(luminance_cd_m2: float, speed: int = 0, time_mode: int = 
     return round(min(MAX_INTEGRATION_S, max(MIN_INTEGRATION_S, k / lv)), 2)
 
 
-class CS1000AEmulator(core.LineEmulator):
+class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
     device_name = "cs1000a"
+    remote_command = "RMT"
     device_faults = ("device-error", "busy", "over-range")
     terminators = (b"\n",)
 
@@ -133,12 +135,10 @@ class CS1000AEmulator(core.LineEmulator):
         if not line:
             return
         self.commands.append(line)
-        try:
-            text = line.decode("ascii")
-        except UnicodeDecodeError:
-            self.reply("ER00")
+        parts = self.split_command(line)
+        if parts is None:
             return
-        cmd, *args = text.split(",")
+        text, cmd, args = parts
         if self.phase != "idle":
             if text == "MES,0":
                 self._cancel()
@@ -146,20 +146,7 @@ class CS1000AEmulator(core.LineEmulator):
             else:
                 self.reply("ER02")
             return
-        if not self.remote and cmd != "RMT":
-            self.reply("ER00")
-            return
-        if self.faults.fires("busy"):
-            self.reply("ER02")
-            return
-        if self.faults.fires("device-error"):
-            self.reply(f"ER{int(self.faults.parameter('device-error', 51)):02d}")
-            return
-        handler = getattr(self, f"_cmd_{cmd}" if cmd != "&" else "_cmd_next", None)
-        if handler is None:
-            self.reply("ER00")
-            return
-        handler(args)
+        self.run_command(cmd, args, "next" if cmd == "&" else None)
 
     # --- commands -----------------------------------------------------------------------------
     def _cmd_RMT(self, args: list[str]) -> None:
@@ -265,21 +252,9 @@ class CS1000AEmulator(core.LineEmulator):
         self.phase, self.phase_end_s, self._pending = "idle", None, None
 
     def on_time(self, now_s: float) -> None:
-        if self.phase_end_s is None or now_s < self.phase_end_s or self._pending is None:
-            return
-        p = self._pending
-        if self.phase == "pre":
-            if p["over_range"]:
-                self.phase, self.phase_end_s, self._pending = "idle", None, None
-                self.reply("ER10")
-                return
-            self.phase = "measuring"
-            self.phase_end_s = self.phase_end_s + 2 * p["integration_time_s"] * self.time_factor
-            self.reply(f"OK,{p['integration_time_s']:.2f}")
-        elif self.phase == "measuring":
-            self.data = p
-            self.phase, self.phase_end_s, self._pending = "idle", None, None
-            self.reply("OK")
+        self.advance_measurement(
+            now_s, lambda p: 2 * p["integration_time_s"] * self.time_factor,
+            lambda p: f"OK,{p['integration_time_s']:.2f}", "OK")
 
     def next_state_s(self) -> float | None:
         return self.phase_end_s

@@ -61,6 +61,7 @@ from typing import Any
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    KonicaMinoltaCommands,
     RadiometerOptics,
     Scene,
     colorimetry,
@@ -116,8 +117,9 @@ def fmt_hex(value: float) -> str:
     return "D1BA43B6" if not math.isfinite(value) else struct.pack(">f", value).hex().upper()
 
 
-class CS2000AEmulator(core.Emulator):
+class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
     device_name = "cs2000a"
+    remote_command = "RMTS"
     device_faults = ("device-error", "busy", "over-range")
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
@@ -219,12 +221,10 @@ class CS2000AEmulator(core.Emulator):
         self.commands.append(line)
         if self.phase == "pre":
             return                                   # nothing is accepted while pre-measuring
-        try:
-            text = line.decode("ascii")
-        except UnicodeDecodeError:
-            self.reply("ER00")
+        parts = self.split_command(line)
+        if parts is None:
             return
-        cmd, *args = text.split(",")
+        text, cmd, args = parts
         if self.phase == "measuring":
             if text == "MEAS,0":
                 self.cancel_output()
@@ -233,20 +233,7 @@ class CS2000AEmulator(core.Emulator):
             else:
                 self.reply("ER17" if text == "MEAS,1" else "ER00")
             return
-        if not self.remote and cmd != "RMTS":
-            self.reply("ER00")
-            return
-        if self.faults.fires("busy"):
-            self.reply("ER02")
-            return
-        if self.faults.fires("device-error"):
-            self.reply(f"ER{int(self.faults.parameter('device-error', 51)):02d}")
-            return
-        handler = getattr(self, f"_cmd_{cmd}", None)
-        if handler is None:
-            self.reply("ER00")
-            return
-        handler(args)
+        self.run_command(cmd, args)
 
     def _ints(self, args: list[str], count: int) -> list[int] | None:
         if len(args) != count:
@@ -747,21 +734,9 @@ class CS2000AEmulator(core.Emulator):
     def on_time(self, now_s: float) -> None:
         if self._cr_hold_s is not None and now_s >= self._cr_hold_s:
             self._split_lines(final=True)       # a lone CR: the command ends there
-        if self.phase_end_s is None or now_s < self.phase_end_s or self._pending is None:
-            return
-        p = self._pending
-        if self.phase == "pre":
-            if p["over_range"]:
-                self.phase, self.phase_end_s, self._pending = "idle", None, None
-                self.reply("ER10")
-                return
-            self.phase = "measuring"
-            self.phase_end_s += (p["ttt"] - ANNOUNCE_MARGIN_S) * self.time_factor
-            self.reply(f"OK00,{p['ttt']:03d}")
-        elif self.phase == "measuring":
-            self.data = p
-            self.phase, self.phase_end_s, self._pending = "idle", None, None
-            self.reply("OK00")
+        self.advance_measurement(
+            now_s, lambda p: (p["ttt"] - ANNOUNCE_MARGIN_S) * self.time_factor,
+            lambda p: f"OK00,{p['ttt']:03d}", "OK00")
 
     def next_state_s(self) -> float | None:
         times = [t for t in (self.phase_end_s, self._cr_hold_s) if t is not None]

@@ -170,6 +170,65 @@ class RadiometerOptics:
         return spectrum, colorimetry(spectrum)
 
 
+class KonicaMinoltaCommands:
+    """The command preamble both models share (a mixin for their emulators, which supply
+    `remote`, `faults` and `reply(text)`): decoding a line, and running a command the current
+    phase lets through — local mode refuses all but the remote command with ER00, the ``busy``
+    and ``device-error`` faults answer ER02 / ERnn, an unknown command is ER00, else
+    ``_cmd_<NAME>(args)`` runs."""
+
+    #: the command that works in local (key) mode
+    remote_command = ""
+
+    def split_command(self, line: bytes) -> tuple[str, str, list[str]] | None:
+        """``(text, command, args)`` of one line, or None after answering ER00 (not ASCII)."""
+        try:
+            text = line.decode("ascii")
+        except UnicodeDecodeError:
+            self.reply("ER00")  # type: ignore[attr-defined]
+            return None
+        cmd, *args = text.split(",")
+        return text, cmd, args
+
+    def run_command(self, cmd: str, args: list[str], handler: str | None = None) -> None:
+        emu: Any = self
+        if not emu.remote and cmd != self.remote_command:
+            emu.reply("ER00")
+        elif emu.faults.fires("busy"):
+            emu.reply("ER02")
+        elif emu.faults.fires("device-error"):
+            emu.reply(f"ER{int(emu.faults.parameter('device-error', 51)):02d}")
+        else:
+            method = getattr(emu, f"_cmd_{handler or cmd}", None)
+            if method is None:
+                emu.reply("ER00")
+            else:
+                method(args)
+
+    def advance_measurement(self, now_s: float, main_phase_s: Callable[[dict[str, Any]], float],
+                            announce: Callable[[dict[str, Any]], str], done: str) -> None:
+        """The measurement's phases on the clock, as both models run them: at the end of the
+        pre-measurement ER10 (over range; back to idle) or `announce(pending)` and the main
+        phase of `main_phase_s(pending)`; at its end the data fill the buffer and `done` is
+        sent.  (The emulator holds `phase`, `phase_end_s`, `_pending` and `data`.)"""
+        emu: Any = self
+        if emu.phase_end_s is None or now_s < emu.phase_end_s or emu._pending is None:
+            return
+        p = emu._pending
+        if emu.phase == "pre":
+            if p["over_range"]:
+                emu.phase, emu.phase_end_s, emu._pending = "idle", None, None
+                emu.reply("ER10")
+                return
+            emu.phase = "measuring"
+            emu.phase_end_s += main_phase_s(p)
+            emu.reply(announce(p))
+        elif emu.phase == "measuring":
+            emu.data = p
+            emu.phase, emu.phase_end_s, emu._pending = "idle", None, None
+            emu.reply(done)
+
+
 def _on_off(value: str | bool) -> bool:
     if isinstance(value, bool):
         return value

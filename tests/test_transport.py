@@ -109,3 +109,74 @@ def test_drivers_import_the_neutral_transport_and_never_the_simulator():
         text = path.read_text(encoding="utf-8")
         assert "normbox_lab.sim" not in text, path.name
         assert "serial_for_url" not in text, path.name
+
+
+# --- Port and the one link-recovery loop ----------------------------------------------------
+
+def test_every_port_the_drivers_get_is_a_port():
+    import serial
+    from wire import ScriptedPort
+
+    from normbox_lab.sim.transport import open_port as open_sim_port
+
+    sim_port = open_sim_port("sim://cs1000a?key=port-protocol")
+    try:
+        assert isinstance(sim_port, transport.Port)
+        assert isinstance(serial.serial_for_url("loop://", timeout=0), transport.Port)
+        assert isinstance(ScriptedPort([]), transport.Port)
+        assert not isinstance(object(), transport.Port)
+    finally:
+        sim_port.close()
+
+
+def test_recover_link_retries_on_the_clock_until_the_link_is_back():
+    from normbox_lab.core.clock import VirtualClock
+
+    clock = VirtualClock()
+    back_at_s = 3.2
+    calls: list[float] = []
+    failures: list[str] = []
+
+    def attempt() -> str:
+        calls.append(clock.now_s())
+        if clock.now_s() < back_at_s:
+            raise OSError("gone")
+        return "open"
+
+    got = transport.recover_link(clock, 10.0, attempt, retry_on=(OSError,), instrument_id="x",
+                                 first_wait_s=1.0, interval_s=1.0,
+                                 on_failure=lambda exc: failures.append(str(exc)))
+    assert got == "open"
+    assert calls == [1.0, 2.0, 3.0, 4.0]          # first wait, then one try per interval
+    assert failures == ["gone"] * 3
+
+
+def test_recover_link_gives_up_at_its_deadline_with_a_typed_error():
+    from normbox_lab.core.clock import VirtualClock
+    from normbox_lab.core.errors import InstrumentTimeout
+
+    clock = VirtualClock()
+
+    def attempt() -> None:
+        raise OSError("still gone")
+
+    with pytest.raises(InstrumentTimeout, match=r"rad: link lost; not back within 5 s: "
+                                                r"still gone") as info:
+        transport.recover_link(clock, 5.0, attempt, retry_on=(OSError,), instrument_id="rad",
+                               error=InstrumentTimeout, interval_s=0.5)
+    assert isinstance(info.value.__cause__, OSError)
+    assert 5.0 <= clock.now_s() <= 5.5                 # bounded: no wait past the deadline
+    with pytest.raises(ValueError):                   # not a link fault: raised at once
+        transport.recover_link(clock, 5.0, lambda: int("x"), retry_on=(OSError,),
+                               instrument_id="rad")
+
+
+def test_reopen_closes_an_open_port_first():
+    from wire import ScriptedPort
+
+    port = ScriptedPort([])
+    transport.reopen(port)
+    assert port.is_open
+    port.close()
+    transport.reopen(port)
+    assert port.is_open

@@ -6,6 +6,11 @@
   ``PACKAGE.protocol_SCHEME``).  The emulators register ``sim://`` when a simulated lab is built.
 - USB spectrometers (seabreeze): `open_spectrometer(target, clock)` for a registered scheme
   (the emulators register ``sim``), else the driver opens seabreeze itself.
+- `Port`: what a serial driver may ask of its port (pyserial's `Serial`, the ``sim://`` port,
+  the tests' scripted port all are one), so no driver probes it with ``hasattr``.
+- `recover_link(clock, timeout_s, attempt, …)`: the one deadline-and-reconnect loop after a
+  lost link (reopen, re-handshake, wait, again, until a deadline on the injected clock), and
+  `reopen(port)`, the usual first half of such an attempt.
 
 Drivers import this module only; nothing here imports the simulator.
 """
@@ -15,12 +20,68 @@ from __future__ import annotations
 import urllib.parse
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import serial
 
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import InstrumentError
+
+T = TypeVar("T")
+
+
+@runtime_checkable
+class Port(Protocol):
+    """A byte link to one instrument, as pyserial's `Serial` offers it: reads honour `timeout`
+    (seconds; they return what arrived by then), `reset_input_buffer` drops what has arrived,
+    `close`/`open` drop and re-establish the link; `port` names it (a device path or URL)."""
+
+    port: str | None
+    timeout: float | None
+    is_open: bool
+
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+    def write(self, data: bytes) -> int | None: ...
+    def read(self, size: int = 1) -> bytes: ...
+    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes: ...
+    def reset_input_buffer(self) -> None: ...
+
+
+def reopen(port: Port) -> None:
+    """Close `port` if open, then open it again (a USB-serial adapter that re-enumerated, a TCP
+    link that dropped); errors are the port's own (`SerialException`, `OSError`)."""
+    if port.is_open:
+        port.close()
+    port.open()
+
+
+def recover_link(clock: Clock, timeout_s: float, attempt: Callable[[], T], *,
+                 retry_on: tuple[type[BaseException], ...], instrument_id: str,
+                 what: str = "link lost", error: type[InstrumentError] = InstrumentError,
+                 interval_s: float = 0.5, first_wait_s: float = 0.0,
+                 on_failure: Callable[[BaseException], None] | None = None) -> T:
+    """Bring a lost link back within `timeout_s` on `clock`, or raise a typed error.
+
+    After `first_wait_s`, call `attempt()` (reopen the port or device, handshake again) until it
+    returns; an exception in `retry_on` is passed to `on_failure` (close what half-opened, count
+    the fault), and unless `timeout_s` has passed since the call the attempt is repeated after
+    `interval_s`.  Past the deadline `error(f"{what}; not back within …: {last}")` for
+    `instrument_id` is raised, chained to the last failure.  Never sleeps on the wall clock
+    (tests run it on a virtual clock) and never loops without a bound."""
+    deadline_s = clock.now_s() + float(timeout_s)
+    if first_wait_s > 0:
+        clock.sleep(first_wait_s)
+    while True:
+        try:
+            return attempt()
+        except retry_on as exc:
+            if on_failure is not None:
+                on_failure(exc)
+            if clock.now_s() >= deadline_s:
+                raise error(f"{what}; not back within {float(timeout_s):g} s: {exc}",
+                            instrument=instrument_id) from exc
+            clock.sleep(interval_s)
 
 
 def register_serial_scheme(package: str) -> None:
@@ -86,10 +147,13 @@ def open_spectrometer(target: str, clock: Clock, **options: Any) -> Spectrometer
 
 
 __all__ = [
+    "Port",
     "SpectrometerLink",
     "open_port",
     "open_spectrometer",
+    "recover_link",
     "register_serial_scheme",
     "register_spectrometer_scheme",
+    "reopen",
     "spectrometer_scheme",
 ]
