@@ -5,16 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from normbox_lab.predict.bandpath import BandGrid, BandPathTracer, Radiometer, RectEmitter
 from normbox_lab.predict.brdf_model import ct_ggx_brdf
-from normbox_lab.predict.fastrender import (
-    BandGrid,
-    BandPathTracer,
-    FastNormbox,
-    Radiometer,
-    RectEmitter,
-    in_variant,
-    mono_variant,
-)
+from normbox_lab.predict.fastrender import FastNormbox
+from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
 
 
 def test_band_average_is_the_hat_average():
@@ -75,7 +69,7 @@ def _direct_light_closed_form(mat, origin, emitter, h_m, n=500):
 def _floor_under_light(tracer_class, floor_slot):
     """A floor (material slot `floor_slot`) under a down-facing rectangular light with a 2×2
     radiance map, seen from above by the radiometer; direct light only (max_depth 2)."""
-    variant = mono_variant()
+    variant = jit_variant("mono")
     h = 0.3
     emitter = RectEmitter((0.0, 0.0, h), 0.10, 0.08, ((0.7, 1.3), (1.0, 1.1)))
     with in_variant(variant) as mi:

@@ -11,9 +11,9 @@ from normbox_lab.images.triplet import (
     bsdf_dict,
     check_representable,
     render_triplets,
-    rgb_variant,
 )
 from normbox_lab.predict.materials import truth_patch, truth_wall
+from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
 
 #: every third band of the spectral renderer's 380…780 nm grid (9 RGB renders per batch pair)
 TEST_WAVELENGTHS_NM = np.arange(380.0, 781.0, 15.0)
@@ -40,9 +40,7 @@ def test_rgb_values_are_used_as_is():
     `rgb` emitter radiance (> 1) are plain channel values: no upsampling, no clamping."""
     import mitsuba as mi
 
-    from normbox_lab.predict.fastrender import in_variant
-
-    with in_variant(rgb_variant()):
+    with in_variant(jit_variant("rgb")):
         T = mi.ScalarTransform4f
         scene = mi.load_dict({
             "type": "scene", "integrator": {"type": "path", "max_depth": 2},
@@ -70,12 +68,10 @@ def test_builtin_bsdf_is_the_model_family():
     import mitsuba as mi
 
     from normbox_lab.predict.brdf_model import ct_ggx_brdf
-    from normbox_lab.predict.fastrender import in_variant
-
     m = truth_patch(18, "model")                 # the smooth one: α = 0.15
     wl = np.array([450.0, 550.0, 650.0])
     kd, ks, _ = m.spectra_at(wl)
-    with in_variant(rgb_variant()):
+    with in_variant(jit_variant("rgb")):
         bsdf = mi.load_dict(bsdf_dict(m, wl))
         for theta_i, theta_o, phi in ((10, 20, 180), (40, 35, 180), (60, 10, 90), (25, 70, 200)):
             ti, to, ph = np.radians([theta_i, theta_o, phi])

@@ -3,7 +3,7 @@
 Image formation (`PinholeCamera`): perspective, `fov_deg` on the horizontal (x) axis as Mitsuba's
 `perspective` with fov_axis="x", square pixels, row 0 at the top.  A pixel is a box filter:
 its rays are uniform (jittered) over the pixel's area on the image plane, so a pixel value is the
-mean radiance over the pixel, in W·sr⁻¹·m⁻²·nm⁻¹ on the bands of `fastrender.BandGrid`
+mean radiance over the pixel, in W·sr⁻¹·m⁻²·nm⁻¹ on the bands of `bandpath.BandGrid`
 (380…780 nm every 5 nm, triangular hats).
 
 `SpectralImage` holds the radiance, its light-path layers (`LAYERS`, they sum to the radiance),

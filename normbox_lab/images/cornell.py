@@ -14,7 +14,8 @@ import numpy as np
 
 from normbox_lab.images.camera import PinholeCamera, SpectralImage
 from normbox_lab.images.tracer import CameraTracer
-from normbox_lab.predict.fastrender import RectEmitter, mono_variant
+from normbox_lab.predict.bandpath import RectEmitter
+from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
 
 #: material slots of `cornell_scene` (the light's slot is "light")
 CORNELL_SLOTS = ("floor", "ceiling", "back", "left", "right", "box")
@@ -38,9 +39,8 @@ def cornell_scene(width: int = 64, height: int = 48, *, variant: str | None = No
     left x = −0.5, right x = +0.5; a 0.3 × 0.3 m light facing down 5 mm below the ceiling's
     centre (slot "light"); one cube of 0.36 m turned 20° about z standing on the floor (slot
     "box"); the camera outside on −y, looking +y.  Material slots: `CORNELL_SLOTS`."""
-    from normbox_lab.predict.fastrender import in_variant
 
-    variant = mono_variant(variant)
+    variant = jit_variant("mono", variant)
     light_z = 0.995
     half_light = 0.15
     centre = (0.12, 0.08, 0.18)
@@ -104,7 +104,7 @@ def render_cornell(materials: Mapping[str, Any] | None, lamp_wavelength_nm: Any,
     """The Cornell-like scene (`cornell_scene`) under a light of spectral radiance
     `lamp_radiance` (W·sr⁻¹·m⁻²·nm⁻¹ on `lamp_wavelength_nm`); `materials` (slot → Material)
     override `cornell_materials()` per slot.  The white cube's pixels: `image.mask("box")`."""
-    key = (int(width), int(height), mono_variant(None))
+    key = (int(width), int(height), jit_variant("mono"))
     cs = _CORNELL.get(key)
     if cs is None:
         cs = _CORNELL[key] = cornell_scene(int(width), int(height))

@@ -16,7 +16,8 @@ import numpy as np
 
 from normbox_lab.images.camera import PinholeCamera, SpectralImage
 from normbox_lab.images.tracer import CameraTracer
-from normbox_lab.predict.fastrender import STAND_INS, FastNormbox, mono_variant
+from normbox_lab.predict.fastrender import STAND_INS, FastNormbox
+from normbox_lab.predict.mitsuba_setup import jit_variant
 
 #: default samples per pixel of `render_normbox_camera`: 320×240 in ≈ 30–35 s on 2 shared cores
 NORMBOX_DEFAULT_SPP = 128
@@ -98,7 +99,7 @@ def normbox_camera_renderer(geometry: Any = None, variant: str | None = None) ->
     """This process's `NormboxCamera` for a geometry (one loaded scene, reused)."""
     from normbox_lab.predict.scene import as_geometry
 
-    key = (repr(as_geometry(geometry)), mono_variant(variant))
+    key = (repr(as_geometry(geometry)), jit_variant("mono", variant))
     nc = _NORMBOX_CAMERAS.get(key)
     if nc is None:
         nc = _NORMBOX_CAMERAS[key] = NormboxCamera(geometry, variant=variant)

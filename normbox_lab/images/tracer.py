@@ -1,7 +1,7 @@
 """The camera tracer: full spectral images (all 81 bands per path) with light-path layers,
 depth, normals and the Wilkie & Weidlich (2009) auxiliary images CWNI and NWCI.
 
-It is `normbox_lab.predict.fastrender.BandPathTracer`'s machinery and its one path loop (Mitsuba mono variant for ray casting,
+It is `normbox_lab.predict.bandpath.BandPathTracer`'s machinery and its one path loop (Mitsuba mono variant for ray casting,
 band tables, λ-independent sampling, NEE + MIS, GGX/cosine mixture, Russian roulette) with a
 pinhole camera in place of the 1° radiometer.  Every path carries all bands, so every layer and
 both auxiliary images are exact per-path estimators from the same paths.
@@ -60,7 +60,8 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.images.camera import AUX_IMAGES, LAYERS, PinholeCamera, SpectralImage
-from normbox_lab.predict.fastrender import BandGrid, BandPathTracer, RectEmitter, mono_variant
+from normbox_lab.predict.bandpath import BandGrid, BandPathTracer, RectEmitter
+from normbox_lab.predict.mitsuba_setup import jit_variant
 
 
 class CameraTracer(BandPathTracer):
@@ -82,7 +83,7 @@ class CameraTracer(BandPathTracer):
             raise ValueError("the camera needs max_depth ≥ 2 (a first hit and its light)")
         if int(rr_depth) < 1:
             raise ValueError("rr_depth must be ≥ 1 (no roulette at the first hit)")
-        super().__init__(scene, bsdf_slots, None, emitter, variant=mono_variant(variant),
+        super().__init__(scene, bsdf_slots, None, emitter, variant=jit_variant("mono", variant),
                          emitter_slot=emitter_slot, grid=grid, max_depth=max_depth,
                          rr_depth=rr_depth, chunk_paths=chunk_paths, symbolic=True)
         self.camera = camera

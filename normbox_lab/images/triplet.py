@@ -89,26 +89,6 @@ class TripletResult:
             np.maximum(se, 1e-300)
 
 
-# --- variant ------------------------------------------------------------------------------------
-def rgb_variant(preferred: str | None = None) -> str:
-    """The RGB variant matching the project's spectral one: cuda_ad_rgb, llvm_ad_rgb or
-    scalar_rgb ($NORMBOX_TRIPLET_VARIANT forces one)."""
-    if preferred:
-        return preferred
-    import os
-
-    forced = os.environ.get("NORMBOX_TRIPLET_VARIANT")
-    if forced:
-        return forced
-    from normbox_lab.predict.mitsuba_setup import choose_variant
-
-    try:
-        spectral = choose_variant()
-    except RuntimeError:
-        spectral = "scalar_spectral"
-    return spectral.replace("_spectral", "_rgb")
-
-
 # --- materials and emitters as RGB triples --------------------------------------------------------
 def check_representable(material: Any) -> None:
     """Raise ValueError unless Mitsuba's built-ins represent `material` exactly (see module doc)."""
@@ -245,8 +225,8 @@ def render_triplets(patch: Any, wall: Any, angle_deg: float, *, geometry: Any = 
     """
     import mitsuba as mi
 
-    from normbox_lab.predict.fastrender import in_variant
     from normbox_lab.predict.materials import holder_material
+    from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
     from normbox_lab.predict.render import Lamp
 
     if int(batches) < 2:
@@ -262,7 +242,7 @@ def render_triplets(patch: Any, wall: Any, angle_deg: float, *, geometry: Any = 
     n_bands = centres.size
     n_triplets = -(-n_bands // 3)
     padded = np.concatenate([centres, np.full(3 * n_triplets - n_bands, centres[-1])])
-    variant = rgb_variant(variant)
+    variant = jit_variant("rgb", variant)
     rng = np.random.default_rng([int(seed), 0x7219])
     t0 = time.perf_counter()
     out = np.empty((int(batches), n_bands))

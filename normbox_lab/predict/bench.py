@@ -89,7 +89,8 @@ def run_bench_predict(out: TextIO = sys.stdout,
 
     from normbox_lab.predict import materials as mats
     from normbox_lab.predict.executors import make_executor
-    from normbox_lab.predict.fastrender import FastNormbox, mono_variant, predict_spectra
+    from normbox_lab.predict.fastrender import FastNormbox, predict_spectra
+    from normbox_lab.predict.mitsuba_setup import jit_variant
     from normbox_lab.predict.render import Lamp, Quality, ensure_variant, render_view
 
     def emit(line: str = "") -> None:
@@ -104,7 +105,7 @@ def run_bench_predict(out: TextIO = sys.stdout,
          f" × {len(angles)} angles), fit-family materials, 81 bands (5 nm hats, 380–780 nm),"
          f" target {100 * target:.2f} % relative standard error in the worst band")
     emit(f"machine: {os.cpu_count()} CPUs; fast variant "
-         f"{mono_variant()}, executor {kind}" + (f" ({n_workers} workers)" if kind != "inprocess"
+         f"{jit_variant('mono')}, executor {kind}" + (f" ({n_workers} workers)" if kind != "inprocess"
                                                   else ""))
 
     # -- warm-up (kernel compilation, not timed in the figures) -------------------------------

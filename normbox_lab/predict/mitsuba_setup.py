@@ -5,14 +5,20 @@ on some CPUs, so it is probed in a child process.  The answer is cached in
 `.cache/mitsuba-variant` and may be forced with the environment variable
 ``NORMBOX_MITSUBA_VARIANT``.  Order of preference: cuda_ad_spectral (a GPU), llvm_ad_spectral,
 scalar_spectral.
+
+The fast renderer (mono) and the MIST triplet check (RGB) use the companion variant of the
+spectral one, `jit_variant("mono" | "rgb")`; `in_variant` selects one for a block.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import subprocess
 import sys
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 PREFERENCE = ("cuda_ad_spectral", "llvm_ad_spectral", "scalar_spectral")
 CACHE = Path(".cache") / "mitsuba-variant"
@@ -57,6 +63,46 @@ def choose_variant(use_cache: bool = True) -> str:
                 pass
             return variant
     raise RuntimeError("no Mitsuba spectral variant works here (is `mitsuba` installed?)")
+
+
+#: the environment variable that forces each companion variant
+FORCE_ENV = {"mono": "NORMBOX_FAST_VARIANT", "rgb": "NORMBOX_TRIPLET_VARIANT"}
+
+
+def jit_variant(kind: str, preferred: str | None = None) -> str:
+    """The `kind` ("mono": the fast renderer, "rgb": the triplet check) variant matching the
+    project's spectral one: cuda_ad_spectral → cuda_ad_<kind>, llvm_ad_spectral →
+    llvm_ad_<kind>; scalar_spectral → scalar_rgb, but llvm_ad_mono (the band path tracer needs
+    a JIT variant).  `preferred`, else $NORMBOX_FAST_VARIANT / $NORMBOX_TRIPLET_VARIANT, wins."""
+    if kind not in FORCE_ENV:
+        raise ValueError(f"variant kind {kind!r}: one of {sorted(FORCE_ENV)}")
+    if preferred:
+        return preferred
+    forced = os.environ.get(FORCE_ENV[kind])
+    if forced:
+        return forced
+    try:
+        spectral = choose_variant()
+    except RuntimeError:
+        spectral = "scalar_spectral"
+    if kind == "mono" and spectral.startswith("scalar"):
+        spectral = "llvm_ad_spectral"
+    return spectral.replace("_spectral", f"_{kind}")
+
+
+@contextlib.contextmanager
+def in_variant(variant: str) -> Iterator[Any]:
+    """Select a Mitsuba variant for a block, restoring the caller's (if one was set)."""
+    import mitsuba as mi
+
+    old = mi.variant()
+    if old != variant:
+        mi.set_variant(variant)
+    try:
+        yield mi
+    finally:
+        if old and old != variant:
+            mi.set_variant(old)
 
 
 def main() -> int:

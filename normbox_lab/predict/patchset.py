@@ -49,7 +49,7 @@ from typing import Any
 import numpy as np
 from threadpoolctl import threadpool_limits
 
-from normbox_lab.predict.fastrender import (
+from normbox_lab.predict.bandpath import (
     BandEstimate,
     BandPathTracer,
     _chunk_seed,

@@ -1,0 +1,707 @@
+"""The band path tracer: every traced path serves all wavelength bands (the fast renderer's kernel).
+
+In the Normbox nothing geometric depends on wavelength (no dispersion in the fit model, one
+global η per material), so a path's vertices and directions can be shared by all bands and only
+its *throughput* evaluated per band.  Stock Mitsuba spectral rendering carries 4 hero wavelengths
+per path, so a 5 nm band sees a path only ~4/81 of the time; here every path feeds all 81 bands.
+
+How it works (a path tracer written with Dr.Jit, `BandPathTracer`; one symbolic-loop
+megakernel per chunk of paths, or a wavefront of one kernel per bounce with symbolic=False):
+- Mitsuba does ray intersection, emitter sampling (position, pdf, visibility) and the
+  shape/BSDF bookkeeping, in a *mono* JIT variant (`llvm_ad_mono` on a CPU, `cuda_ad_mono` on a
+  GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.predict.scene.scene_dict` — the
+  same builder as the stock renderer — with geometry-only stand-in BSDFs (one per role, so a hit
+  tells its material) and every panel cell's radiance replaced by its homogeneity-map factor.
+  The spectral radiance of the lamp is applied per band.
+- Directions are sampled independently of λ: a mixture of cosine-hemisphere and GGX (D·cos θh)
+  sampling, emitter sampling with MIS (power heuristic) as in Mitsuba's `path` integrator,
+  Russian roulette after `rr_depth` on a λ-independent survival probability, `max_depth` as in
+  Mitsuba (12 segments by default, as `normbox_lab.predict.render`).
+- The material family (`normbox_lab.predict.materials.Material`, which contains the fit model) separates:
+      f_b(ωi, ωo) = kd_b/π + ks_b · F(ωi·h; η_b) · D·G1·G1/(4 cos cos) + kb_b · B(ωi·ωo) − c
+  so one bounce multiplies band b's throughput by  kd_b·A + ks_b·F_b·S + kb_b·K − C  where
+  A, S, K, C are per-path numbers; F is per path when η does not depend on λ (the fit model)
+  and per band only for a dispersive truth material.
+- Band definition, the same as the stock renderer (`specfilm` triangular SRFs, `render.py`):
+  band b is the average of the radiance under a unit-height triangular hat of half-width 5 nm
+  centred on λ_b.  Each path draws one triangular offset δ shared by all bands and evaluates all
+  spectra at λ_b + δ (linear interpolation in 1 nm tables), so the estimate is unbiased for that
+  band average and all bands of one path use common random numbers (as MIST packs wavelengths
+  into the channels of one RGB render with the same random numbers).
+- Standard error per band from the per-path sample variance (paths are i.i.d.).
+
+Public API:
+    BandPathTracer(scene, bsdf_slots, radiometer, emitter, variant=...).render(...) -> BandEstimate
+    BandGrid, Radiometer, RectEmitter, BandEstimate, max_rel_se, and the BRDF pieces (ggx_d,
+    smith_g1, fresnel, specular_probability).  The Normbox facade is
+    `normbox_lab.predict.fastrender`; the all-patches tracer `normbox_lab.predict.patchset`.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+
+INV_PI = 1.0 / np.pi
+
+
+# --------------------------------------------------------------------------------------------
+# Bands
+# --------------------------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BandGrid:
+    """Bands centred on start…stop every step nm, each a triangular hat of half-width step."""
+
+    start_nm: int = 380
+    stop_nm: int = 780
+    step_nm: int = 5
+
+    @property
+    def centres_nm(self) -> np.ndarray:
+        return np.arange(self.start_nm, self.stop_nm + 1, self.step_nm, dtype=np.float64)
+
+    @property
+    def n_bands(self) -> int:
+        return int((self.stop_nm - self.start_nm) // self.step_nm + 1)
+
+    @property
+    def fine_nm(self) -> np.ndarray:
+        """The 1 nm table grid covering every hat: start − step … stop + step (+1 for lerp)."""
+        return np.arange(self.start_nm - self.step_nm, self.stop_nm + self.step_nm + 2, 1.0)
+
+    def table(self, wavelength_nm: Any, values: Any) -> np.ndarray:
+        """A spectrum on the 1 nm table grid (linear interpolation, constant beyond its ends)."""
+        wl = np.atleast_1d(np.asarray(wavelength_nm, dtype=np.float64))
+        v = np.broadcast_to(np.asarray(values, dtype=np.float64), wl.shape)
+        return np.interp(self.fine_nm, wl, v)
+
+    def band_average(self, wavelength_nm: Any, values: Any) -> np.ndarray:
+        """The exact hat-weighted band averages of a (piecewise-linear) spectrum."""
+        t = self.table(wavelength_nm, values)
+        fine = self.fine_nm
+        out = np.empty(self.n_bands)
+        for b, c in enumerate(self.centres_nm):
+            w = np.clip(1.0 - np.abs(fine - c) / self.step_nm, 0.0, None)
+            out[b] = np.sum(w * t) / np.sum(w)
+        return out
+
+
+@dataclass(frozen=True)
+class Radiometer:
+    """A square view of `fov_deg` (Mitsuba `perspective`, fov on x, square film, box filter),
+    averaged over its area: rays uniform on the film plane."""
+
+    origin_m: tuple[float, float, float]
+    target_m: tuple[float, float, float]
+    up: tuple[float, float, float] = (0.0, 0.0, 1.0)
+    fov_deg: float = 1.0
+
+    def frame(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        o = np.asarray(self.origin_m, dtype=np.float64)
+        f = np.asarray(self.target_m, dtype=np.float64) - o
+        f /= np.linalg.norm(f)
+        left = np.cross(np.asarray(self.up, dtype=np.float64), f)
+        left /= np.linalg.norm(left)
+        return f, left, np.cross(f, left)
+
+
+# --------------------------------------------------------------------------------------------
+# The engine
+# --------------------------------------------------------------------------------------------
+
+@dataclass
+class BandEstimate:
+    """Per-band radiance (the emitter table's unit) and its Monte-Carlo standard error."""
+
+    wavelength_nm: np.ndarray
+    radiance: np.ndarray
+    std_error: np.ndarray
+    n_paths: int
+    time_s: float
+
+    @property
+    def relative_std_error(self) -> np.ndarray:
+        return self.std_error / np.maximum(np.abs(self.radiance), 1e-300)
+
+
+def max_rel_se(mean: np.ndarray, se: np.ndarray) -> float:
+    """The largest relative standard error over bands with signal (> 1e-6 of the peak)."""
+    sig = np.abs(mean) > 1e-6 * max(float(np.max(np.abs(mean))), 1e-300)
+    return float(np.max(se[sig] / np.abs(mean[sig]))) if np.any(sig) else 0.0
+
+
+@dataclass(frozen=True)
+class RectEmitter:
+    """An axis-aligned rectangular area light in a plane z = z_m, emitting downwards (−z),
+    Lambertian, with a piecewise-constant spatial factor map (rows along y, columns along x,
+    mean ≈ 1); the spectral radiance is given per render."""
+
+    centre_m: tuple[float, float, float]
+    half_x_m: float
+    half_y_m: float
+    factor_map: tuple[tuple[float, ...], ...] = ((1.0,),)
+
+    @property
+    def area_m2(self) -> float:
+        return 4.0 * self.half_x_m * self.half_y_m
+
+
+class BandPathTracer:
+    """Path tracer carrying all bands per path; Mitsuba (any JIT mono variant) does only the
+    ray casting: `scene.ray_intersect_preliminary` and `scene.ray_test`.
+
+    - `scene`: a Mitsuba scene loaded in `variant`, all shapes meshes (Mitsuba ≥ 3.6 makes
+      rectangles and cubes meshes).  Normals are the meshes' face normals (flat geometry).
+    - `bsdf_slots`: (BSDF object of that scene, material slot name) pairs: a surface whose BSDF
+      is listed takes the material passed for that name at render time; any other is black.
+    - `emitter_slot`: the slot name of the emitting surface (`emitter` gives its geometry for
+      emitter sampling).  Surfaces are two-sided (as the project's `normbox` BSDF).
+    No virtual function call is traced, and every material parameter is array data, so one
+    compiled kernel serves all materials, all sample angles, and later processes (Dr.Jit's
+    kernel cache on disk).
+
+    The path loop (`_path_loop`: emission with MIS, next-event estimation, BSDF sampling,
+    Russian roulette) is the one loop of the project: the radiometer estimate (`render`), the
+    all-patches estimate (`normbox_lab.predict.patchset`) and the camera
+    (`normbox_lab.images.tracer`) all run it, each with its own start of the path.
+    """
+
+    def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]],
+                 radiometer: Radiometer | None, emitter: RectEmitter, *, variant: str,
+                 emitter_slot: str = "panel", grid: BandGrid | None = None, max_depth: int = 12,
+                 rr_depth: int = 6, chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
+        import drjit as dr
+        import mitsuba as mi
+
+        self.m = getattr(mi, variant)
+        self.dr = dr
+        self.variant = variant
+        self.symbolic = bool(symbolic)
+        self.scene = scene
+        self.grid = grid or BandGrid()
+        self.max_depth = int(max_depth)
+        self.rr_depth = int(rr_depth)
+        self.chunk_paths = int(chunk_paths)
+        self.radiometer = radiometer
+        self.emitter = emitter
+        m = self.m
+        self.slot_names = ["<black>"]
+        self._bsdf_slot: dict[int, int] = {}
+        for bsdf, name in bsdf_slots:
+            if name not in self.slot_names:
+                self.slot_names.append(name)
+            reg = int(dr.reinterpret_array(m.UInt32, m.BSDFPtr(bsdf))[0])
+            self._bsdf_slot[reg] = self.slot_names.index(name)
+        if emitter_slot not in self.slot_names:
+            raise KeyError(f"emitter slot {emitter_slot!r} is not among the BSDF slots")
+        self.emitter_slot = self.slot_names.index(emitter_slot)
+        fm = np.asarray(emitter.factor_map, dtype=np.float64)
+        self._factor_map = m.Float(np.concatenate([fm.ravel(), [0.0]]))   # ≥ 2 entries
+        self._map_shape = fm.shape
+        self.refresh_geometry()
+
+    def refresh_geometry(self) -> None:
+        """Rebuild the per-shape tables (call after moving shapes with `mi.traverse`)."""
+        dr, m = self.dr, self.m
+        shapes = list(self.scene.shapes())
+        regs = [int(dr.reinterpret_array(m.UInt32, m.ShapePtr(s))[0]) for s in shapes]
+        size = max(regs) + 2
+        base = np.zeros(size, dtype=np.uint32)
+        slot = np.zeros(size, dtype=np.uint32)
+        normals = []
+        offset = 0
+        for s, reg in zip(shapes, regs, strict=True):
+            if not s.is_mesh():
+                raise TypeError(f"shape {s.id()!r} is not a mesh (need Mitsuba ≥ 3.6)")
+            p = np.asarray(s.vertex_positions_buffer(), dtype=np.float64).reshape(-1, 3)
+            f = np.asarray(s.faces_buffer(), dtype=np.int64).reshape(-1, 3)
+            n = np.cross(p[f[:, 1]] - p[f[:, 0]], p[f[:, 2]] - p[f[:, 0]])
+            n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-30)
+            normals.append(n)
+            base[reg] = offset
+            offset += len(n)
+            b = s.bsdf()
+            breg = int(dr.reinterpret_array(m.UInt32, m.BSDFPtr(b))[0]) if b is not None else -1
+            slot[reg] = self._bsdf_slot.get(breg, 0)
+        nrm = np.concatenate(normals + [np.zeros((1, 3))])
+        self._shape_base = m.UInt32(base)
+        self._shape_slot = m.UInt32(slot)
+        self._normals = [m.Float(nrm[:, i]) for i in range(3)]
+
+    # ---- tables ------------------------------------------------------------------------
+    def material_tables(self, material: Any) -> dict[str, Any]:
+        """One material on the 1 nm grid: kd, ks, kb tables and its scalar parameters."""
+        g = self.grid
+        mkb = getattr(material, "kb", None)
+        return {"kd": g.table(material.wavelength_nm, material.kd),
+                "ks": g.table(material.wavelength_nm, material.ks),
+                "kb": (g.table(material.wavelength_nm, mkb) if mkb is not None
+                       else np.zeros(g.fine_nm.size)),
+                "alpha": max(float(material.alpha), 1e-4), "eta": float(material.eta),
+                "c": float(getattr(material, "c", 0.0)),
+                "deta": float(getattr(material, "deta_per_100nm", 0.0)) / 100.0,
+                "inv_sigma2": 1.0 / float(getattr(material, "backscatter_sigma", 1.0)) ** 2,
+                "p_spec": specular_probability(material)}
+
+    def _tables(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
+                emitter_radiance: Any, extra_slots: Sequence[Any] = ()) -> dict[str, Any]:
+        """JIT tables of every slot's material (slot names → `materials`), then `extra_slots`
+        (materials at slot indices len(slot_names)…, for `_path_loop`'s patch remapping)."""
+        m = self.m
+        g = self.grid
+        fine = g.fine_nm
+        names = list(self.slot_names)
+        n_slots = len(names) + len(extra_slots)
+        kd = np.zeros((n_slots, fine.size))
+        ks = np.zeros((n_slots, fine.size))
+        kb = np.zeros((n_slots, fine.size))
+        width = max(n_slots, 2)                   # ≥ 2 entries: arrays, never JIT literals
+        par = {"alpha": np.full(width, 0.5), "eta": np.full(width, 1.5),
+               "c": np.zeros(width), "p_spec": np.zeros(width), "deta": np.zeros(width),
+               "inv_sigma2": np.ones(width)}
+        for s in range(n_slots):
+            if s < len(names):
+                if s == 0 or s == self.emitter_slot:
+                    continue                      # black
+                mat = materials.get(names[s])
+                if mat is None:
+                    raise KeyError(f"no material for {names[s]!r}")
+            else:
+                mat = extra_slots[s - len(names)]
+            t = self.material_tables(mat)
+            kd[s], ks[s], kb[s] = t["kd"], t["ks"], t["kb"]
+            for key, column in par.items():
+                column[s] = t[key]
+        le = g.table(emitter_wavelength_nm, emitter_radiance)
+        tab = {k: m.Float(v) for k, v in par.items()}
+
+        def pair(t: np.ndarray) -> np.ndarray:
+            """(…, n) → (…, n, 2): value and slope to the next 1 nm sample."""
+            return np.stack([t, np.diff(t, axis=-1, append=t[..., -1:])], axis=-1)
+
+        tab.update(kdks=m.Float(np.concatenate([pair(kd), pair(ks)], axis=-1).ravel()),
+                   kb=m.Float(pair(kb).ravel()), le=m.Float(pair(le).ravel()),
+                   n_fine=int(fine.size), has_kb=bool(np.any(kb)),
+                   dispersive=bool(np.any(par["deta"])))
+        return tab
+
+    # ---- run-time constants (opaque: changing them never recompiles) ----------------------
+    def _consts(self) -> SimpleNamespace:
+        """The emitter's placement and the path depths as opaque JIT values."""
+        dr, m = self.dr, self.m
+        e = self.emitter
+        ny, nx = self._map_shape
+
+        def f(v: float) -> Any:
+            return dr.opaque(m.Float, float(v))
+
+        def u(v: int) -> Any:
+            return dr.opaque(m.UInt32, int(v))
+
+        return SimpleNamespace(
+            em_slot=u(self.emitter_slot), max_depth=u(self.max_depth), rr_depth=u(self.rr_depth),
+            em_x0=f(e.centre_m[0] - e.half_x_m), em_y0=f(e.centre_m[1] - e.half_y_m),
+            em_sx=f(2.0 * e.half_x_m), em_sy=f(2.0 * e.half_y_m), em_z=f(e.centre_m[2]),
+            em_area=f(e.area_m2), map_nx=u(nx), map_nxf=f(nx), map_nyf=f(ny))
+
+    # ---- path pieces -------------------------------------------------------------------
+    def _wavelength_offset(self, rng: Any) -> tuple[Any, Any, Any]:
+        """A per-path offset δ ~ triangular(−step, step), shared by all bands: (δ, k, frac)
+        with δ + step = k + frac, k the 1 nm table index and frac ∈ [0, 1]."""
+        dr, m = self.dr, self.m
+        step = self.grid.step_nm
+        pos = step * (rng.next_float32() - rng.next_float32()) + step
+        k = m.UInt32(dr.floor(pos))
+        return pos - step, k, pos - dr.floor(pos)
+
+    def _lookup(self, tab: Mapping[str, Any], k: Any, frac: Any) -> Any:
+        """`lookup(table, slot, active, width)`: spectra at λ_b + δ for every band (δ + step =
+        k + frac), `width`/2 interleaved (value, slope) tables, one packet gather per band."""
+        dr, m = self.dr, self.m
+        step = self.grid.step_nm
+        offsets = [b * step for b in range(self.grid.n_bands)]
+        n_fine = tab["n_fine"]
+
+        def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
+            base = slot * n_fine + k
+            arr = m.Array4f if width == 4 else m.Array2f
+            out: list[list[Any]] = [[] for _ in range(width // 2)]
+            for off in offsets:
+                v = dr.gather(arr, table, base + off, active)
+                for t in range(width // 2):
+                    out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
+            return out
+
+        return lookup
+
+    def _radiometer_ray(self, rng: Any) -> Any:
+        """A ray uniform over the radiometer's square field of view."""
+        dr, m = self.dr, self.m
+        f, left, up = self.radiometer.frame()
+        th = float(np.tan(np.deg2rad(self.radiometer.fov_deg) / 2.0))
+        u1 = (2.0 * rng.next_float32() - 1.0) * th
+        u2 = (2.0 * rng.next_float32() - 1.0) * th
+        d = dr.normalize(m.Vector3f(*map(float, f)) + m.Vector3f(*map(float, left)) * u1
+                         + m.Vector3f(*map(float, up)) * u2)
+        return m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
+
+    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any) -> Any:
+        """The emitter's spatial factor at a point of its plane."""
+        dr, m = self.dr, self.m
+        i = m.UInt32(dr.clip(dr.floor((x - c.em_x0) / c.em_sx * c.map_nxf), 0.0, c.map_nxf - 1.0))
+        j = m.UInt32(dr.clip(dr.floor((y - c.em_y0) / c.em_sy * c.map_nyf), 0.0, c.map_nyf - 1.0))
+        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i)
+
+    def _offset(self, p: Any, n: Any) -> Any:
+        """A ray origin just off the surface on the side of n."""
+        dr = self.dr
+        eps = 2e-5 * (1.0 + dr.max(dr.abs(p)))
+        return p + n * eps
+
+    def _intersect(self, c: SimpleNamespace, ray: Any, active: Any) -> SimpleNamespace:
+        dr, m = self.dr, self.m
+        pi = self.scene.ray_intersect_preliminary(ray, active=active)
+        valid = active & pi.is_valid()
+        reg = dr.reinterpret_array(m.UInt32, pi.shape)
+        slot = dr.gather(m.UInt32, self._shape_slot, reg, valid)
+        fidx = dr.gather(m.UInt32, self._shape_base, reg, valid) + pi.prim_index
+        ng = m.Vector3f(*(dr.gather(m.Float, comp, fidx, valid) for comp in self._normals))
+        p = ray.o + ray.d * pi.t
+        surf = valid & (slot > 0) & (slot != c.em_slot)
+        return SimpleNamespace(valid=valid, t=pi.t, slot=slot, ng=ng, p=p, surf=surf)
+
+    def _emission(self, c: SimpleNamespace, hit: SimpleNamespace, ray: Any,
+                  prev_pdf: Any) -> Any:
+        """The emitter's factor where the ray hits its front, MIS-weighted against NEE when the
+        ray was BSDF-sampled (prev_pdf > 0); weight 1 for camera rays."""
+        dr = self.dr
+        cos_l = ray.d.z                                   # the light faces −z
+        hit_em = hit.valid & (hit.slot == c.em_slot) & (cos_l > 0)
+        pdf_em = dr.square(hit.t) / (c.em_area * dr.fmax(cos_l, 1e-12))
+        w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
+                      / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
+        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
+
+    def _frame(self, hit: SimpleNamespace, ray: Any) -> tuple[Any, Any, Any]:
+        """Local frame at a hit with the normal towards the incoming side (two-sided
+        surfaces): (frame, local wi, origin of rays leaving it)."""
+        dr, m = self.dr, self.m
+        wi_w = -ray.d
+        nf = dr.select(dr.dot(wi_w, hit.ng) < 0, -hit.ng, hit.ng)
+        frame = m.Frame3f(nf)
+        return frame, frame.to_local(wi_w), self._offset(hit.p, nf)
+
+    def _vertex(self, tab: Mapping[str, Any], lookup: Any, delta: Any, slot: Any, wi: Any,
+                active: Any) -> SimpleNamespace:
+        """The material of `slot` at a vertex with local incoming direction wi (the `vx` of
+        `_band_factors` / `_sample`)."""
+        dr, m = self.dr, self.m
+        kd, ks = lookup(tab["kdks"], slot, active, 4)
+        has_kb, dispersive = tab["has_kb"], tab["dispersive"]
+        return SimpleNamespace(
+            wi=wi, alpha=dr.gather(m.Float, tab["alpha"], slot, active),
+            eta=dr.gather(m.Float, tab["eta"], slot, active),
+            c=dr.gather(m.Float, tab["c"], slot, active),
+            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks,
+            kb=lookup(tab["kb"], slot, active, 2)[0] if has_kb else None,
+            inv_s2=dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None,
+            deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
+            delta=delta)
+
+    def _light_sample(self, c: SimpleNamespace, frame: Any, o: Any, rng: Any,
+                      active: Any) -> tuple[Any, Any, Any, Any]:
+        """A uniform point of the emitter seen from o with a shadow ray: (local wo, emitter
+        factor / pdf (solid angle), pdf, mask of unoccluded front-facing samples)."""
+        dr, m = self.dr, self.m
+        lx = c.em_x0 + rng.next_float32() * c.em_sx
+        ly = c.em_y0 + rng.next_float32() * c.em_sy
+        to_l = m.Vector3f(lx, ly, c.em_z) - o
+        dist2 = dr.squared_norm(to_l)
+        dist = dr.sqrt(dist2)
+        dl = to_l / dist
+        cos_e = dl.z
+        shadow = m.Ray3f(o, dl)
+        shadow.maxt = dist * (1.0 - 1e-4)
+        ok = active & (cos_e > 0)
+        ok = ok & ~self.scene.ray_test(shadow, ok)
+        pdf_l = dist2 / (c.em_area * dr.fmax(cos_e, 1e-12))
+        return frame.to_local(dl), self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30), pdf_l, ok
+
+    def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
+             active: Any) -> tuple[Any, Any, Any]:
+        """Next-event estimation at a vertex: (local wo, weight without the BRDF — emitter
+        factor · MIS · cos / pdf —, mask)."""
+        dr = self.dr
+        wo, em_w, pdf_l, ok = self._light_sample(c, frame, o, rng, active)
+        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
+        mis = dr.square(pdf_l) / dr.fmax(dr.square(pdf_l) + dr.square(bpdf), 1e-30)
+        return wo, em_w * mis * wo.z, ok
+
+    # ---- the path loop -----------------------------------------------------------------
+    def _path_loop(self, tab: Mapping[str, Any], c: SimpleNamespace, lookup: Any, delta: Any,
+                   ray: Any, active: Any, depth: Any, prev_pdf: Any, rng: Any, *,
+                   probe_scale: Any = None, split_first: bool = False,
+                   patches: SimpleNamespace | None = None) -> SimpleNamespace:
+        """Trace from `ray` (path vertex number `depth`, previous BSDF pdf `prev_pdf`, 0 for a
+        camera ray) with throughput 1 until every path has ended.  Returns `acc` (per band,
+        Σ throughput · emitter factor; the lamp spectrum is the caller's), and:
+
+        - `split_first`: `e1`, the emitter found at vertex 1 (kept out of `acc`; the camera's
+          layers need it apart);
+        - `patches` (slot: the patch slot, base: first extra slot of `_tables`, count: P): the
+          patch stands for P materials.  A path that hits it picks one, p* uniformly at random,
+          with weight P, and uses p*'s material there and at every later patch hit; everything
+          it finds afterwards goes to `late` (per band) for patch p* alone.  Unbiased for every
+          patch: E[P · 1{p* = p} · X_p] = E[X_p].
+        `probe_scale` multiplies the Russian-roulette probe (the throughput before `ray`)."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        pp = patches
+        none = 0xFFFFFFFF
+
+        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
+                   acc: Any, e1: Any, late: Any, pstar: Any) -> tuple[Any, ...]:
+            thr, acc, late = list(thr), list(acc), list(late)
+            hit = self._intersect(c, ray, active)
+            e = self._emission(c, hit, ray, prev_pdf)
+            if split_first:
+                first = depth == 1
+                e1 = e1 + dr.select(first, e, 0.0)
+                e = dr.select(first, 0.0, e)
+            slot = hit.slot
+            if pp is not None:
+                in_late = dr.select(pstar != none, 1.0, 0.0)
+                for b in range(n_b):
+                    late[b] = dr.fma(thr[b], e * in_late, late[b])
+                    acc[b] = dr.fma(thr[b], e * (1.0 - in_late), acc[b])
+                on_patch = hit.surf & (slot == pp.slot)
+                u = rng.next_float32()
+                pick = on_patch & (pstar == none)
+                pstar = dr.select(pick, dr.minimum(m.UInt32(u * pp.count_f), pp.last), pstar)
+                sel_w = dr.select(pick, pp.count_f, 1.0)
+                slot = dr.select(on_patch, pp.base + pstar, slot)
+                in_late = dr.select(pstar != none, 1.0, 0.0)
+            else:
+                sel_w = 1.0
+                for b in range(n_b):
+                    acc[b] = dr.fma(thr[b], e, acc[b])
+            active = hit.surf & (depth + 1 < c.max_depth)
+            frame, wi, o = self._frame(hit, ray)
+            vx = self._vertex(tab, lookup, delta, slot, wi, active)
+            wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+            fac = self._band_factors(vx, wl, wt * sel_w, ok)
+            if pp is not None:
+                for b in range(n_b):
+                    late[b] = dr.fma(thr[b], fac[b] * in_late, late[b])
+                    acc[b] = dr.fma(thr[b], fac[b] * (1.0 - in_late), acc[b])
+            else:
+                for b in range(n_b):
+                    acc[b] = dr.fma(thr[b], fac[b], acc[b])
+            wo, bpdf, active = self._sample(vx, rng, active)
+            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30) * sel_w, active)
+            for b in range(n_b):
+                thr[b] = thr[b] * fac[b]
+            # Russian roulette on a λ-independent survival probability (bands 0, 8, 16, …)
+            probe = dr.abs(thr[0])
+            for b in range(8, n_b, 8):
+                probe = dr.fmax(probe, dr.abs(thr[b]))
+            if probe_scale is not None:
+                probe = probe * probe_scale
+            q = dr.select(depth + 1 >= c.rr_depth, dr.minimum(probe, 0.95), 1.0)
+            active = active & (rng.next_float32() < q)
+            inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
+            for b in range(n_b):
+                thr[b] = thr[b] * inv_q
+            return (depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1,
+                    late, pstar)
+
+        state = (m.UInt32(depth), m.Bool(active), ray, m.Float(prev_pdf), rng,
+                 [m.Float(1.0) for _ in range(n_b)],      # per-band throughput
+                 [m.Float(0.0) for _ in range(n_b)],      # per-band Σ throughput · emitter
+                 m.Float(0.0),                            # e1 (split_first)
+                 [m.Float(0.0) for _ in range(n_b)] if pp is not None else [],
+                 m.UInt32(none) if pp is not None else m.UInt32(0))
+        if self.symbolic:
+            # one megakernel; a SIMD packet runs until its own longest path ends
+            state = dr.while_loop(state, lambda depth, active, *_: active
+                                  & (depth < c.max_depth), bounce, label="bandpath")
+        else:
+            # wavefront: one kernel per bounce, every lane each time
+            for _ in range(self.max_depth):
+                state = bounce(*state)
+                dr.eval(state)
+        return SimpleNamespace(acc=state[6], e1=state[7], late=state[8], pstar=state[9])
+
+    # ---- one chunk of radiometer paths ---------------------------------------------------
+    def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
+        """Trace n radiometer paths; returns (n_bands, n) float64 per-path radiance estimates."""
+        dr, m = self.dr, self.m
+        n_b = self.grid.n_bands
+        c = self._consts()
+        idx = dr.arange(m.UInt64, n)
+        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=idx)
+        delta, k, frac = self._wavelength_offset(rng)
+        lookup = self._lookup(tab, k, frac)
+        ray = self._radiometer_ray(rng)
+        res = self._path_loop(tab, c, lookup, delta, ray, m.Bool(True), m.UInt32(0),
+                              m.Float(0.0), rng)
+        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
+        out = [res.acc[b] * le[b] for b in range(n_b)]
+        dr.eval(out)
+        return np.stack([np.asarray(o, dtype=np.float64) for o in out])
+
+    def _band_factors(self, vx: Any, wo: Any, weight: Any, mask: Any) -> list[Any]:
+        """weight · f_b(wi, wo) for every band at vertex `vx` (weight includes the cosine); 0
+        where not `mask` (selects, never multiplications by 0, so NaNs cannot leak)."""
+        dr = self.dr
+        wi, alpha = vx.wi, vx.alpha
+        dispersive, has_kb = vx.deta is not None, vx.kb is not None
+        h = dr.normalize(wi + wo)
+        a2 = alpha * alpha
+        dist = ggx_d(a2, h.z)
+        valid = mask & (wi.z > 0) & (wo.z > 0)
+        geo = (dist * smith_g1(a2, wi.z) * smith_g1(a2, wo.z)
+               / (4.0 * dr.select(valid, wi.z * wo.z, 1.0)))
+        cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+        a_ = dr.select(valid, weight * INV_PI, 0.0)
+        c_ = dr.select(valid, weight * vx.c, 0.0)
+        s_ = weight * geo
+        if not dispersive:
+            s_ = s_ * fresnel(vx.eta, cb)
+        s_ = dr.select(valid, s_, 0.0)
+        if has_kb:
+            k_ = dr.select(valid, weight * INV_PI * dr.exp((dr.dot(wi, wo) - 1.0) * vx.inv_s2),
+                           0.0)
+        out = []
+        for b in range(self.grid.n_bands):
+            fb = dr.fma(vx.kd[b], a_, -c_)
+            if dispersive:
+                lam = (float(self.grid.centres_nm[b]) - 550.0) + vx.delta
+                # select, not multiply: F is NaN where cb = 0 (g = 0), outside `valid`
+                f_b = dr.select(valid, fresnel(dr.fma(vx.deta, lam, vx.eta), cb), 0.0)
+                fb = dr.fma(vx.ks[b] * f_b, s_, fb)
+            else:
+                fb = dr.fma(vx.ks[b], s_, fb)
+            if has_kb:
+                fb = dr.fma(vx.kb[b], k_, fb)
+            out.append(fb)
+        return out
+
+    def _sample(self, vx: Any, rng: Any, active: Any) -> tuple[Any, Any, Any]:
+        """Cosine or GGX (D·cos θh) direction by a λ-independent coin at vertex `vx` (wi, alpha,
+        p_spec): (local wo, its mixture pdf, `active` where wo is usable)."""
+        wo = self._sample_direction(vx.wi, vx.alpha, vx.p_spec, rng)
+        bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
+        return wo, bpdf, active & (wo.z > 0) & (bpdf > 0)
+
+    def _sample_direction(self, wi: Any, alpha: Any, p_spec: Any, rng: Any) -> Any:
+        """A local direction: GGX (D·cos θh, roughness alpha) with probability p_spec, else
+        cosine-weighted; three random numbers, drawn whatever the branch."""
+        dr, m = self.dr, self.m
+        uc = rng.next_float32()
+        us = m.Point2f(rng.next_float32(), rng.next_float32())
+        wo_cos = m.warp.square_to_cosine_hemisphere(us)
+        t2 = alpha * alpha * us.x / dr.fmax(1.0 - us.x, 1e-7)
+        cth = dr.rsqrt(1.0 + t2)
+        sth = dr.safe_sqrt(1.0 - cth * cth)
+        phi = 2.0 * dr.pi * us.y
+        hh = m.Vector3f(sth * dr.cos(phi), sth * dr.sin(phi), cth)
+        wo_spec = 2.0 * dr.dot(wi, hh) * hh - wi
+        return dr.select(uc < p_spec, wo_spec, wo_cos)
+
+    def _pdf(self, wi: Any, wo: Any, alpha: Any, p_spec: Any) -> Any:
+        """Solid-angle pdf of the cosine + GGX(D·cos θh) mixture for the outgoing wo."""
+        dr = self.dr
+        h = dr.normalize(wi + wo)
+        pdf_h = ggx_d(alpha * alpha, h.z) * h.z
+        woh = dr.abs(dr.dot(wo, h))
+        pdf_spec = dr.select(woh > 0, pdf_h / (4.0 * dr.fmax(woh, 1e-12)), 0.0)
+        pdf_cos = dr.fmax(wo.z, 0.0) * INV_PI
+        return dr.select(wo.z > 0, p_spec * pdf_spec + (1.0 - p_spec) * pdf_cos, 0.0)
+
+    # ---- public ------------------------------------------------------------------------
+    def render(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
+               emitter_radiance: Any, *, n_paths: int | None = None,
+               target_rel_se: float | None = None, seed: int = 0,
+               max_paths: int = 1 << 23, pilot_paths: int = 1 << 14) -> BandEstimate:
+        """Radiance per band seen by the radiometer, with its standard error.
+
+        Either a fixed `n_paths`, or `target_rel_se` (the largest relative standard error over
+        the bands with signal, `max_rel_se`): a pilot estimates the per-path variance, then paths
+        are added until the target is met (or `max_paths`).  Deterministic for a given seed.
+        """
+        if n_paths is None and target_rel_se is None:
+            raise ValueError("give n_paths or target_rel_se")
+        t0 = time.perf_counter()
+        tab = self._tables(materials, emitter_wavelength_nm, emitter_radiance)
+        n_b = self.grid.n_bands
+        s1 = np.zeros(n_b)
+        s2 = np.zeros(n_b)
+        done = 0
+        chunk_no = 0
+        goal = int(n_paths) if n_paths is not None else min(int(pilot_paths), int(max_paths))
+        while True:
+            while done < goal:
+                n = min(self.chunk_paths, goal - done)
+                vals = self._trace(tab, n, seed=_chunk_seed(seed, chunk_no))
+                chunk_no += 1
+                s1 += vals.sum(axis=1)
+                s2 += np.einsum("ij,ij->i", vals, vals)
+                done += n
+            mean = s1 / done
+            var = np.maximum(s2 / done - mean * mean, 0.0) * done / max(done - 1, 1)
+            se = np.sqrt(var / done)
+            if target_rel_se is None:
+                break
+            rel = max_rel_se(mean, se)
+            if rel <= target_rel_se or done >= max_paths:
+                break
+            need = int(np.ceil(done * (rel / target_rel_se) ** 2 * 1.05))
+            goal = min(int(max_paths), max(need, done + 1024))
+        return BandEstimate(self.grid.centres_nm, mean, se, done, time.perf_counter() - t0)
+
+
+def _chunk_seed(seed: int, chunk_no: int) -> int:
+    return (int(seed) * 0x9E3779B1 + chunk_no * 0x85EBCA6B + 0x2545F491) & 0xFFFFFFFFFFFF
+
+
+def ggx_d(a2: Any, cos_h: Any) -> Any:
+    """GGX normal distribution D(h) for α² = a2 at cos θh (0 for a back-facing h; Dr.Jit)."""
+    import drjit as dr
+
+    dd = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return dr.select(cos_h > 0, a2 / (dr.pi * dd * dd), 0.0)
+
+
+def smith_g1(a2: Any, cos_theta: Any) -> Any:
+    """Smith G1 of GGX for α² = a2 at cos θ (Dr.Jit)."""
+    import drjit as dr
+
+    c2 = dr.clip(cos_theta * cos_theta, 1e-12, 1.0)
+    return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - c2) / c2))
+
+
+def fresnel(eta: Any, cos_beta: Any) -> Any:
+    """Cook-Torrance unpolarised dielectric Fresnel (Dr.Jit; as `brdf_model`)."""
+    import drjit as dr
+
+    g = dr.sqrt(dr.fmax(eta * eta - 1.0 + cos_beta * cos_beta, 0.0))
+    a = (g - cos_beta) / (g + cos_beta)
+    b = (cos_beta * (g + cos_beta) - 1.0) / (cos_beta * (g - cos_beta) + 1.0)
+    return 0.5 * a * a * (1.0 + b * b)
+
+
+def specular_probability(material: Any) -> float:
+    """Share of GGX direction sampling for a material: 0 without ks, else 0.15…0.5 growing with
+    ks/(ks+kd) and smoothness (only efficiency depends on it, never the expected value)."""
+    ks = float(np.mean(np.abs(material.ks)))
+    if ks <= 0.0:
+        return 0.0
+    kd = float(np.mean(np.abs(material.kd)))
+    return float(min(0.5, max(0.15, 0.25 / max(float(material.alpha), 0.1) * ks / (ks + kd))))
