@@ -61,7 +61,7 @@ def main(argv: list[str] | None = None) -> int:
         return int(args.handler(args) or 0)
     except NormboxError as exc:
         print(f"normbox-lab: error: {exc}", file=sys.stderr)
-        return 1
+        return exc.exit_code
     except KeyboardInterrupt:
         print("normbox-lab: interrupted", file=sys.stderr)
         return 130

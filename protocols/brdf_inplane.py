@@ -13,7 +13,14 @@ from typing import Any
 
 from normbox_lab.acquire.engine import Step, calibrate, measure, prompt
 from normbox_lab.core.spectral import patch_name
-from normbox_lab.protocols._common import signed_key
+from normbox_lab.protocols._common import (
+    Angles,
+    Patches,
+    Positive,
+    Role,
+    check_parameters,
+    signed_key,
+)
 
 PARAMETERS: dict[str, Any] = {
     "materials": [*range(1, 25), "wall"],
@@ -22,6 +29,11 @@ PARAMETERS: dict[str, Any] = {
     "tilt_deg": 4.0,
     "gonio": "gonio",
 }
+#: θi is the light arm's angle, θo the detector arm's: each within that arm's configured range
+LIMITS = {"materials": Patches(names=True), "theta_i_deg": Angles(role="gonio_light_arm"),
+          "theta_o_deg": Angles(role="gonio_detector_arm"), "tilt_deg": Positive("°", zero=True,
+                                                                                maximum=45.0),
+          "gonio": Role()}
 
 
 def material_key(m: Any) -> str:
@@ -35,6 +47,7 @@ def material_label(m: Any) -> str:
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
+    check_parameters(LIMITS, params, lab)
     gonio = params["gonio"]
     out: list[Step] = []
     for m in params["materials"]:

@@ -10,6 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, prompt, wait_stable
+from normbox_lab.protocols._common import Count, Positive, Role, check_parameters
 
 PARAMETERS: dict[str, Any] = {
     "rows": 5,
@@ -20,6 +21,9 @@ PARAMETERS: dict[str, Any] = {
     "radiometer": "radiometer",
     "lamp": "sphere",
 }
+LIMITS = {"rows": Count(maximum=50), "columns": Count(maximum=50),
+          "panel_x_mm": Positive("mm"), "panel_y_mm": Positive("mm"),
+          "margin_mm": Positive("mm", zero=True), "radiometer": Role(), "lamp": Role()}
 
 
 def grid_mm(n: int, size_mm: float, margin_mm: float) -> list[float]:
@@ -30,6 +34,7 @@ def grid_mm(n: int, size_mm: float, margin_mm: float) -> list[float]:
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
+    check_parameters(LIMITS, params, lab)
     rad, lamp = params["radiometer"], params["lamp"]
     ys = grid_mm(int(params["rows"]), float(params["panel_y_mm"]), float(params["margin_mm"]))
     xs = grid_mm(int(params["columns"]), float(params["panel_x_mm"]), float(params["margin_mm"]))

@@ -14,7 +14,14 @@ from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
 from normbox_lab.core.spectral import patch_name
-from normbox_lab.protocols._common import angle_key
+from normbox_lab.protocols._common import (
+    Angles,
+    Patches,
+    Positive,
+    Role,
+    angle_key,
+    check_parameters,
+)
 
 PARAMETERS: dict[str, Any] = {
     "angles_deg": [30, 35, 40, 45, 50, 55, 60, 65, 70, 75, 80, 85, 90],
@@ -24,9 +31,15 @@ PARAMETERS: dict[str, Any] = {
     "lamp": "sphere",
     "lamp_timeout_s": 3600.0,
 }
+#: what each parameter may hold (checked before a step is built; angles against the configured
+#: range of the instrument named by "rotator")
+LIMITS = {"angles_deg": Angles(role_param="rotator"), "patches": Patches(),
+          "rotator": Role(), "radiometer": Role(), "lamp": Role(),
+          "lamp_timeout_s": Positive("s")}
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
+    check_parameters(LIMITS, params, lab)
     rot, rad, lamp = params["rotator"], params["radiometer"], params["lamp"]
     out = [wait_stable("lamp", lamp, timeout_s=float(params["lamp_timeout_s"]))]
     for angle in params["angles_deg"]:

@@ -11,6 +11,14 @@ from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
 from normbox_lab.core.spectral import WHITE_PATCH, patch_name
+from normbox_lab.protocols._common import (
+    Angles,
+    Count,
+    Patches,
+    Positive,
+    Role,
+    check_parameters,
+)
 
 PARAMETERS: dict[str, Any] = {
     "repeats": 10,
@@ -21,9 +29,14 @@ PARAMETERS: dict[str, Any] = {
     "radiometer": "radiometer",
     "lamp": "sphere",
 }
+LIMITS = {"repeats": Count(), "threshold_percent": Positive("%"),
+          "angle_deg": Angles(role_param="rotator", many=False),
+          "patch": Patches(many=False), "rotator": Role(), "radiometer": Role(),
+          "lamp": Role()}
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
+    check_parameters(LIMITS, params, lab)
     rot, rad, lamp = params["rotator"], params["radiometer"], params["lamp"]
     a, p = float(params["angle_deg"]), int(params["patch"])
     sample = f"patch:{p}"

@@ -60,3 +60,47 @@ def test_bad_import_reports_place(tmp_path, capsys, monkeypatch):
     (tmp_path / "bad.json").write_text('[{"wavelengths": [400]}, {"thetaIn": 0}]')
     assert main(["import", "brdf-json", "bad.json"]) == 1
     assert "bad.json: element 1: missing field 'phiIn'" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("params, expect", [
+    (["angles_deg=[30,Infinity]", "patches=[7]"], "angles_deg: Infinity is not a finite number"),
+    (["angles_deg=[1e400]"], "angles_deg: Infinity is not a finite number"),
+    (["angles_deg=[-30,60]"], "angles_deg: -30° is outside 0…95° (the rotator's range, "
+                              "lab config)"),
+    (["angles_deg=[30,400]"], "angles_deg: 400° is outside 0…95°"),
+    (["patches=[]"], "patches: the list is empty; give at least one value"),
+    (["patches=[25]"], "patches: 25 is not a patch number (1–24)"),
+])
+def test_a_bad_parameter_value_is_one_line_and_exit_2(tmp_path, capsys, monkeypatch, params,
+                                                      expect):
+    monkeypatch.chdir(tmp_path)
+    assert main(["init", "lab.toml", "--sim"]) == 0
+    capsys.readouterr()
+    argv = ["run", "reference-sweep", "--dry-run", "--world", "analytic"]
+    for p in params:
+        argv += ["--param", p]
+    assert main(argv) == 2
+    out = capsys.readouterr()
+    assert out.err == f"normbox-lab: error: {expect}\n" or out.err.startswith(
+        f"normbox-lab: error: {expect}"), out.err
+    assert out.err.count("\n") == 1 and "Traceback" not in out.err and out.out == ""
+
+
+def test_repeatability_with_negative_repeats_is_exit_2(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    main(["init", "lab.toml", "--sim"])
+    capsys.readouterr()
+    assert main(["run", "repeatability", "--dry-run", "--world", "analytic",
+                 "--param", "repeats=-5"]) == 2
+    assert capsys.readouterr().err == ("normbox-lab: error: repeats: -5 is not a positive "
+                                       "count (≥ 1)\n")
+
+
+def test_a_huge_lab_time_is_one_short_word():
+    from normbox_lab.acquire.estimate import format_duration
+
+    assert format_duration(float("inf")) == "∞"
+    assert format_duration(float("nan")) == "?"
+    assert format_duration(1e308) == "1.16e+303 days"
+    assert format_duration(10 ** 400) == "∞"
+    assert format_duration(3725) == "1:02:05" and format_duration(-4) == "0:00"

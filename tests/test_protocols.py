@@ -165,3 +165,77 @@ def test_brdf_resume_remounts_and_recalibrates(store):
     # the ETA of the full plan matched what the first segment + a full run would take
     assert dry.total_s == pytest.approx(2 * (30 + 3) + 8 * 4.0)
     assert lab.clock.now_s() - t0 == pytest.approx(2 * (30 + 3) + 6 * 4.0)
+
+
+# --- declared kinds and limits ---------------------------------------------------------------
+
+@pytest.mark.parametrize("name", ["reference-sweep", "brdf-inplane", "light-map", "repeatability"])
+def test_every_shipped_protocol_declares_the_limits_of_every_parameter(name):
+    module = eng.load_protocol(name)
+    assert set(module.LIMITS) == set(module.PARAMETERS)
+
+
+@pytest.mark.parametrize("protocol, params, expect", [
+    ("reference-sweep", {"angles_deg": [30, float("inf")]},
+     "angles_deg: Infinity is not a finite number"),
+    ("reference-sweep", {"angles_deg": [float("nan")]}, "angles_deg: NaN is not a finite number"),
+    ("reference-sweep", {"angles_deg": [-30, 60]},
+     "angles_deg: -30° is outside 0…95° (the rotator's range, lab config)"),
+    ("reference-sweep", {"angles_deg": [30, 400]}, "angles_deg: 400° is outside 0…95°"),
+    ("reference-sweep", {"angles_deg": [30, 1e308]}, "angles_deg: 1e+308° is outside 0…95°"),
+    ("reference-sweep", {"angles_deg": []}, "angles_deg: the list is empty"),
+    ("reference-sweep", {"patches": []}, "patches: the list is empty; give at least one value"),
+    ("reference-sweep", {"patches": [25]}, "patches: 25 is not a patch number (1–24)"),
+    ("reference-sweep", {"patches": [0]}, "patches: 0 is not a patch number (1–24)"),
+    ("reference-sweep", {"patches": [7.5]}, "patches: 7.5 is not a patch number (1–24)"),
+    ("reference-sweep", {"lamp_timeout_s": -1.0}, "lamp_timeout_s: -1 s must be > 0"),
+    ("reference-sweep", {"rotator": "turntable"},
+     "rotator: 'turntable' is not an instrument of this lab"),
+    ("repeatability", {"repeats": -5}, "repeats: -5 is not a positive count (≥ 1)"),
+    ("repeatability", {"repeats": 0}, "repeats: 0 is not a positive count (≥ 1)"),
+    ("repeatability", {"angle_deg": 120.0}, "angle_deg: 120° is outside 0…95°"),
+    ("repeatability", {"patch": 30}, "patch: 30 is not a patch number (1–24)"),
+    ("repeatability", {"threshold_percent": 0.0}, "threshold_percent: 0 % must be > 0"),
+    ("light-map", {"rows": 0}, "rows: 0 is not a positive count (≥ 1)"),
+    ("light-map", {"margin_mm": -2.0}, "margin_mm: -2 mm must be ≥ 0"),
+    ("brdf-inplane", {"theta_o_deg": [0, 100]},
+     "theta_o_deg: 100° is outside -90…90° (the gonio_detector_arm's range, lab config)"),
+    ("brdf-inplane", {"materials": [3, 99]},
+     "materials: 99 is not a patch number (1–24, or a material name)"),
+    ("brdf-inplane", {"materials": []}, "materials: the list is empty"),
+])
+def test_a_value_outside_its_declared_limits_is_one_line_naming_field_and_limit(
+        protocol, params, expect):
+    """Checked where the plan is built (command line, console and scripts alike), against the
+    lab config of the instrument that will move."""
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.protocols._common import ParameterError
+
+    config = parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
+    module = eng.load_protocol(protocol)
+    full = eng.resolve_parameters(module, None, params)
+    with pytest.raises(ParameterError) as exc:
+        module.steps(full, config)
+    assert str(exc.value).startswith(expect), str(exc.value)
+    assert "\n" not in str(exc.value) and exc.value.exit_code == 2
+    # without a lab the kinds are still checked (no ranges then)
+    if "outside" not in expect and "instrument of this lab" not in expect:
+        with pytest.raises(ParameterError):
+            eng.build_plan(protocol, params)
+
+
+def test_angle_limits_come_from_the_lab_config_else_the_drivers_default():
+    from dataclasses import replace
+
+    from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.protocols._common import angle_limits_deg
+
+    config = parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
+    assert angle_limits_deg(config, "rotator") == (0.0, 95.0, "lab config")
+    rot = config.instruments["rotator"]
+    bare = replace(config, instruments={**config.instruments, "rotator": replace(
+        rot, options={k: v for k, v in rot.options.items() if "angle" not in k})})
+    assert angle_limits_deg(bare, "rotator") == (-170.0, 170.0, "apt-k10cr1 default")
+    assert angle_limits_deg(config, "no-such-role") is None
+    plan = eng.build_plan("reference-sweep", {"angles_deg": [150], "patches": [7]}, bare)
+    assert plan.commit_keys == ["a150/p07"]

@@ -37,14 +37,30 @@ class DryRun:
         for e in self.executed:
             s = self.plan.steps[e.index]
             out.append(f"  {e.key:<22} {e.kind:<11} {e.duration_s:9.1f} s  {s.describe()}")
-        out.append(f"ETA {format_duration(self.total_s)} ({self.total_s:.1f} s)")
+        total = (f"{self.total_s:.1f} s" if math.isfinite(self.total_s)
+                 and self.total_s < _DAYS_FROM_S else format_duration(self.total_s))
+        out.append(f"ETA {format_duration(self.total_s)} ({total})")
         return out
 
 
+#: beyond this a duration is written in days (a lab time of 10^300 s stays one short word)
+_DAYS_FROM_S = 100 * 86400.0
+
+
 def format_duration(seconds: float) -> str:
+    """"4:05", "1:02:03"; "?" when unknown (NaN), "∞" for an infinite time, days ("1.2e+303
+    days") beyond 100 days.  Never raises for a number."""
+    try:
+        seconds = float(seconds)
+    except OverflowError:        # an int beyond a float
+        seconds = math.inf if seconds > 0 else 0.0
     if math.isnan(seconds):      # unknown
         return "?"
-    seconds = max(0, int(round(float(seconds))))  # noqa: RUF046
+    if math.isinf(seconds):
+        return "∞" if seconds > 0 else "0:00"
+    if seconds >= _DAYS_FROM_S:
+        return f"{seconds / 86400:.3g} days"
+    seconds = max(0, int(round(seconds)))  # noqa: RUF046
     h, rem = divmod(seconds, 3600)
     m, s = divmod(rem, 60)
     return f"{h}:{m:02d}:{s:02d}" if h else f"{m}:{s:02d}"

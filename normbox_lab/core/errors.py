@@ -19,6 +19,9 @@ from __future__ import annotations
 class NormboxError(Exception):
     """Base of every error normbox-lab raises on purpose."""
 
+    #: the command line's exit status for it (2: a bad value on the command line)
+    exit_code: int = 1
+
 
 class InstrumentError(NormboxError):
     """Something went wrong talking to, or inside, an instrument."""

@@ -234,7 +234,11 @@ class NormboxConsole(App):
         except Exception as exc:  # noqa: BLE001 - a broken protocol file is shown, not fatal
             params = exc
         prefill = self.prefill if protocol == self.prefill_protocol else {}
-        self.pane(RunPane).show_params(params, prefill)
+        try:
+            limits = self.session.parameter_limits(protocol)
+        except Exception:  # noqa: BLE001 - the protocol's own error is shown by the form
+            limits = {}
+        self.pane(RunPane).show_params(params, prefill, limits, self.session.config)
 
     def parameters(self) -> dict[str, Any]:
         """The parameters as typed in the Run tab (JSON, like `--param K=V`)."""

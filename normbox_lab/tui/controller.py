@@ -165,6 +165,24 @@ class Session:
         module = eng.load_protocol(protocol)
         return eng.resolve_parameters(module, self.config.protocol_defaults(protocol))
 
+    def parameter_limits(self, protocol: str) -> dict[str, Any]:
+        """The protocol's declared kinds and limits of its parameters (`LIMITS`; none for a
+        protocol file that declares none)."""
+        from normbox_lab.acquire import engine as eng
+
+        return dict(vars(eng.load_protocol(protocol)).get("LIMITS") or {})
+
+    def angle_limits_deg(self, role: str) -> tuple[float, float, str]:
+        """(min, max, where from) of the instrument of `role`: the lab config's range, else its
+        driver's default (what the go-to dialog offers)."""
+        from normbox_lab.protocols._common import angle_limits_deg
+
+        found = angle_limits_deg(self.config, role)
+        if found is None:
+            return -180.0, 180.0, "no configured range"
+        low, high, source = found
+        return low, high, f"range from the {source}"
+
     def make_engine(self, protocol: str | None, params: Mapping[str, Any] | None = None, *,
                     resume: int | None = None) -> Any:
         from normbox_lab.acquire.engine import open_run

@@ -218,7 +218,7 @@ class NumberScreen(ModalScreen[float | None]):
         from normbox_lab.tui.tabs.common import StopSafeInput
 
         with Vertical():
-            yield Label(f"{self.question} ({self.low:g} … {self.high:g})")
+            yield Label(f"{self.question}: {self.low:g} … {self.high:g}")
             yield StopSafeInput("" if self.value is None else f"{self.value:g}", id="number")
             yield Static("", id="number-error")
             yield Label("[dim]Enter: go · Esc: cancel[/dim]")

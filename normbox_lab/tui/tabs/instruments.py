@@ -187,8 +187,9 @@ class InstrumentsPane(TabPane):
         def chosen(angle: float | None) -> None:
             if angle is not None:
                 self.manual("goto", angle)
-        self.app.push_screen(NumberScreen("rotator: go to angle, degrees", -180.0, 180.0),
-                             chosen)
+        low, high, where = self.app.session.angle_limits_deg("rotator")
+        self.app.push_screen(NumberScreen(f"rotator: go to angle, degrees ({where})", low,
+                                          high), chosen)
 
     def action_level(self) -> None:
         from normbox_lab.tui.screens import NumberScreen

@@ -93,6 +93,9 @@ class RunPane(TabPane):
     def __init__(self, protocol: str) -> None:
         super().__init__("2 Run", id="run")
         self.protocol = protocol
+        self.defaults: dict[str, Any] = {}
+        self.limits: dict[str, Any] = {}
+        self.config: Any = None
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="run-top"):
@@ -114,13 +117,15 @@ class RunPane(TabPane):
             select.value = current
 
     def show_params(self, params: dict[str, Any] | Exception,
-                    prefill: dict[str, str]) -> None:
+                    prefill: dict[str, str], limits: dict[str, Any] | None = None,
+                    config: Any = None) -> None:
         """One line per parameter (JSON text, as `--param K=V` takes it), each checked as it
-        is typed against its default's kind; or the error of a protocol file that cannot be
+        is typed against its default's kind and the protocol's declared limits (`limits`,
+        angle ranges from the lab `config`); or the error of a protocol file that cannot be
         read.  Labels are as wide as the longest name."""
         from textual.validation import Function
 
-        from normbox_lab.acquire.plan import PlanError, coerce_param
+        from normbox_lab.acquire.plan import PlanError
 
         box = self.query_one("#params", VerticalScroll)
         box.remove_children()
@@ -130,11 +135,14 @@ class RunPane(TabPane):
             box.mount(Label(f"[red]{params}[/]"))
             return
         width = max((len(k) for k in params), default=8) + 2
+        self.defaults = dict(params)
+
+        self.limits, self.config = dict(limits or {}), config
 
         def check(key: str, default: Any) -> Function:
             def ok(text: str) -> bool:
                 try:
-                    coerce_param(default, text, key)
+                    self.check_one(key, text)
                 except PlanError:
                     return False
                 return True
@@ -147,24 +155,41 @@ class RunPane(TabPane):
             field = StopSafeInput(text, id=f"param-{k}", compact=True,
                                   validators=[check(k, v)], validate_on=["changed"])
             box.mount(Horizontal(label, field, classes="param"))
-        self.defaults = dict(params)
 
     def on_input_changed(self, event: Input.Changed) -> None:
         if str(event.input.id or "").startswith("param-"):
             self.check_parameters()
 
-    def check_parameters(self) -> str:
-        """The first parameter that does not parse, named with what it expects, shown under
-        the form ("" when all do)."""
+    def check_one(self, key: str, text: str) -> Any:
+        """The value of one field: parsed like its default, then checked against the
+        protocol's declared limits (the other fields as typed, or their defaults)."""
         from normbox_lab.acquire.plan import PlanError, coerce_param
+        from normbox_lab.protocols._common import check_parameters
+
+        value = coerce_param(self.defaults[key], text, key)
+        if key in self.limits:
+            others = dict(self.defaults)
+            for k, t in self.parameter_texts().items():
+                if k != key and k in self.defaults:
+                    try:
+                        others[k] = coerce_param(self.defaults[k], t, k)
+                    except PlanError:
+                        pass
+            others[key] = value
+            check_parameters(self.limits, others, self.config, only=key)
+        return value
+
+    def check_parameters(self) -> str:
+        """The first parameter that does not parse or is outside its limits, named with what
+        it expects, shown under the form ("" when all do)."""
+        from normbox_lab.acquire.plan import PlanError
 
         message = ""
-        defaults = getattr(self, "defaults", {})
         for key, text in self.parameter_texts().items():
-            if key not in defaults:
+            if key not in self.defaults:
                 continue
             try:
-                coerce_param(defaults[key], text, key)
+                self.check_one(key, text)
             except PlanError as exc:
                 message = str(exc)
                 break
