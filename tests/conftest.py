@@ -6,3 +6,34 @@ and that a simulated lab registers its transports by itself."""
 from normbox_lab.sim.transport import register_url_scheme
 
 register_url_scheme()
+
+
+# --- fixtures shared by several test files ---------------------------------------------------
+
+import pytest  # noqa: E402
+
+
+@pytest.fixture
+def fake_drivers(monkeypatch, tmp_path):
+    """Every driver of the simulated-lab template that `engine_fakes` fakes is replaced in the
+    driver registry (deterministic timing); the working directory is `tmp_path`."""
+    from engine_fakes import FAKE_DRIVERS
+
+    from normbox_lab.acquire import registry
+
+    monkeypatch.setattr(registry, "DRIVERS", {**registry.DRIVERS, **FAKE_DRIVERS})
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+@pytest.fixture
+def lab_env(monkeypatch, tmp_path):
+    """Real CS-1000A driver + emulator; fake stage/lamp drivers (deterministic timing)."""
+    from engine_fakes import FAKE_DRIVERS
+
+    from normbox_lab.acquire import registry
+
+    fakes = {name: FAKE_DRIVERS[name] for name in ("apt-k10cr1", "zaber", "sphere-scpi")}
+    monkeypatch.setattr(registry, "DRIVERS", {**registry.DRIVERS, **fakes})
+    monkeypatch.chdir(tmp_path)
+    return tmp_path

@@ -7,12 +7,14 @@ Faults and lamp glitches are scripted by call number.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.registry import DRIVERS, DriverEntry
 from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentTimeout
@@ -305,27 +307,37 @@ def _world() -> _WorldView:
     return _WorldView(core.CONTEXT.world)
 
 
+# The fakes declare the lab-config options they take as keywords, as real drivers do (the
+# registry derives a driver's options from its signature): those the simulated-lab template uses.
+
 class RadiometerDriver(FakeRadiometer):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> RadiometerDriver:
+    def open(cls, url: str, clock: Any, *, baud: int = 9600, instrument_id: str = "radiometer",
+             command_timeout_s: float = 10.0) -> RadiometerDriver:
         return cls(clock, _world())
 
 
 class StageDriver(FakeStage):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> StageDriver:
+    def open(cls, url: str, clock: Any, *, instrument_id: str = "rotator",
+             min_angle_deg: float = -170.0, max_angle_deg: float = 170.0) -> StageDriver:
         return cls(clock, _world())
 
 
 class LampDriver(FakeLamp):
     @classmethod
-    def open(cls, url: str, clock: Any, **options: Any) -> LampDriver:
+    def open(cls, url: str, clock: Any, *, instrument_id: str = "sphere") -> LampDriver:
         return cls(clock)
 
 
+def _fake(cls: str, real: str) -> DriverEntry:
+    return dataclasses.replace(DRIVERS[real], module="engine_fakes", cls=cls)
+
+
+#: registry entries with fake classes (``monkeypatch.setattr(registry, "DRIVERS", ...)``)
 FAKE_DRIVERS = {
-    "cs1000a": ("engine_fakes", "RadiometerDriver"),
-    "apt-k10cr1": ("engine_fakes", "StageDriver"),
-    "zaber": ("engine_fakes", "StageDriver"),
-    "sphere-scpi": ("engine_fakes", "LampDriver"),
+    "cs1000a": _fake("RadiometerDriver", "cs1000a"),
+    "apt-k10cr1": _fake("StageDriver", "apt-k10cr1"),
+    "zaber": _fake("StageDriver", "zaber"),
+    "sphere-scpi": _fake("LampDriver", "sphere-scpi"),
 }

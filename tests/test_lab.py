@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from normbox_lab.acquire import lab as labmod
+from normbox_lab.acquire import registry
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.engine import PromptRequest
 from normbox_lab.acquire.operator import TerminalOperator, VirtualOperator
@@ -39,6 +40,83 @@ def test_missing_role_is_a_config_error():
     lab = labmod.build_lab(cfg, world="none")
     with pytest.raises(ConfigError, match="spectrometer"):
         lab.instrument("spectrometer")
+
+
+# --- the one driver registry: options come from the drivers' signatures ------------------------
+
+_SAMPLE = {int: 3, float: 2.5, bool: True, str: "x"}
+
+
+@pytest.mark.parametrize("name", sorted(registry.DRIVERS))
+def test_every_registered_option_is_a_keyword_the_driver_takes(name):
+    """Each derived option binds to the driver's open() (or the __init__ it forwards to), with
+    the type its annotation names, and a config table holding all of them is accepted."""
+    import inspect
+
+    cls = registry.driver_class(name)
+    options = registry.driver_options(name)
+    assert options, name
+    open_params = inspect.signature(cls.open).parameters
+    init_params = inspect.signature(cls.__init__).parameters
+    for key, typ in options.items():
+        param = open_params.get(key) or init_params[key]
+        if key not in open_params:        # forwarded: open() takes **options
+            assert any(p.kind == p.VAR_KEYWORD for p in open_params.values()), (name, key)
+        assert param.kind in (param.KEYWORD_ONLY, param.POSITIONAL_OR_KEYWORD), (name, key)
+        assert typ.__name__ in str(param.annotation), (name, key, param.annotation)
+        if param.default is not inspect.Parameter.empty and param.default is not None:
+            assert isinstance(param.default, typ) or (typ is float and isinstance(
+                param.default, int)), (name, key, param.default)
+    assert not set(options) & set(registry.DRIVERS[name].internal)
+    role = registry.DRIVERS[name].roles[0]
+    values = {k: (115200 if k == "baud" and name == "cs2000a" else 9600 if k == "baud"
+                  else -10.0 if k == "min_angle_deg" else _SAMPLE[t]) for k, t in options.items()}
+    text = SIM_CONFIG_TEMPLATE.split(f"[instruments.{role}]")[0] + f"[instruments.{role}]\n" + \
+        f'driver = "{name}"\nport = "sim://x"\n' + "".join(
+            f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v).replace(chr(39), chr(34))}\n"
+            for k, v in values.items()) + SIM_CONFIG_TEMPLATE.split(f"[instruments.{role}]")[1] \
+        .split("\n[", 1)[1].join(["\n[", ""])
+    cfg = parse_config(text)
+    assert cfg.instruments[role].options == values
+
+
+def test_a_keyword_added_to_a_driver_is_an_option_and_a_missing_one_is_refused(monkeypatch):
+    class Radiometer9000:
+        @classmethod
+        def open(cls, url: str, clock: object, *, integration_s: float = 1.0,
+                 callback: object = None, **options: object) -> Radiometer9000:
+            return cls(**options)
+
+        def __init__(self, *, gain: int | None = None, secret: bool = False) -> None:
+            self.gain = gain
+
+    import sys
+    import types
+
+    module = types.ModuleType("radiometer9000")
+    module.Radiometer9000 = Radiometer9000
+    monkeypatch.setitem(sys.modules, "radiometer9000", module)
+    monkeypatch.setattr(registry, "DRIVERS", {**registry.DRIVERS, "cs9000": registry.DriverEntry(
+        "radiometer9000", "Radiometer9000", ("radiometer",), internal=("secret",))})
+    # (an object-typed keyword is the program's; `internal` ones are too)
+    assert registry.driver_options("cs9000") == {"integration_s": float, "gain": int}
+    assert "cs9000" in registry.drivers_for("radiometer")
+    base = SIM_CONFIG_TEMPLATE.replace('driver = "cs1000a"      # cs1000a | cs2000a',
+                                       'driver = "cs9000"').replace("baud = 9600", "gain = 4")
+    assert parse_config(base).instruments["radiometer"].options == {"gain": 4}
+    with pytest.raises(ConfigError, match=r"instruments\.radiometer\.secret.*unknown option"):
+        parse_config(base.replace("gain = 4", "secret = true"))
+    with pytest.raises(ConfigError, match="instruments.radiometer.driver"):
+        parse_config(base.replace('driver = "cs9000"', 'driver = "qepro"'))
+
+
+def test_an_angle_limit_on_the_spectrometer_is_a_config_error_not_a_type_error():
+    """`max_angle_deg = -1` under [instruments.spectrometer] raised TypeError from the QE Pro's
+    constructor when the lab opened it; the registry knows the QE Pro takes no angle limit."""
+    text = SIM_CONFIG_TEMPLATE.replace('port = "sim://qepro"',
+                                       'port = "sim://qepro"\nmax_angle_deg = -1')
+    with pytest.raises(ConfigError, match=r"instruments\.spectrometer\.max_angle_deg.*unknown"):
+        parse_config(text)
 
 
 def test_colorchecker_reflectances_come_from_colour_science(world):
@@ -114,14 +192,7 @@ def test_terminal_operator_reads_answers():
 
 # --- the run command, end to end, with fake drivers behind the lab assembly ---------------------
 
-@pytest.fixture
-def fake_drivers(monkeypatch, tmp_path):
-    from engine_fakes import FAKE_DRIVERS
-
-    monkeypatch.setattr(labmod, "DRIVERS", FAKE_DRIVERS)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
+# (the `fake_drivers` fixture is in conftest.py)
 
 def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
     from normbox_lab.acquire import engine as eng

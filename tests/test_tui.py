@@ -24,18 +24,7 @@ PATCHES = "[1, 9, 19]"
 KEYS = {f"a{a}/p{p:02d}" for a in (30, 90) for p in (1, 9, 19)}
 
 
-@pytest.fixture
-def lab_env(monkeypatch, tmp_path):
-    """Real CS-1000A driver + emulator; fake stage/lamp drivers (deterministic timing)."""
-    from engine_fakes import FAKE_DRIVERS
-
-    drivers = dict(labmod.DRIVERS)
-    for name in ("apt-k10cr1", "zaber", "sphere-scpi"):
-        drivers[name] = FAKE_DRIVERS[name]
-    monkeypatch.setattr(labmod, "DRIVERS", drivers)
-    monkeypatch.chdir(tmp_path)
-    return tmp_path
-
+# `lab_env` (real CS-1000A driver + emulator, fake stage/lamp drivers) is in conftest.py
 
 def new_session(path) -> Session:
     return Session(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), path / "tui.sqlite",

@@ -8,7 +8,6 @@ import asyncio
 
 from test_tui import (  # noqa: F401
     answer_prompt,
-    lab_env,
     new_session,
     screen_text,
     set_reduced_parameters,

@@ -31,39 +31,12 @@ from pathlib import Path
 from typing import Any
 
 from normbox_lab.acquire.quality import QualityLimits, parse_limits
+from normbox_lab.acquire.registry import REQUIRED_ROLES, ROLES, driver_options, drivers_for
 from normbox_lab.core.errors import ConfigError
 from normbox_lab.core.geometry import NormboxGeometry
 
-#: instrument roles and the drivers that can fill them
-ROLE_DRIVERS: dict[str, tuple[str, ...]] = {
-    "radiometer": ("cs1000a", "cs2000a"),
-    "rotator": ("apt-k10cr1", "zaber"),
-    "sphere": ("sphere-scpi",),
-    "gonio_light_arm": ("apt-k10cr1", "zaber"),
-    "gonio_detector_arm": ("apt-k10cr1", "zaber"),
-    "spectrometer": ("qepro",),
-}
-REQUIRED_ROLES = ("radiometer", "rotator", "sphere")
-
-#: what an instrument table may hold besides `driver` and `port`: the driver's own options
-#: (a test checks them against the drivers' signatures) and the limits the lab itself reads,
-#: each with the TOML value types it takes (int also where a float is expected)
-_LAB_OPTIONS: dict[str, type] = {"min_angle_deg": float, "max_angle_deg": float,
-                                 "timeout_s": float, "instrument_id": str}
-_LINE: dict[str, type] = {"command_timeout_s": float, "attempts": int,
-                          "reconnect_timeout_s": float}
-_STAGE: dict[str, type] = {**_LINE, "steps_per_deg": float, "max_velocity_deg_s": float,
-                           "acceleration_deg_s2": float, "home_velocity_deg_s": float,
-                           "position_tolerance_deg": float, "auto_home": bool}
-DRIVER_OPTIONS: dict[str, dict[str, type]] = {
-    "cs1000a": {**_LINE, "baud": int, "data_format": str, "observer_deg": int},
-    "cs2000a": {**_LINE, "baud": int, "data_format": str, "delimiter": str},
-    "apt-k10cr1": {**_STAGE, "update_messages": bool},
-    "zaber": {**_STAGE, "device": int, "axis": int, "poll_s": float, "resync_quiet_s": float},
-    "sphere-scpi": {"command_timeout_s": float, "poll_s": float, "attempts": int,
-                    "resync_quiet_s": float, "reconnect_wait_s": float},
-    "qepro": {"backend": str, "tec_setpoint_c": float, "reconnect_timeout_s": float},
-}
+#: the roles and drivers a config may name, and each driver's options, come from the one
+#: driver registry (`normbox_lab.acquire.registry`; options derived from the drivers' signatures)
 BAUD_RATES = (4800, 9600, 19200, 38400, 57600, 115200)
 
 
@@ -273,20 +246,20 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
     inst_tab = table(data.get("instruments"), "instruments")
     for role, spec in inst_tab.items():
         tab = f"instruments.{role}"
-        if role not in ROLE_DRIVERS:
-            raise err(tab, None, f"unknown instrument role; known: {', '.join(ROLE_DRIVERS)}")
+        if role not in ROLES:
+            raise err(tab, None, f"unknown instrument role; known: {', '.join(ROLES)}")
         if not isinstance(spec, dict):
             raise err("instruments", role, "must be a table")
         driver = spec.get("driver")
-        if not isinstance(driver, str) or driver not in ROLE_DRIVERS[role]:
-            raise err(tab, "driver", f"must be one of {', '.join(ROLE_DRIVERS[role])}, "
-                      f"got {driver!r}")
+        choices = drivers_for(role)
+        if not isinstance(driver, str) or driver not in choices:
+            raise err(tab, "driver", f"must be one of {', '.join(choices)}, got {driver!r}")
         port = spec.get("port")
         if not isinstance(port, str) or not port:
             raise err(tab, "port", "must be a non-empty string (device path, socket:// or "
                       "sim:// URL)")
         options = {k: v for k, v in spec.items() if k not in ("driver", "port")}
-        allowed = {**DRIVER_OPTIONS.get(driver, {}), **_LAB_OPTIONS}
+        allowed = driver_options(driver)
         for k, v in options.items():
             if k not in allowed:
                 raise err(tab, k, f"unknown option for driver {driver!r}; known: "
@@ -299,15 +272,14 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
                 raise err(tab, k, f"must be {want.__name__}, got {type(v).__name__} {v!r}")
             if want in (int, float) and not (abs(v) < 1e12 and math.isfinite(v)):
                 raise err(tab, k, f"must be a finite number of sensible size, got {v!r}")
+            if want is float:
+                options[k] = float(v)
         if "baud" in options:
             b = options["baud"]
             if isinstance(b, bool) or not isinstance(b, int) or b not in BAUD_RATES:
                 raise err(tab, "baud", f"must be one of {BAUD_RATES}, got {b!r}")
             if driver == "cs2000a" and b != 115200:
                 raise err(tab, "baud", "the CS-2000A runs at 115200 baud only; remove the line")
-        for lim in ("min_angle_deg", "max_angle_deg", "timeout_s"):
-            if lim in options:
-                options[lim] = number(tab, options, lim, 0.0)
         if "min_angle_deg" in options and "max_angle_deg" in options \
                 and options["min_angle_deg"] >= options["max_angle_deg"]:
             raise err(tab, "max_angle_deg", "must be greater than min_angle_deg")

@@ -3,9 +3,10 @@
     lab = build_lab(load_config("lab.toml"), world="analytic")
     lab.instrument("radiometer").measure()
 
-- Drivers are found by their config name (`DRIVERS`: name → module, class), imported lazily,
-  and opened on first use with ``Driver.open(port, clock, **options)``; an option the driver
-  does not take is a ConfigError naming it.
+- Drivers are found by their config name in the one registry (`normbox_lab.acquire.registry`:
+  name → module, class, roles), imported lazily, and opened on first use with
+  ``Driver.open(port, clock, **options)``; the options come from the driver's own signature,
+  so an option the driver does not take is a ConfigError naming it.
 - The role ``gonio`` is composed from ``gonio_light_arm``, ``gonio_detector_arm`` and
   ``spectrometer`` by `normbox_lab.drivers.gonio`.
 - The clock is ``make_clock(config.time_scale)``.
@@ -22,39 +23,23 @@
 from __future__ import annotations
 
 import dataclasses
-import importlib
-import inspect
 from collections.abc import Mapping
 from typing import Any
 
-from normbox_lab.acquire.config import _LAB_OPTIONS, LabConfig
+from normbox_lab.acquire import registry
+from normbox_lab.acquire.config import LabConfig
 from normbox_lab.core.capabilities import Closable, Identifiable
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
 
-#: config driver name → (module, class)
-DRIVERS: dict[str, tuple[str, str]] = {
-    "cs1000a": ("normbox_lab.drivers.cs1000", "CS1000A"),
-    "cs2000a": ("normbox_lab.drivers.cs2000", "CS2000A"),
-    "apt-k10cr1": ("normbox_lab.drivers.rotator_apt", "AptRotationStage"),
-    "zaber": ("normbox_lab.drivers.rotator_zaber", "ZaberRotationStage"),
-    "sphere-scpi": ("normbox_lab.drivers.sphere", "SphereLightSource"),
-    "qepro": ("normbox_lab.drivers.qepro", "QEPro"),
-}
 GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
 WORLDS = ("normbox", "analytic", "none")
-#: options the config allows every instrument (used by the lab, passed on where a driver takes them)
-LAB_OPTIONS = frozenset(_LAB_OPTIONS)
 #: a real lab's expected luminance of a reading when its step declares none (ETA only)
 REAL_LAB_LUMINANCE_CD_M2 = 20.0
 
 
 def driver_class(name: str) -> type:
-    try:
-        module_name, class_name = DRIVERS[name]
-    except KeyError:
-        raise NormboxError(f"unknown driver {name!r}; known: {', '.join(DRIVERS)}") from None
-    return getattr(importlib.import_module(module_name), class_name)
+    return registry.driver_class(name)
 
 
 def make_world(kind: str | Any, config: LabConfig | None = None) -> Any:
@@ -173,23 +158,15 @@ class Lab:
 
 
 def _open_driver(cls: type, cfg: Any, config_path: str, clock: Clock) -> Any:
-    """``cls.open(port, clock, **options)``.  When `open` takes no ``**options``, the options
-    the config allows every instrument (`LAB_OPTIONS`: limits the lab uses) are left out if
-    `open` does not name them, and any other option it does not name is a ConfigError."""
-    params = inspect.signature(cls.open).parameters
-    options = dict(cfg.options)
-    if not any(p.kind == p.VAR_KEYWORD for p in params.values()):
-        for key in list(options):
-            if key in params:
-                continue
-            if key in LAB_OPTIONS:
-                del options[key]
-                continue
-            accepted = [k for k, p in params.items() if p.kind == p.KEYWORD_ONLY]
+    """``cls.open(port, clock, **options)`` with the options its signature takes
+    (`registry.signature_options`); any other option is a ConfigError naming it."""
+    accepted = registry.signature_options(cls)
+    for key in cfg.options:
+        if key not in accepted:
             raise ConfigError(config_path, 0, f"instruments.{cfg.role}.{key}",
                               f"not an option of driver {cfg.driver!r}; it takes "
-                              f"{', '.join(accepted) or 'none'}")
-    return cls.open(cfg.port, clock, **options)
+                              f"{', '.join(sorted(accepted)) or 'none'}")
+    return cls.open(cfg.port, clock, **cfg.options)
 
 
 def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock | None = None,
