@@ -185,10 +185,10 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
         camera_figures_run,
         compare_run,
         fit_run,
-        lamp_from_light_map,
         predict_run,
         report_run,
     )
+    from normbox_lab.analyze.queries import lamp_from_light_map
 
     progress = on_progress or (lambda stage, done, total: None)
     out = Path(opts.out_dir)

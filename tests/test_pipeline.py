@@ -9,13 +9,8 @@ import numpy as np
 import pytest
 
 from normbox_lab.acquire.store import Store
-from normbox_lab.analyze.pipeline import (
-    compare_run,
-    fit_run,
-    predict_run,
-    reference_data,
-    report_run,
-)
+from normbox_lab.analyze.pipeline import compare_run, fit_run, predict_run, report_run
+from normbox_lab.analyze.queries import reference_data
 from normbox_lab.core.types import BrdfReading, SpectralReading
 from normbox_lab.predict.brdf_model import gonio_geometry
 from normbox_lab.predict.materials import truth_brdf_inplane, truth_material
@@ -61,7 +56,7 @@ def _world(truth):
     return make_world(config, DemoOptions(truth=truth), "quick")
 
 
-def test_closure_truth_model_no_noise(tmp_path):
+def test_closure_truth_model_no_noise(tmp_path, monkeypatch):
     """Truth inside the model family, no instrument: the pipeline closes on itself.  Truth and
     prediction of one configuration share their random numbers (fast renderer, one scene)."""
     world, render = _world("model")
@@ -74,8 +69,18 @@ def test_closure_truth_model_no_noise(tmp_path):
         c = compare_run(store, ref, brdf)
         assert np.nanmax(c.nrmse) <= 0.005, c.nrmse
         assert np.nanmax(c.delta_e00) <= 0.2, c.delta_e00
+        # the report reads the stored comparison: it runs neither compare() nor the adapted ΔE00
+        from normbox_lab.analyze import compare as compare_module
+
+        def refuse(*_a, **_k):
+            raise AssertionError("the report recomputed the comparison")
+        monkeypatch.setattr(compare_module, "compare", refuse)
+        monkeypatch.setattr(compare_module, "_adapted_delta_e00", refuse)
         out = report_run(store, ref, tmp_path / "r.html", brdf)
-        assert out.exists() and "<img" in out.read_text()
+        text = out.read_text()
+        assert out.exists() and "<img" in text
+        assert f"{float(np.nanmean(c.delta_e00_adapted)):.2f}" in text
+        assert "ΔE00 change for a one-standard-error shift" in text
 
 
 def test_reference_data_refuses_holes(tmp_path):

@@ -396,11 +396,6 @@ def errors_for_run(lab_config_text: str, sources: str | None) -> ErrorSources:
 
 
 # --- on a stored campaign ----------------------------------------------------------------------
-def _latest_run(store: Any, protocol: str) -> Any:
-    runs = [r for r in store.runs() if r.protocol == protocol and r.status == "done"]
-    return runs[-1] if runs else None
-
-
 def _virtual_run(lab_config_text: str) -> bool:
     """A run of the demo's virtual Normbox with an error spec (fast renderer, shared seeds)."""
     import tomllib
@@ -420,12 +415,13 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     import time
 
     from normbox_lab.acquire.config import parse_config
-    from normbox_lab.analyze.pipeline import (
-        WHITE_PATCH,
+    from normbox_lab.analyze.queries import (
         fit_key,
         lamp_from_light_map,
         latest_fits,
+        latest_run,
         reference_data,
+        white_index,
     )
     from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.materials import Material
@@ -446,10 +442,10 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     fits = latest_fits(store)
     geometry = parse_config(run.lab_config, f"run {run.id} lab config").geometry \
         if run.lab_config else None
-    light = _latest_run(store, "light-map")
+    light = latest_run(store, "light-map")
     lamp = lamp_from_light_map(store, light.id if light is not None else None)
     mats = [Material.from_fit(fits[fit_key(p)]) for p in ref.patches]
-    white = ref.patches.index(WHITE_PATCH) if WHITE_PATCH in ref.patches else 0
+    white = white_index(ref.patches)
     t0 = time.perf_counter()
     der = render_derivatives(mats, Material.from_fit(fits["wall"]), ref.angle_deg,
                              ref.wavelength_nm, geometry=geometry, lamp=lamp,
@@ -545,68 +541,13 @@ def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
     return rad, se
 
 
-# --- for the report ------------------------------------------------------------------------------
-def budget_figure(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> Any:
-    """Stacked budget per angle (the paper's Fig. 12 generalised to every source): each source's
-    share of the total NRMSE² stacked to the total, mean over patches, against the observed
-    NRMSE with its mean 95 % interval.  `arrays`: the stored "error-budget" artifact's."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    from matplotlib.figure import Figure
-
-    ang = np.asarray(arrays["angle_deg"])
-    c2 = np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1)            # [source, angle]
-    total = np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
-    parts = 100 * total * c2 / np.maximum(c2.sum(axis=0, keepdims=True), 1e-300)
-    fig = Figure(figsize=(7.5, 3.6))
-    ax = fig.add_subplot(1, 1, 1)
-    x = np.arange(ang.size)
-    bottom = np.zeros(ang.size)
-    cmap = matplotlib.colormaps["tab20"]
-    for k, s in enumerate(sources):
-        ax.bar(x, parts[k], bottom=bottom, color=cmap(k % 20), label=s)
-        bottom += parts[k]
-    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
-    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
-    ax.errorbar(x, obs, yerr=[obs - ci[0], ci[1] - obs], fmt="ko--", ms=4, capsize=2,
-                label="observed NRMSE (95 %)")
-    ax.set_xticks(x, [f"{v:g}" for v in ang], fontsize=7)
-    ax.set_xlabel("sample angle [°]", fontsize=8)
-    ax.set_ylabel("NRMSE [%] (mean over patches)", fontsize=8)
-    ax.legend(fontsize=6, ncol=3)
-    return fig
-
-
-def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> tuple[list, list]:
-    """(header, rows) per angle: each source's NRMSE contribution (%, RMS over patches), total,
-    observed with its interval, significant configurations, the angle offset."""
-    ang = np.asarray(arrays["angle_deg"])
-    by = 100 * np.sqrt(np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1))
-    tot = 100 * np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
-    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
-    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
-    sig = np.sum(arrays["significant_nrmse"], axis=0)
-    off = arrays.get("angle_offset_deg")
-    off_ci = arrays.get("angle_offset_ci95_deg")
-    header = ["angle", *sources, "total", "observed", "95 % interval", "significant",
-              "angle offset [°]"]
-    rows = []
-    for a in range(ang.size):
-        rows.append([f"{ang[a]:g}°", *[float(by[k, a]) for k in range(len(sources))],
-                     float(tot[a]), float(obs[a]), f"{ci[0, a]:.2f}–{ci[1, a]:.2f}",
-                     int(sig[a]),
-                     "" if off is None else f"{off[a]:+.2f} ± {off_ci[a]:.2f}"])
-    return header, rows
-
-
 # --- the paper's observations, measured on a campaign ------------------------------------------
 def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, str]]:
     """(observation, the paper's value, ours) for the paper-scenario table of
     docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
     from normbox_lab.analyze.compare import ComparisonResult
     from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
-    from normbox_lab.analyze.pipeline import latest_fits
+    from normbox_lab.analyze.queries import latest_fits, latest_run
 
     run = store.get_run(ref_run)
     c = ComparisonResult.from_artifact(store.latest_artifact("comparison", f"ref-run-{run.id}"))
@@ -639,7 +580,7 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
     rows.append(("ΔE00", "mostly < 1; patches 10, 13, 19, 24 slightly > 2 at some angles",
                  (f"{100 * np.mean(de < 1):.0f} % < 1, max {np.max(de):.2f}; > 2: "
                   f"{', '.join(map(str, above2)) or 'none'}")))
-    brdf = _latest_run(store, "brdf-inplane")
+    brdf = latest_run(store, "brdf-inplane")
     if brdf is not None and "wall" in fits:
         data = data_from_store_run(store, brdf.id)
         if "wall" in data and np.any(np.isclose(ang, 90.0)):

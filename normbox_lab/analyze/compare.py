@@ -62,6 +62,15 @@ def rate_delta_e(delta_e: float) -> str:
     return RATING_SCALE[int(rating_index(delta_e))][1]
 
 
+def rating_class_range(k: int) -> str:
+    """The ΔE00 range of rating class `k` as text: "≤ 1", "1–2", "2–5", "> 5"."""
+    lo = 0.0 if k == 0 else RATING_SCALE[k - 1][0]
+    hi = RATING_SCALE[k][0]
+    if not np.isfinite(hi):
+        return f"> {lo:g}"
+    return f"≤ {hi:g}" if k == 0 else f"{lo:g}–{hi:g}"
+
+
 def spectra_to_XYZ(radiance: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
     """Emissive CIE 1931 2° XYZ (relative scale, k = 1) of spectra [..., λ] on a regular grid."""
     import colour
@@ -117,6 +126,9 @@ class ComparisonResult:
     white_patch: int = WHITE_PATCH_INDEX
     white_angle_deg: float = WHITE_ANGLE_DEG
     correlations: dict[str, float] = field(default_factory=dict)
+    #: [patch, angle] ΔE00 in the adapted convention (`delta_e00_adapted`), computed once by
+    #: `compare`; None in a comparison stored before it was kept
+    delta_e00_adapted: np.ndarray | None = None
 
     def rating_counts(self) -> dict[str, int]:
         idx = rating_index(self.delta_e00)
@@ -192,8 +204,40 @@ def compare(reference: Any, prediction: Any, wavelength_nm: Any, angle_deg: Any,
         "radiance_nrmse_small": _corr(mean_ref[:, small].ravel(), nrmse[:, small].ravel()),
         "radiance_nrmse_large": _corr(mean_ref[:, large].ravel(), nrmse[:, large].ravel()),
     }
+    adapted = _adapted_delta_e00(xyz_ref, xyz_pred, xyz_ref[white_patch, wa[0]])
     return ComparisonResult(names, ang, wl, ref, pred, nse, rmse, nrmse, nrmse_range, mean_ref,
-                            de, lab_ref, lab_pred, white_patch, float(white_angle_deg), corr)
+                            de, lab_ref, lab_pred, white_patch, float(white_angle_deg), corr,
+                            adapted)
+
+
+def _adapted_delta_e00(xyz_ref: np.ndarray, xyz_pred: np.ndarray,
+                       xyz_white: np.ndarray) -> np.ndarray:
+    import colour
+
+    white = xyz_white / xyz_white[1]
+    d65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
+
+    def adapt(xyz: np.ndarray) -> np.ndarray:
+        return colour.adaptation.chromatic_adaptation_VonKries(xyz / xyz_white[1], white, d65,
+                                                               transform="CAT02")
+
+    return delta_e00(XYZ_to_Lab_D65(adapt(xyz_ref)), XYZ_to_Lab_D65(adapt(xyz_pred)))
+
+
+def delta_e00_adapted(c: ComparisonResult) -> np.ndarray:
+    """ΔE00 [patch, angle] in the adapted convention, recomputed from `c`'s spectra: both
+    spectra's XYZ divided by the Y of the reference white patch at 30°, adapted from that
+    measured white to D65 with the CAT02 von Kries transform (colour-science), then Lab with
+    D65, CIE 2000 (kL = kC = kH = 1).  `compare` keeps it as `ComparisonResult.delta_e00_adapted`
+    (the report reads that and does not recompute it).
+
+    The paper's convention (`ComparisonResult.delta_e00`) takes Lab with a D65 white directly,
+    so under the ~3100 K lamp every colour sits on the warm side of Lab, where the same spectral
+    error gives a different ΔE00 than for an observer adapted to the box's light."""
+    xyz_ref = spectra_to_XYZ(c.reference, c.wavelength_nm)
+    xyz_pred = spectra_to_XYZ(c.prediction, c.wavelength_nm)
+    wa = int(np.flatnonzero(np.isclose(c.angle_deg, c.white_angle_deg))[0])
+    return _adapted_delta_e00(xyz_ref, xyz_pred, xyz_ref[c.white_patch, wa])
 
 
 # -- error model ---------------------------------------------------------------------------

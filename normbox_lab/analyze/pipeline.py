@@ -19,59 +19,20 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from normbox_lab.analyze.queries import fit_key, latest_fits, reference_data, white_index
 from normbox_lab.core.errors import DataError, StoreError
 
-WHITE_PATCH = 19
 ProgressFn = Callable[[str, int, int], None]
 
 
 def _noop(stage: str, done: int, total: int) -> None:
     """Default progress callback: silent."""
-
-
-def fit_key(patch: int | str) -> str:
-    """The fit artifact name of a patch number (the brdf-inplane protocol's material key)."""
-    return f"p{int(patch):02d}" if str(patch).isdigit() else str(patch)
-
-
-# --- the reference run ---------------------------------------------------------------------------
-
-@dataclass
-class ReferenceData:
-    patches: list[int]
-    angle_deg: np.ndarray
-    wavelength_nm: np.ndarray
-    radiance: np.ndarray              # [patch, angle, λ], W·sr⁻¹·m⁻²·nm⁻¹
-    patch_names: list[str] = field(default_factory=list)
-
-
-def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
-    """The reference sweep's spectra as [patch, angle, λ]; refuses holes (resume the run)."""
-    rows = [r for r in store.readings(run_ref, kind="spectral")
-            if "patch" in r.metadata and "angle_deg" in r.metadata]
-    if not rows:
-        raise DataError(str(store.path), f"run {run_ref}", "no patch × angle readings")
-    patches = sorted({int(r.metadata["patch"]) for r in rows})
-    angles = sorted({float(r.metadata["angle_deg"]) for r in rows})
-    wl = rows[0].arrays["wavelength_nm"]
-    rad = np.full((len(patches), len(angles), wl.size), np.nan)
-    names: dict[int, str] = {}
-    for r in rows:
-        p, a = patches.index(int(r.metadata["patch"])), angles.index(float(r.metadata["angle_deg"]))
-        rad[p, a] = np.interp(wl, r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
-        names[int(r.metadata["patch"])] = str(r.metadata.get("patch_name", r.metadata["patch"]))
-    missing = np.isnan(rad).all(axis=-1)
-    if missing.any():
-        holes = [f"a{angles[a]:g}/p{patches[p]:02d}" for p, a in zip(*np.nonzero(missing))]
-        raise DataError(str(store.path), f"run {run_ref}",
-                        f"{len(holes)} readings missing (e.g. {holes[0]}); resume the run first")
-    return ReferenceData(patches, np.array(angles), wl, rad, [names[p] for p in patches])
 
 
 # --- fit -----------------------------------------------------------------------------------------
@@ -113,26 +74,7 @@ def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
     return fits
 
 
-def latest_fits(store: Any) -> dict[str, Any]:
-    from normbox_lab.predict.brdf_model import MaterialFit
-
-    return {a.name: MaterialFit.from_artifact(a) for a in store.artifacts("fit")}
-
-
 # --- predict -------------------------------------------------------------------------------------
-
-def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
-    """The prediction's lamp: nominal spectrum, luminance from the light-map run if given."""
-    from normbox_lab.predict.render import Lamp, luminance_cd_m2
-
-    if light_map_run is None:
-        return Lamp()
-    lv = [luminance_cd_m2(r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
-          for r in store.readings(light_map_run, kind="spectral")]
-    if not lv:
-        raise DataError(str(store.path), f"run {light_map_run}", "light map has no readings")
-    return Lamp(luminance_cd_m2=float(np.mean(lv)))
-
 
 def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None = None,
                 geometry: Any = None, quality: str = "default", lamp: Any = None,
@@ -207,7 +149,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
                 err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
                 done += 1
     # direct-only renders of the white patch (or the first) for the light shares per angle
-    wp = WHITE_PATCH if WHITE_PATCH in ref.patches else ref.patches[0]
+    wp = ref.patches[white_index(ref.patches)]
     wmat = Material.from_fit(fits[fit_key(wp)])
     direct = np.zeros((n_a, ref.wavelength_nm.size))
     for ai, a in enumerate(ref.angle_deg):
@@ -251,12 +193,19 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
             not np.array_equal(pred["angle_deg"], ref.angle_deg):
         raise StoreError(f"the prediction of run {run_id} does not match its readings; "
                          "run `normbox-lab predict` again")
-    white = ref.patches.index(WHITE_PATCH) if WHITE_PATCH in ref.patches else 0
-    result = compare(ref.radiance, pred["radiance"], ref.wavelength_nm, ref.angle_deg,
-                     [f"{p} {n}" for p, n in zip(ref.patches, ref.patch_names)],
+    white = white_index(ref.patches)
+    names = [f"{p} {n}" for p, n in zip(ref.patches, ref.patch_names)]
+    result = compare(ref.radiance, pred["radiance"], ref.wavelength_nm, ref.angle_deg, names,
                      white_patch=white, white_angle_deg=float(ref.angle_deg.min()))
+    # what one Monte-Carlo standard error of the prediction does to ΔE00 (the report's methods)
+    shifted = compare(ref.radiance, pred["radiance"] + pred["std_error"], ref.wavelength_nm,
+                      ref.angle_deg, names, white_patch=white,
+                      white_angle_deg=float(ref.angle_deg.min()))
+    dde = np.abs(shifted.delta_e00 - result.delta_e00)
+    one_se = {"median": float(np.nanmedian(dde)), "max": float(np.nanmax(dde))}
     store.add_artifact("comparison", f"ref-run-{run_id}", result.to_arrays(),
-                       metadata={**result.to_metadata(), **qa.provenance(accepted)},
+                       metadata={**result.to_metadata(), "delta_e00_one_se_shift": one_se,
+                                 **qa.provenance(accepted)},
                        run_ref=run_id)
     if brdf_run is not None:
         from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
@@ -324,7 +273,7 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
     random numbers), so the map shows the materials' fit, not the lamp or the noise.  Both
     previews get the Bradford adaptation of the *truth* image's W&W estimate, so they stay
     comparable."""
-    from normbox_lab.analyze.report import ImageFigure, ImagePanel
+    from normbox_lab.analyze.report_data import ImageFigure, ImagePanel
     from normbox_lab.images import figure1, normbox_view, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map, write_png
     from normbox_lab.predict.materials import Material, holder_material, truth_patch, truth_wall

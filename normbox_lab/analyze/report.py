@@ -34,172 +34,37 @@ import csv
 import html
 import io
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
-from normbox_lab.analyze.fit import BrdfData
+from normbox_lab.analyze.compare import (
+    RATING_SCALE,
+    ComparisonResult,
+    ErrorModelResult,
+    delta_e00_adapted,
+    rate_delta_e,
+    rating_class_range,
+    rating_index,
+)
+from normbox_lab.analyze.report_data import (
+    Headline,
+    ImageFigure,
+    ImagePanel,
+    ReportData,
+    headline,
+)
 from normbox_lab.analyze.report_style import RADIANCE_UNIT, RATING_COLOURS, RATING_TEXT
-from normbox_lab.predict.brdf_model import MaterialFit
 
-
-@dataclass
-class ReportData:
-    """Everything the report shows; plain data, so it works from synthetic data or the store."""
-
-    comparison: ComparisonResult | None = None
-    fits: dict[str, MaterialFit] = field(default_factory=dict)
-    brdf_data: dict[str, BrdfData] = field(default_factory=dict)
-    error_model: ErrorModelResult | None = None
-    title: str = "Normbox validation report"
-    polar_wavelength_nm: float = 730.0
-    polar_materials: Sequence[str] | None = None   # default: patch08, patch18 (as the paper), wall
-    prediction_patches: Sequence[int] = (0, 5, 12, 18)   # 0-based indices for fig-prediction
-    nse_patch: int = 21                                # paper Fig. 13: patch 22
-    nse_fit_patches: Sequence[int] = (18, 22, 23)      # paper Fig. 14a: patches 19, 23, 24
-    wall_name: str = "wall"
-    wall_geometry_deg: tuple[float, float] = (-70.0, 80.0)   # paper Fig. 14b
-    patch_fit_names: Sequence[str] | None = None       # fit name per patch index (fig-nse-fit)
-    notes: list[str] = field(default_factory=list)
-    metadata: dict[str, Any] = field(default_factory=dict)
-    images: list[ImageFigure] = field(default_factory=list)   # virtual-camera figures
-    #: the campaign: one dict per run (id, protocol, status, readings, started, finished)
-    runs: list[dict[str, Any]] = field(default_factory=list)
-    #: instruments: one dict per instrument (role, model, serial, firmware, calibration)
-    instruments: list[dict[str, Any]] = field(default_factory=list)
-    #: quality flags (`analyze.qa.Flag`: severity, run_id, key, gate, value, limit, message);
-    #: None = no QA data available for these runs
-    flags: list[Any] | None = field(default_factory=list)
-    #: error budget (`analyze.budget`): (arrays, sources) of the latest error-budget artifact
-    budget: tuple[dict[str, Any], list[str]] | None = None
-    #: methods: name → value rows (software versions, seeds, render quality, MC error)
-    methods: dict[str, str] = field(default_factory=dict)
-
-
-@dataclass
-class ImagePanel:
-    """One panel of an image figure: an encoded sRGB image (H, W, 3) in [0, 1] or uint8, or a
-    scalar map (H, W) shown with a colour bar (`vmax`; default: its 99th percentile)."""
-
-    label: str
-    data: np.ndarray
-    vmax: float | None = None
-    unit: str = ""
-
-
-@dataclass
-class ImageFigure:
-    """A row of image panels (e.g. the paper's Fig. 1: truth | prediction | ΔE00 map).
-
-    Stored in the store as an ``image-figure`` artifact named `fid` (arrays ``p0``, ``p1``…;
-    labels, colour-bar limits and units in the metadata) by `to_artifact`."""
-
-    fid: str
-    title: str
-    caption: str
-    panels: list[ImagePanel]
-    subject: str = ""          # what it shows, e.g. "patch 19 at 30°" (the console's header)
-
-    def store(self, store: Any, run_ref: int | str | None = None) -> int:
-        # the store keeps float64: sRGB panels go in as encoded values in [0, 1]
-        arrays = {f"p{k}": (np.asarray(p.data) / 255.0 if np.asarray(p.data).dtype == np.uint8
-                            else np.asarray(p.data)) for k, p in enumerate(self.panels)}
-        meta = {"title": self.title, "caption": self.caption, "subject": self.subject,
-                "panels": [{"label": p.label, "vmax": p.vmax, "unit": p.unit}
-                           for p in self.panels]}
-        return store.add_artifact("image-figure", self.fid, arrays, metadata=meta,
-                                  run_ref=run_ref)
-
-    @classmethod
-    def from_artifact(cls, a: Any) -> ImageFigure:
-        m = a.metadata
-        panels = [ImagePanel(p["label"], np.asarray(a.arrays[f"p{k}"]), p.get("vmax"),
-                             p.get("unit", "")) for k, p in enumerate(m["panels"])]
-        return cls(a.name, m["title"], m["caption"], panels, m.get("subject", ""))
-
-
-# -- colour conventions ------------------------------------------------------------------------
-
-def delta_e00_adapted(c: ComparisonResult) -> np.ndarray:
-    """ΔE00 [patch, angle] in the adapted convention: both spectra's XYZ divided by the Y of the
-    reference white patch at 30°, adapted from that measured white to D65 with the CAT02 von
-    Kries transform (colour-science), then Lab with D65, CIE 2000 (kL = kC = kH = 1).
-
-    The paper's convention (`ComparisonResult.delta_e00`) takes Lab with a D65 white directly,
-    so under the ~3100 K lamp every colour sits on the warm side of Lab, where the same spectral
-    error gives a different ΔE00 than for an observer adapted to the box's light."""
-    import colour
-
-    from normbox_lab.analyze.compare import XYZ_to_Lab_D65, delta_e00, spectra_to_XYZ
-
-    xyz_ref = spectra_to_XYZ(c.reference, c.wavelength_nm)
-    xyz_pred = spectra_to_XYZ(c.prediction, c.wavelength_nm)
-    wa = int(np.flatnonzero(np.isclose(c.angle_deg, c.white_angle_deg))[0])
-    white = xyz_ref[c.white_patch, wa] / xyz_ref[c.white_patch, wa, 1]
-    d65 = colour.xy_to_XYZ(colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"])
-
-    def adapt(xyz: np.ndarray) -> np.ndarray:
-        n = xyz / xyz_ref[c.white_patch, wa, 1]
-        return colour.adaptation.chromatic_adaptation_VonKries(n, white, d65, transform="CAT02")
-
-    return delta_e00(XYZ_to_Lab_D65(adapt(xyz_ref)), XYZ_to_Lab_D65(adapt(xyz_pred)))
-
-
-# -- headline numbers ----------------------------------------------------------------------------
-
-@dataclass
-class Headline:
-    """The numbers of the report's first screen."""
-
-    white_delta_e00: float           # white patch at the white angle, paper convention
-    white_delta_e00_adapted: float
-    mean_delta_e00: float
-    mean_delta_e00_adapted: float
-    max_delta_e00: float
-    nrmse_mean_pct: float
-    nrmse_by_angle_pct: np.ndarray   # [angle] mean over patches
-    rating_counts: list[int]         # per RATING_SCALE class (paper convention)
-    rating_counts_adapted: list[int]
-    worst: list[tuple[str, float, float, float, float]]   # patch, angle, ΔE00, ΔE00 adapted, NRMSE %
-    verdict: str
-
-
-def headline(c: ComparisonResult, adapted: np.ndarray, n_worst: int = 5) -> Headline:
-    from normbox_lab.analyze.compare import rating_index
-
-    wa = int(np.flatnonzero(np.isclose(c.angle_deg, c.white_angle_deg))[0])
-    de = c.delta_e00
-    idx, idx_a = rating_index(de), rating_index(adapted)
-    counts = [int(np.sum(idx == k)) for k in range(len(RATING_SCALE))]
-    counts_a = [int(np.sum(idx_a == k)) for k in range(len(RATING_SCALE))]
-    order = np.argsort(np.nan_to_num(de, nan=-1.0), axis=None)[::-1][:n_worst]
-    worst = []
-    for flat in order:
-        p, a = np.unravel_index(flat, de.shape)
-        worst.append((c.patch_names[p], float(c.angle_deg[a]), float(de[p, a]),
-                      float(adapted[p, a]), 100.0 * float(c.nrmse[p, a])))
-    n = int(np.isfinite(de).sum())
-    within = counts[0] + counts[1]
-    mean_de = float(np.nanmean(de))
-    p_w, a_w, de_w = worst[0][0], worst[0][1], worst[0][2]
-    verdict = (f"The prediction is within ΔE00 ≤ 2 (not discernible side by side) for {within} "
-               f"of {n} patch × angle configurations (mean ΔE00 {mean_de:.2f}, paper "
-               f"convention) with a mean spectral error (NRMSE) of "
-               f"{100.0 * float(np.nanmean(c.nrmse)):.1f} %; the largest difference is patch "
-               f"{p_w} at {a_w:g}° (ΔE00 {de_w:.2f}).")
-    return Headline(float(de[c.white_patch, wa]), float(adapted[c.white_patch, wa]), mean_de,
-                    float(np.nanmean(adapted)), float(np.nanmax(de)),
-                    100.0 * float(np.nanmean(c.nrmse)), 100.0 * np.nanmean(c.nrmse, axis=0),
-                    counts, counts_a, worst, verdict)
+#: the report's data types live in `report_data`, the adapted ΔE00 in `compare`; these names
+#: stay importable from here
+__all__ = ["Headline", "ImageFigure", "ImagePanel", "ReportData", "build_html",
+           "delta_e00_adapted", "headline", "metrics_csv", "write_report"]
 
 
 def metrics_csv(c: ComparisonResult, adapted: np.ndarray) -> str:
     """The per-configuration metrics as CSV text (the report's data appendix)."""
-    from normbox_lab.analyze.compare import rate_delta_e
-
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(["patch", "angle_deg", "mean_radiance_W_sr_m2_nm", "rmse_W_sr_m2_nm",
@@ -230,14 +95,6 @@ def _fmt(v: Any, digits: int = 4) -> str:
             return "∞" if v > 0 else "−∞"
         return f"{float(v):.{digits}g}"
     return str(v)
-
-
-def _class_range(k: int) -> str:
-    lo = 0.0 if k == 0 else RATING_SCALE[k - 1][0]
-    hi = RATING_SCALE[k][0]
-    if not np.isfinite(hi):
-        return f"> {lo:g}"
-    return f"≤ {hi:g}" if k == 0 else f"{lo:g} – {hi:g}"
 
 
 class _Doc:
@@ -307,8 +164,6 @@ class _Doc:
 
 
 def _rating_class(_i: int, j: int, v: Any) -> str:
-    from normbox_lab.analyze.compare import rating_index
-
     if j == 0 or not isinstance(v, float | np.floating) or not np.isfinite(v):
         return ""
     return f"r{int(rating_index(v))}"
@@ -383,16 +238,46 @@ def _campaign_line(d: ReportData) -> str:
 # -- the report ----------------------------------------------------------------------------------
 
 def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
-    """(html, figure ids, table ids)."""
-    from normbox_lab.analyze import report_figures as rf
-
+    """(html, figure ids, table ids).  The adapted-convention ΔE00 is the comparison's own
+    (`ComparisonResult.delta_e00_adapted`, computed once by `compare`), not recomputed here."""
     doc = _Doc()
     c = d.comparison
-    adapted = delta_e00_adapted(c) if c is not None else None
+    adapted = _adapted(c)
     hl = headline(c, adapted) if c is not None and adapted is not None else None
-    labels = [lab for _, lab in RATING_SCALE]
+    _summary_section(doc, d, c, hl)
+    _qa_section(doc, d.flags)
+    if c is not None and adapted is not None:
+        _comparison_sections(doc, d, c, adapted, hl)
+    if d.images:
+        _images_section(doc, d.images)
+    if d.fits:
+        _fits_section(doc, d)
+    if d.error_model is not None:
+        _error_model_section(doc, d.error_model, c)
+    if d.budget is not None:
+        _budget_section(doc, *d.budget)
+    if c is not None and d.fits:
+        _nse_fit_section(doc, c, d)
+    if d.instruments or d.methods or d.runs or d.metadata:
+        _methods_section(doc, d)
+    if c is not None and adapted is not None:
+        _appendix_section(doc, c, adapted)
+    return _assemble(doc, d), doc.figs, doc.tabs
 
-    # ---- summary (first screen) -----------------------------------------------------------
+
+def _adapted(c: ComparisonResult | None) -> np.ndarray | None:
+    """The comparison's adapted-convention ΔE00; NaN ("—") for one stored without it."""
+    if c is None:
+        return None
+    if c.delta_e00_adapted is None:
+        return np.full(c.delta_e00.shape, np.nan)
+    return np.asarray(c.delta_e00_adapted, dtype=float)
+
+
+def _summary_section(doc: _Doc, d: ReportData, c: ComparisonResult | None,
+                     hl: Headline | None) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
     doc.section("summary", "Summary")
     doc.html(f'<p class="qa-summary">{_esc(_qa_line(d.flags))}</p>')
     if hl is not None and c is not None:
@@ -415,7 +300,7 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
                  + "</div>")
         doc.html("<div class='two'>")
         doc.figure("fig-summary-rating", "ΔE00 on the rating scale",
-                   rf.fig_rating_counts(hl.rating_counts, labels,
+                   rf.fig_rating_counts(hl.rating_counts, [lab for _, lab in RATING_SCALE],
                                         "paper convention (D65 white)"),
                    "How many patch × angle configurations fall in each class of the rating "
                    "scale (ΔE00 ≤ 1 below the just-noticeable difference; ≤ 2 not discernible "
@@ -443,198 +328,232 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     for n in d.notes:
         doc.html(f"<p class='note'>{_esc(n)}</p>")
 
-    # ---- quality flags ----------------------------------------------------------------------
+
+def _qa_section(doc: _Doc, flags: Sequence[Any] | None) -> None:
     doc.section("qa", "Quality flags")
-    if d.flags is None:
+    if flags is None:
         doc.html("<p>No QA data: nothing recorded whether the readings, calibrations or fits "
                  "of these runs passed the quality gates.</p>")
-    elif not d.flags:
+        return
+    if not flags:
         doc.html("<p>No quality flags: every quality gate passed on the runs of this "
                  "report.</p>")
-    else:
-        max_rows = 200
-        ordered = sorted(d.flags, key=lambda f: (f.severity != "error", f.run_id or 0, f.key))
-        doc.table("tab-qa", "Quality flags (errors first)",
-                  ["severity", "run", "reading / artifact", "gate", "value", "limit",
-                   "message"],
-                  [[f.severity, str(f.run_id or ""), f.key or "(run)", f.gate,
-                    "" if f.value is None else float(f.value),
-                    "" if f.limit is None else float(f.limit), f.message]
-                   for f in ordered[:max_rows]],
-                  cell_class=lambda i, j, v: f"sev-{v}" if j == 0 else "")
-        if len(ordered) > max_rows:
-            doc.html(f"<p>… and {len(ordered) - max_rows} more: <code>normbox-lab qa "
-                     "RUN_ID</code> lists them all.</p>")
+        return
+    max_rows = 200
+    ordered = sorted(flags, key=lambda f: (f.severity != "error", f.run_id or 0, f.key))
+    doc.table("tab-qa", "Quality flags (errors first)",
+              ["severity", "run", "reading / artifact", "gate", "value", "limit", "message"],
+              [[f.severity, str(f.run_id or ""), f.key or "(run)", f.gate,
+                "" if f.value is None else float(f.value),
+                "" if f.limit is None else float(f.limit), f.message]
+               for f in ordered[:max_rows]],
+              cell_class=lambda i, j, v: f"sev-{v}" if j == 0 else "")
+    if len(ordered) > max_rows:
+        doc.html(f"<p>… and {len(ordered) - max_rows} more: <code>normbox-lab qa "
+                 "RUN_ID</code> lists them all.</p>")
 
-    if c is not None and adapted is not None:
-        ang_hdr = ["patch", *[f"{v:g}°" for v in c.angle_deg]]
-        doc.section("reference", "Reference and prediction spectra")
-        doc.figure("fig-reference", "Reference spectra of every patch", rf.fig_reference(c),
-                   "Measured spectral radiance of each ColorChecker patch at each sample angle "
-                   "(colour bar). Look at how the level falls as the sample turns from the "
-                   "light (30°) towards the radiometer (90°).")
-        doc.figure("fig-prediction", "Prediction vs reference",
-                   rf.fig_prediction(c, d.prediction_patches),
-                   "Solid: reference; dashed: prediction; colour: sample angle. Where the "
-                   "dashed line leaves the solid one, the BRDF fit or the wall misses light.")
-        doc.section("physical", "Physical comparison: RMSE and NRMSE")
-        doc.figure("fig-rmse", "RMSE per patch and its correlation with radiance (paper Fig. 5)",
-                   rf.fig_metric(c, c.rmse, f"RMSE [{RADIANCE_UNIT}]", "radiance_rmse_small",
-                                 "radiance_rmse_large"),
-                   "Top: RMSE over wavelengths per patch and sample angle. Bottom: mean "
-                   "reference radiance against RMSE at small and large sample angles with "
-                   "Pearson r: a strong correlation means the absolute error scales with "
-                   "the light.")
-        doc.figure("fig-nrmse", "NRMSE per patch and its correlation with radiance (paper Fig. 6)",
-                   rf.fig_metric(c, 100.0 * c.nrmse, "NRMSE [%]", "radiance_nrmse_small",
-                                 "radiance_nrmse_large"),
-                   "NRMSE = RMSE / mean reference spectrum, in percent. Dark patches have "
-                   "large relative errors on little light.")
-        doc.table("tab-rmse", f"RMSE [{RADIANCE_UNIT}]", ang_hdr,
-                  [[n, *map(float, c.rmse[p])] for p, n in enumerate(c.patch_names)], digits=3)
-        doc.table("tab-nrmse", "NRMSE [%]", ang_hdr,
-                  [[n, *map(float, 100.0 * c.nrmse[p])] for p, n in enumerate(c.patch_names)],
-                  digits=3)
-        doc.table("tab-correlations", "Correlation of radiance with RMSE / NRMSE",
-                  ["pair", "Pearson r"],
-                  [[_corr_label(k), float(v)] for k, v in c.correlations.items()], digits=3)
-        doc.section("perceptual", "Perceptual comparison: ΔE00",
-                    _esc(_convention_text(c, hl)))
-        doc.figure("fig-deltae", "ΔE00 per patch and angle on the rating scale (paper Fig. 7)",
-                   rf.fig_deltae(c, adapted),
-                   "Each cell is one patch at one sample angle, coloured by its class on the "
-                   "rating scale. Left: the paper's convention; right: adapted to the measured "
-                   "white. Compare the columns: differences grow where indirect light "
-                   "dominates.")
-        doc.table("tab-deltae", "ΔE00, paper convention (D65 white)", ang_hdr,
-                  [[n, *map(float, c.delta_e00[p])] for p, n in enumerate(c.patch_names)],
-                  cell_class=_rating_class, digits=3)
-        doc.table("tab-deltae-adapted", "ΔE00, adapted convention (CAT02 to D65)", ang_hdr,
-                  [[n, *map(float, adapted[p])] for p, n in enumerate(c.patch_names)],
-                  cell_class=_rating_class, digits=3)
-        doc.table("tab-rating", "Rating scale: configurations per class",
-                  ["class", "ΔE00", "count (paper)", "count (adapted)"],
-                  [[lab, _class_range(k), hl.rating_counts[k] if hl else 0,
-                    hl.rating_counts_adapted[k] if hl else 0]
-                   for k, (_, lab) in enumerate(RATING_SCALE)],
-                  cell_class=lambda i, j, v: f"r{i}" if j == 0 else "")
-        doc.table("tab-deltae-means", "Mean ΔE00 per sample angle",
-                  ["convention", *[f"{v:g}°" for v in c.angle_deg], "all"],
-                  [["paper (D65 white)", *map(float, np.nanmean(c.delta_e00, 0)),
-                    float(np.nanmean(c.delta_e00))],
-                   ["adapted (CAT02)", *map(float, np.nanmean(adapted, 0)),
-                    float(np.nanmean(adapted))]], digits=3)
-        nse_patch = min(d.nse_patch, len(c.patch_names) - 1)
-        doc.section("nse", "Spectral error per angle (NSE)")
-        doc.figure("fig-nse", f"NSE per sample angle of patch {c.patch_names[nse_patch]} "
-                   "(paper Fig. 13)", rf.fig_nse(c, nse_patch),
-                   "Normalised spectral error (prediction − reference)/reference in percent, "
-                   "one panel per sample angle. A tilt across the spectrum points to a "
-                   "colour error; an offset to a level error.")
-    if d.images:
-        doc.section("images", "Images (virtual camera)")
-        for f in d.images:
-            doc.figure(f.fid, f.title, rf.fig_images(f), f.caption)
-    if d.fits:
-        doc.section("fits", "BRDF fits")
-        doc.table("tab-fits", "Fitted parameters", ["material", "α (roughness)", "η",
-                                                   "c [sr⁻¹]", "w (cos^w weight)",
-                                                   "fit error [%]", "Löw cost"],
-                  [[n, f.alpha, f.eta, f.c, f.w, f.fit_error_pct, f.cost]
-                   for n, f in d.fits.items()], digits=3)
-        names = list(d.polar_materials) if d.polar_materials is not None else (
-            [n for n in ("patch08", "patch18") if n in d.fits]
-            or [n for n in d.fits if n != d.wall_name][:1])
-        names += [d.wall_name] if d.polar_materials is None and d.wall_name in d.fits else []
-        from normbox_lab.analyze.fit import polar_plot
 
-        for n in names:
-            if n not in d.fits:
-                continue
-            fig = rf.in_style(lambda n=n: polar_plot(d.brdf_data.get(n), {n: d.fits[n]},
-                                                      d.polar_wavelength_nm))
-            doc.figure(f"fig-polar-{n}", f"BRDF of {n} at {d.polar_wavelength_nm:g} nm "
-                       "(paper Figs. 10/11)", fig,
-                       "Points: measured in-plane BRDF [sr⁻¹]; line: the fit (tilted geometry); "
-                       "one panel per incident angle θi, θo on the polar axis, dotted ray = "
-                       "light direction. Look for points the line misses near grazing angles.")
-    if d.error_model is not None:
-        em = d.error_model
-        doc.section("errormodel", "Error model")
-        doc.figure("fig-errormodel", "Error model vs NRMSE (paper Fig. 12)",
-                   rf.fig_error_model(em, c.nrmse if c is not None else None),
-                   "Bars: the simulated error from the direct-light share d per angle times "
-                   "the patch fit error err_d, plus (1 − d) times the wall fit error err_i; "
-                   "lines: simulated and observed NRMSE. Where the lines agree, the fit errors "
-                   "explain the prediction error.")
-        obs = em.observed_nrmse if em.observed_nrmse is not None else (
-            c.nrmse if c is not None else None)
-        rows = []
-        for a, ang in enumerate(em.angle_deg):
-            rows.append([f"{ang:g}°", float(np.nanmean(em.direct_share[:, a])),
-                         100.0 * float(np.nanmean(em.contribution_d[:, a])),
-                         100.0 * float(np.nanmean(em.contribution_i[:, a])),
-                         100.0 * float(np.nanmean(em.simulated_nrmse[:, a])),
-                         100.0 * float(np.nanmean(np.atleast_2d(obs)[:, a])) if obs is not None
-                         else float("nan")])
-        doc.table("tab-errormodel", "Error model per angle (means over patches)",
-                  ["angle", "direct share d", "d·err_d [%]", "(1−d)·err_i [%]",
-                   "simulated [%]", "observed NRMSE [%]"], rows, digits=3)
-    if d.budget is not None:
-        from normbox_lab.analyze.budget import budget_figure, budget_rows
+def _comparison_sections(doc: _Doc, d: ReportData, c: ComparisonResult, adapted: np.ndarray,
+                         hl: Headline | None) -> None:
+    """reference, physical, perceptual and nse."""
+    from normbox_lab.analyze import report_figures as rf
 
-        arrays, sources = d.budget
-        doc.section("budget", "Error budget")
-        doc.figure("fig-budget", "Error budget per angle (paper Fig. 12, every source)",
-                   rf.in_style(lambda: budget_figure(arrays, sources)),
-                   "Each source's share of the total NRMSE (stacked), propagated from its "
-                   "distribution (normbox-lab budget), against the observed NRMSE with its "
-                   "95 % interval.")
-        header, rows = budget_rows(arrays, sources)
-        doc.table("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
-                  "sample-angle offset", header, rows, digits=3)
-    if c is not None and d.fits:
-        got = rf.fig_nse_fit(c, d)
-        if got is not None:
-            fig, rows = got
-            doc.section("nsefit", "NSE vs BRDF fitting error")
-            doc.figure("fig-nse-fit", "NSE vs fitting error (paper Fig. 14)", fig,
-                       "Top: NSE at the smallest and largest sample angle; bottom: relative "
-                       "BRDF fitting error at the matching geometry (patch: direct light; "
-                       "wall: grazing). Similar shapes mean the fit error carries through.")
-            doc.table("tab-nse-fit", "NSE vs fitting error (RMS over wavelengths)",
-                      ["patch", "angle", "RMS NSE [%]", "fit error at", "RMS fit error [%]"],
-                      rows, digits=3)
+    ang_hdr = ["patch", *[f"{v:g}°" for v in c.angle_deg]]
+    doc.section("reference", "Reference and prediction spectra")
+    doc.figure("fig-reference", "Reference spectra of every patch", rf.fig_reference(c),
+               "Measured spectral radiance of each ColorChecker patch at each sample angle "
+               "(colour bar). Look at how the level falls as the sample turns from the "
+               "light (30°) towards the radiometer (90°).")
+    doc.figure("fig-prediction", "Prediction vs reference",
+               rf.fig_prediction(c, d.prediction_patches),
+               "Solid: reference; dashed: prediction; colour: sample angle. Where the "
+               "dashed line leaves the solid one, the BRDF fit or the wall misses light.")
+    doc.section("physical", "Physical comparison: RMSE and NRMSE")
+    doc.figure("fig-rmse", "RMSE per patch and its correlation with radiance (paper Fig. 5)",
+               rf.fig_metric(c, c.rmse, f"RMSE [{RADIANCE_UNIT}]", "radiance_rmse_small",
+                             "radiance_rmse_large"),
+               "Top: RMSE over wavelengths per patch and sample angle. Bottom: mean "
+               "reference radiance against RMSE at small and large sample angles with "
+               "Pearson r: a strong correlation means the absolute error scales with "
+               "the light.")
+    doc.figure("fig-nrmse", "NRMSE per patch and its correlation with radiance (paper Fig. 6)",
+               rf.fig_metric(c, 100.0 * c.nrmse, "NRMSE [%]", "radiance_nrmse_small",
+                             "radiance_nrmse_large"),
+               "NRMSE = RMSE / mean reference spectrum, in percent. Dark patches have "
+               "large relative errors on little light.")
+    doc.table("tab-rmse", f"RMSE [{RADIANCE_UNIT}]", ang_hdr,
+              [[n, *map(float, c.rmse[p])] for p, n in enumerate(c.patch_names)], digits=3)
+    doc.table("tab-nrmse", "NRMSE [%]", ang_hdr,
+              [[n, *map(float, 100.0 * c.nrmse[p])] for p, n in enumerate(c.patch_names)],
+              digits=3)
+    doc.table("tab-correlations", "Correlation of radiance with RMSE / NRMSE",
+              ["pair", "Pearson r"],
+              [[_corr_label(k), float(v)] for k, v in c.correlations.items()], digits=3)
+    _perceptual_section(doc, c, adapted, hl)
+    nse_patch = min(d.nse_patch, len(c.patch_names) - 1)
+    doc.section("nse", "Spectral error per angle (NSE)")
+    doc.figure("fig-nse", f"NSE per sample angle of patch {c.patch_names[nse_patch]} "
+               "(paper Fig. 13)", rf.fig_nse(c, nse_patch),
+               "Normalised spectral error (prediction − reference)/reference in percent, "
+               "one panel per sample angle. A tilt across the spectrum points to a "
+               "colour error; an offset to a level error.")
 
-    # ---- methods and appendix --------------------------------------------------------------
-    if d.instruments or d.methods or d.runs or d.metadata:
-        doc.section("methods", "Methods")
-        if d.runs:
-            doc.table("tab-runs", "Runs", ["run", "protocol", "status", "readings", "started",
-                                          "finished", "seeds"],
-                      [[r["id"], r["protocol"], r.get("status", ""), r.get("readings", ""),
-                        r.get("started", ""), r.get("finished", ""), r.get("seeds", "")]
-                       for r in d.runs])
-        if d.instruments:
-            doc.table("tab-instruments", "Instruments",
-                      ["role", "model", "serial", "firmware", "calibration", "runs"],
-                      [[i.get("role", ""), i.get("model", ""), i.get("serial", ""),
-                        i.get("firmware", ""), i.get("calibration", ""), i.get("runs", "")]
-                       for i in d.instruments])
-        rows = [[k, v] for k, v in d.methods.items()] + [[str(k), str(v)]
-                                                        for k, v in d.metadata.items()]
-        if rows:
-            doc.table("tab-methods", "Software, seeds, rendering", ["item", "value"], rows)
-    if c is not None and adapted is not None:
-        doc.section("appendix", "Data appendix")
-        text = metrics_csv(c, adapted)
-        uri = "data:text/csv;base64," + base64.b64encode(text.encode("utf-8")).decode("ascii")
-        doc.html(f"<p id='data-csv'><a download='normbox-metrics.csv' href='{uri}'>"
-                 f"Download the per-configuration metrics (CSV, {len(c.patch_names)} × "
-                 f"{c.angle_deg.size} rows)</a>: patch, sample angle, mean radiance and RMSE "
-                 f"[{RADIANCE_UNIT}], NRMSE and NRMSE by range [%], ΔE00 in both conventions, "
-                 "rating class. Numbers at full double precision.</p>")
 
+def _perceptual_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray,
+                        hl: Headline | None) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
+    ang_hdr = ["patch", *[f"{v:g}°" for v in c.angle_deg]]
+    doc.section("perceptual", "Perceptual comparison: ΔE00", _esc(_convention_text(c, hl)))
+    doc.figure("fig-deltae", "ΔE00 per patch and angle on the rating scale (paper Fig. 7)",
+               rf.fig_deltae(c, adapted),
+               "Each cell is one patch at one sample angle, coloured by its class on the "
+               "rating scale. Left: the paper's convention; right: adapted to the measured "
+               "white. Compare the columns: differences grow where indirect light "
+               "dominates.")
+    doc.table("tab-deltae", "ΔE00, paper convention (D65 white)", ang_hdr,
+              [[n, *map(float, c.delta_e00[p])] for p, n in enumerate(c.patch_names)],
+              cell_class=_rating_class, digits=3)
+    doc.table("tab-deltae-adapted", "ΔE00, adapted convention (CAT02 to D65)", ang_hdr,
+              [[n, *map(float, adapted[p])] for p, n in enumerate(c.patch_names)],
+              cell_class=_rating_class, digits=3)
+    doc.table("tab-rating", "Rating scale: configurations per class",
+              ["class", "ΔE00", "count (paper)", "count (adapted)"],
+              [[lab, rating_class_range(k), hl.rating_counts[k] if hl else 0,
+                hl.rating_counts_adapted[k] if hl else 0]
+               for k, (_, lab) in enumerate(RATING_SCALE)],
+              cell_class=lambda i, j, v: f"r{i}" if j == 0 else "")
+    doc.table("tab-deltae-means", "Mean ΔE00 per sample angle",
+              ["convention", *[f"{v:g}°" for v in c.angle_deg], "all"],
+              [["paper (D65 white)", *map(float, np.nanmean(c.delta_e00, 0)),
+                float(np.nanmean(c.delta_e00))],
+               ["adapted (CAT02)", *map(float, np.nanmean(adapted, 0)),
+                float(np.nanmean(adapted))]], digits=3)
+
+
+def _images_section(doc: _Doc, images: Sequence[ImageFigure]) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
+    doc.section("images", "Images (virtual camera)")
+    for f in images:
+        doc.figure(f.fid, f.title, rf.fig_images(f), f.caption)
+
+
+def _fits_section(doc: _Doc, d: ReportData) -> None:
+    from normbox_lab.analyze import report_figures as rf
+    from normbox_lab.analyze.fit import polar_plot
+
+    doc.section("fits", "BRDF fits")
+    doc.table("tab-fits", "Fitted parameters", ["material", "α (roughness)", "η",
+                                               "c [sr⁻¹]", "w (cos^w weight)",
+                                               "fit error [%]", "Löw cost"],
+              [[n, f.alpha, f.eta, f.c, f.w, f.fit_error_pct, f.cost]
+               for n, f in d.fits.items()], digits=3)
+    names = list(d.polar_materials) if d.polar_materials is not None else (
+        [n for n in ("patch08", "patch18") if n in d.fits]
+        or [n for n in d.fits if n != d.wall_name][:1])
+    names += [d.wall_name] if d.polar_materials is None and d.wall_name in d.fits else []
+    for n in names:
+        if n not in d.fits:
+            continue
+        fig = rf.in_style(lambda n=n: polar_plot(d.brdf_data.get(n), {n: d.fits[n]},
+                                                  d.polar_wavelength_nm))
+        doc.figure(f"fig-polar-{n}", f"BRDF of {n} at {d.polar_wavelength_nm:g} nm "
+                   "(paper Figs. 10/11)", fig,
+                   "Points: measured in-plane BRDF [sr⁻¹]; line: the fit (tilted geometry); "
+                   "one panel per incident angle θi, θo on the polar axis, dotted ray = "
+                   "light direction. Look for points the line misses near grazing angles.")
+
+
+def _error_model_section(doc: _Doc, em: ErrorModelResult, c: ComparisonResult | None) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
+    doc.section("errormodel", "Error model")
+    doc.figure("fig-errormodel", "Error model vs NRMSE (paper Fig. 12)",
+               rf.fig_error_model(em, c.nrmse if c is not None else None),
+               "Bars: the simulated error from the direct-light share d per angle times "
+               "the patch fit error err_d, plus (1 − d) times the wall fit error err_i; "
+               "lines: simulated and observed NRMSE. Where the lines agree, the fit errors "
+               "explain the prediction error.")
+    obs = em.observed_nrmse if em.observed_nrmse is not None else (
+        c.nrmse if c is not None else None)
+    rows = []
+    for a, ang in enumerate(em.angle_deg):
+        rows.append([f"{ang:g}°", float(np.nanmean(em.direct_share[:, a])),
+                     100.0 * float(np.nanmean(em.contribution_d[:, a])),
+                     100.0 * float(np.nanmean(em.contribution_i[:, a])),
+                     100.0 * float(np.nanmean(em.simulated_nrmse[:, a])),
+                     100.0 * float(np.nanmean(np.atleast_2d(obs)[:, a])) if obs is not None
+                     else float("nan")])
+    doc.table("tab-errormodel", "Error model per angle (means over patches)",
+              ["angle", "direct share d", "d·err_d [%]", "(1−d)·err_i [%]",
+               "simulated [%]", "observed NRMSE [%]"], rows, digits=3)
+
+
+def _budget_section(doc: _Doc, arrays: dict[str, Any], sources: list[str]) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
+    doc.section("budget", "Error budget")
+    doc.figure("fig-budget", "Error budget per angle (paper Fig. 12, every source)",
+               rf.fig_budget(arrays, sources),
+               "Each source's share of the total NRMSE (stacked), propagated from its "
+               "distribution (normbox-lab budget), against the observed NRMSE with its "
+               "95 % interval.")
+    header, rows = rf.budget_rows(arrays, sources)
+    doc.table("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
+              "sample-angle offset", header, rows, digits=3)
+
+
+def _nse_fit_section(doc: _Doc, c: ComparisonResult, d: ReportData) -> None:
+    from normbox_lab.analyze import report_figures as rf
+
+    got = rf.fig_nse_fit(c, d)
+    if got is None:
+        return
+    fig, rows = got
+    doc.section("nsefit", "NSE vs BRDF fitting error")
+    doc.figure("fig-nse-fit", "NSE vs fitting error (paper Fig. 14)", fig,
+               "Top: NSE at the smallest and largest sample angle; bottom: relative "
+               "BRDF fitting error at the matching geometry (patch: direct light; "
+               "wall: grazing). Similar shapes mean the fit error carries through.")
+    doc.table("tab-nse-fit", "NSE vs fitting error (RMS over wavelengths)",
+              ["patch", "angle", "RMS NSE [%]", "fit error at", "RMS fit error [%]"],
+              rows, digits=3)
+
+
+def _methods_section(doc: _Doc, d: ReportData) -> None:
+    doc.section("methods", "Methods")
+    if d.runs:
+        doc.table("tab-runs", "Runs", ["run", "protocol", "status", "readings", "started",
+                                      "finished", "seeds"],
+                  [[r["id"], r["protocol"], r.get("status", ""), r.get("readings", ""),
+                    r.get("started", ""), r.get("finished", ""), r.get("seeds", "")]
+                   for r in d.runs])
+    if d.instruments:
+        doc.table("tab-instruments", "Instruments",
+                  ["role", "model", "serial", "firmware", "calibration", "runs"],
+                  [[i.get("role", ""), i.get("model", ""), i.get("serial", ""),
+                    i.get("firmware", ""), i.get("calibration", ""), i.get("runs", "")]
+                   for i in d.instruments])
+    rows = [[k, v] for k, v in d.methods.items()] + [[str(k), str(v)]
+                                                    for k, v in d.metadata.items()]
+    if rows:
+        doc.table("tab-methods", "Software, seeds, rendering", ["item", "value"], rows)
+
+
+def _appendix_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray) -> None:
+    doc.section("appendix", "Data appendix")
+    text = metrics_csv(c, adapted)
+    uri = "data:text/csv;base64," + base64.b64encode(text.encode("utf-8")).decode("ascii")
+    doc.html(f"<p id='data-csv'><a download='normbox-metrics.csv' href='{uri}'>"
+             f"Download the per-configuration metrics (CSV, {len(c.patch_names)} × "
+             f"{c.angle_deg.size} rows)</a>: patch, sample angle, mean radiance and RMSE "
+             f"[{RADIANCE_UNIT}], NRMSE and NRMSE by range [%], ΔE00 in both conventions, "
+             "rating class. Numbers at full double precision.</p>")
+
+
+def _assemble(doc: _Doc, d: ReportData) -> str:
+    """The page: head, the summary first, then the contents, then the rest."""
     head = (f"<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
             f"<meta name='viewport' content='width=device-width, initial-scale=1'>"
             f"<title>{_esc(d.title)}</title><style>{_css()}</style></head><body>"
@@ -642,10 +561,8 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     sub = _campaign_line(d)
     head += (f"<p class='subtitle'>{_esc(sub)}</p>" if sub else "") + "</header>"
     body = doc.body()
-    # the summary first, then the contents, then the rest
     first, rest = (body.split("</section>", 1) + [""])[:2]
-    text = head + first + "</section>" + doc.contents() + rest + "</body></html>"
-    return text, doc.figs, doc.tabs
+    return head + first + "</section>" + doc.contents() + rest + "</body></html>"
 
 
 def _qa_line(flags: Sequence[Any] | None) -> str:

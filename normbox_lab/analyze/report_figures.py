@@ -13,7 +13,12 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
-from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, ErrorModelResult
+from normbox_lab.analyze.compare import (
+    RATING_SCALE,
+    ComparisonResult,
+    ErrorModelResult,
+    rating_class_range,
+)
 from normbox_lab.analyze.fit import fit_error_at
 from normbox_lab.analyze.report_style import (
     FONT_PT,
@@ -27,7 +32,7 @@ from normbox_lab.analyze.report_style import (
 )
 
 if TYPE_CHECKING:
-    from normbox_lab.analyze.report import ImageFigure, ReportData
+    from normbox_lab.analyze.report_data import ImageFigure, ReportData
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -192,15 +197,9 @@ def fig_deltae(c: ComparisonResult, adapted: np.ndarray | None = None) -> Any:
     axes[0].set_ylabel("ColorChecker patch")
     cb = fig.colorbar(im, ax=axes, ticks=[(bounds[k] + bounds[k + 1]) / 2 for k in range(4)],
                       fraction=0.04, pad=0.02)
-    cb.ax.set_yticklabels([f"{lab}\n(ΔE00 {_class_range(k)})"
+    cb.ax.set_yticklabels([f"{lab}\n(ΔE00 {rating_class_range(k)})"
                            for k, (_, lab) in enumerate(RATING_SCALE)])
     return fig
-
-
-def _class_range(k: int) -> str:
-    lo = 0.0 if k == 0 else RATING_SCALE[k - 1][0]
-    hi = RATING_SCALE[k][0]
-    return f"> {lo:g}" if not np.isfinite(hi) else (f"≤ {hi:g}" if k == 0 else f"{lo:g}–{hi:g}")
 
 
 @styled
@@ -381,6 +380,60 @@ def fig_images(f: ImageFigure) -> Any:
 
 @styled
 def in_style(plot: Callable[[], Any]) -> Any:
-    """A figure made elsewhere (`analyze.fit.polar_plot`, `analyze.budget.budget_figure`) in the
+    """A figure made elsewhere (`analyze.fit.polar_plot`) in the
     report's rcParams."""
     return plot()
+
+
+# --- the error budget (`normbox-lab budget`'s stored "error-budget" artifact) -------------------
+
+@styled
+def fig_budget(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> Any:
+    """Stacked budget per angle (the paper's Fig. 12 generalised to every source): each source's
+    share of the total NRMSE² stacked to the total, mean over patches, against the observed
+    NRMSE with its mean 95 % interval.  `arrays`: the stored "error-budget" artifact's."""
+    import matplotlib
+
+    ang = np.asarray(arrays["angle_deg"])
+    c2 = np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1)            # [source, angle]
+    total = np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
+    parts = 100 * total * c2 / np.maximum(c2.sum(axis=0, keepdims=True), 1e-300)
+    fig = new_figure(7.5, 3.6)
+    ax = fig.add_subplot(1, 1, 1)
+    x = np.arange(ang.size)
+    bottom = np.zeros(ang.size)
+    cmap = matplotlib.colormaps["tab20"]
+    for k, s in enumerate(sources):
+        ax.bar(x, parts[k], bottom=bottom, color=cmap(k % 20), label=s)
+        bottom += parts[k]
+    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
+    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
+    ax.errorbar(x, obs, yerr=[obs - ci[0], ci[1] - obs], fmt="ko--", ms=4, capsize=2,
+                label="observed NRMSE (95 %)")
+    ax.set_xticks(x, [f"{v:g}" for v in ang])
+    ax.set_xlabel("sample angle [°]")
+    ax.set_ylabel("NRMSE [%] (mean over patches)")
+    ax.legend(ncol=3)
+    return fig
+
+
+def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> tuple[list, list]:
+    """(header, rows) per angle: each source's NRMSE contribution (%, RMS over patches), total,
+    observed with its interval, significant configurations, the angle offset."""
+    ang = np.asarray(arrays["angle_deg"])
+    by = 100 * np.sqrt(np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1))
+    tot = 100 * np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
+    obs = 100 * np.mean(arrays["observed_nrmse"], axis=0)
+    ci = 100 * np.mean(arrays["observed_nrmse_ci"], axis=1)
+    sig = np.sum(arrays["significant_nrmse"], axis=0)
+    off = arrays.get("angle_offset_deg")
+    off_ci = arrays.get("angle_offset_ci95_deg")
+    header = ["angle", *sources, "total", "observed", "95 % interval", "significant",
+              "angle offset [°]"]
+    rows = []
+    for a in range(ang.size):
+        rows.append([f"{ang[a]:g}°", *[float(by[k, a]) for k in range(len(sources))],
+                     float(tot[a]), float(obs[a]), f"{ci[0, a]:.2f}–{ci[1, a]:.2f}",
+                     int(sig[a]),
+                     "" if off is None else f"{off[a]:+.2f} ± {off_ci[a]:.2f}"])
+    return header, rows

@@ -3,7 +3,7 @@ figures, the campaign's runs and instruments, quality flags, and the methods (so
 versions, seeds, render quality, Monte-Carlo error).
 
 Quality flags come from `normbox_lab.analyze.qa` (the store's flags table) for every run of
-the campaign; the error budget from the latest ``error-budget`` artifact (`analyze.budget`).
+the campaign; the error budget from the latest ``error-budget`` artifact (`normbox-lab budget`).
 """
 
 from __future__ import annotations
@@ -16,7 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.analyze.report import ReportData
+from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
+from normbox_lab.analyze.queries import fit_key, latest_fits
+from normbox_lab.analyze.report_data import ImageFigure, ReportData
 
 #: distributions whose versions the methods section lists (no import: metadata only)
 SOFTWARE = ("normbox-lab", "numpy", "scipy", "colour-science", "mitsuba", "drjit",
@@ -81,8 +83,9 @@ def quality_flags(store: Any, run_ids: Iterable[int]) -> list[Any]:
     return [f for rid in run_ids for f in qa.flags(store, rid)]
 
 
-def prediction_methods(store: Any, run_id: int, comparison: Any) -> dict[str, str]:
-    """Render quality and Monte-Carlo error of the stored prediction."""
+def prediction_methods(store: Any, run_id: int) -> dict[str, str]:
+    """Render quality and Monte-Carlo error of the stored prediction, and what one standard
+    error does to ΔE00 (computed once by `pipeline.compare_run`, read from the comparison)."""
     found = store.artifacts("prediction", f"ref-run-{run_id}")
     if not found:
         return {}
@@ -97,25 +100,17 @@ def prediction_methods(store: Any, run_id: int, comparison: Any) -> dict[str, st
             rel = np.nanmean(se, -1) / np.nanmean(rad, -1)
         out["prediction: Monte-Carlo standard error (spectral mean / mean radiance)"] = (
             f"median {100 * np.nanmedian(rel):.2f} %, max {100 * np.nanmax(rel):.2f} %")
-        if comparison is not None and comparison.prediction.shape == rad.shape:
-            from normbox_lab.analyze.compare import compare
-
-            shifted = compare(comparison.reference, comparison.prediction + se,
-                              comparison.wavelength_nm, comparison.angle_deg,
-                              comparison.patch_names, white_patch=comparison.white_patch,
-                              white_angle_deg=comparison.white_angle_deg)
-            dde = np.abs(shifted.delta_e00 - comparison.delta_e00)
-            out["prediction: ΔE00 change for a one-standard-error shift"] = (
-                f"median {np.nanmedian(dde):.3f}, max {np.nanmax(dde):.3f}")
+    comparisons = store.artifacts("comparison", f"ref-run-{run_id}")
+    shift = comparisons[-1].metadata.get("delta_e00_one_se_shift") if comparisons else None
+    if shift:
+        out["prediction: ΔE00 change for a one-standard-error shift"] = (
+            f"median {float(shift['median']):.3f}, max {float(shift['max']):.3f}")
     return out
 
 
 def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str | None = None,
                            notes: Iterable[str] = ()) -> ReportData:
     """Everything the report of reference run `ref_run` shows, from the store."""
-    from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
-    from normbox_lab.analyze.pipeline import fit_key, latest_fits
-    from normbox_lab.analyze.report import ImageFigure
 
     run_id = store.get_run(ref_run).id
     comparison = ComparisonResult.from_artifact(
@@ -140,7 +135,7 @@ def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str |
     budgets = store.artifacts("error-budget", f"ref-run-{run_id}")
     budget = (budgets[-1].arrays, budgets[-1].metadata["sources"]) if budgets else None
     methods = {f"software: {k}": v for k, v in software_versions().items()}
-    methods.update(prediction_methods(store, run_id, comparison))
+    methods.update(prediction_methods(store, run_id))
     return ReportData(
         comparison=comparison, fits=fits, brdf_data=data, error_model=em,
         title=f"Normbox validation report — reference run {run_id}",

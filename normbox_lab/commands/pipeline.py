@@ -101,7 +101,8 @@ def _print_artifact_flags(store, kind: str) -> int:
 
 
 def _predict(args: argparse.Namespace) -> int:
-    from normbox_lab.analyze.pipeline import lamp_from_light_map, predict_run
+    from normbox_lab.analyze.pipeline import predict_run
+    from normbox_lab.analyze.queries import lamp_from_light_map
     from normbox_lab.predict.executors import make_executor
 
     if args.address and args.executor != "dask":
