@@ -176,16 +176,20 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
 # --- compare and error model ---------------------------------------------------------------
 
 def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None, *,
-                accept_flagged: bool = False) -> Any:
+                accept_flagged: bool = False, renderer: str | None = None) -> Any:
     """ΔE00, NRMSE… of the latest prediction against the reference; stores the comparison and
     (when the gonio data are at hand) the error model.  Error flags on the reference run or
-    the prediction are refused unless `accept_flagged` (then recorded in the comparison)."""
+    the prediction are refused unless `accept_flagged` (then recorded in the comparison).
+    `renderer`: another renderer's imported prediction (`predict.renderers`) instead of ours;
+    its comparison and error model are stored under ``ref-run-<id>@<renderer>``."""
     from normbox_lab.analyze import qa
     from normbox_lab.analyze.compare import compare, direct_light_geometry, error_model
+    from normbox_lab.predict.renderers import artifact_name
 
     run_id = store.get_run(ref_run).id
     ref = reference_data(store, run_id)
-    pred_artifact = store.latest_artifact("prediction", f"ref-run-{run_id}")
+    name = artifact_name(run_id, renderer)
+    pred_artifact = store.latest_artifact("prediction", name)
     accepted = qa.require_clean(store, run=run_id, artifacts=[pred_artifact.id],
                                 accept_flagged=accept_flagged, step="compare")
     pred = pred_artifact.arrays
@@ -203,11 +207,12 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
                       white_angle_deg=float(ref.angle_deg.min()))
     dde = np.abs(shifted.delta_e00 - result.delta_e00)
     one_se = {"median": float(np.nanmedian(dde)), "max": float(np.nanmax(dde))}
-    store.add_artifact("comparison", f"ref-run-{run_id}", result.to_arrays(),
+    store.add_artifact("comparison", name, result.to_arrays(),
                        metadata={**result.to_metadata(), "delta_e00_one_se_shift": one_se,
+                                 "renderer": renderer or "normbox-lab",
                                  **qa.provenance(accepted)},
                        run_ref=run_id)
-    if brdf_run is not None:
+    if brdf_run is not None and "direct_white" in pred:
         from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
 
         fits = latest_fits(store)
@@ -225,7 +230,7 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
         err_i = np.interp(ref.wavelength_nm, data["wall"].wavelength_nm, e_wall)
         em = error_model(share, np.nan_to_num(err_d), np.nan_to_num(err_i)[None, None, :],
                          ref.angle_deg, reference=ref.radiance, observed_nrmse=result.nrmse)
-        em.store(store, f"ref-run-{run_id}", run_ref=run_id)
+        em.store(store, name, run_ref=run_id)
     return result
 
 

@@ -1,4 +1,5 @@
-"""`normbox-lab import brdf-json FILE [--material NAME] [--tilt-deg 4] [--store FILE]`."""
+"""`normbox-lab import brdf-json FILE [--material NAME] [--tilt-deg 4] [--store FILE]`,
+`normbox-lab import prediction FILE --ref-run N --renderer NAME [--store FILE]`."""
 
 from __future__ import annotations
 
@@ -21,6 +22,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="out-of-plane tilt of the arms during that measurement")
     add_store_argument(b)
     b.set_defaults(handler=_import_brdf)
+    _register_prediction(isub)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
@@ -33,4 +35,46 @@ def _import_brdf(args: argparse.Namespace) -> int:
         run_id = store_brdf(store, data, tilt_deg=args.tilt_deg)
     print(f"imported {len(data.theta_i_deg)} geometries × {len(data.wavelength_nm)} wavelengths "
           f"of {data.material!r} as run {run_id}")
+    return 0
+
+
+def _register_prediction(isub: argparse._SubParsersAction) -> None:
+    p = isub.add_parser(
+        "prediction", help="another renderer's predicted spectra of a reference run",
+        description="CSV with patch,angle_deg,wavelength_nm,radiance_W_sr_m2_nm[,std_error] "
+                    "(what a scene package's render_mitsuba.py writes), or a directory of "
+                    "spectral EXRs pNN_s<angle>.exr. Checked against the reference run first "
+                    "(configurations, wavelength grid in nm, finite non-negative radiance): "
+                    "each problem one line, nothing stored, exit 2. Then `normbox-lab compare "
+                    "REF_RUN --renderer NAME`.")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--ref-run", required=True, metavar="N")
+    p.add_argument("--renderer", required=True, metavar="NAME")
+    p.add_argument("--renderer-version", metavar="VERSION",
+                   help="default: the file's '# renderer_version:' line")
+    add_store_argument(p)
+    p.set_defaults(handler=_import_prediction)
+
+
+def _import_prediction(args: argparse.Namespace) -> int:
+    import sys
+    from pathlib import Path
+
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import StoreError
+    from normbox_lab.predict.renderers import PredictionFileError, import_prediction
+
+    if not Path(args.store).exists():
+        raise StoreError(f"no store at {args.store}")
+    with Store(args.store) as store:
+        try:
+            run_id, aid = import_prediction(store, args.file, args.ref_run, args.renderer,
+                                            renderer_version=args.renderer_version)
+        except PredictionFileError as exc:
+            for line in exc.problems:
+                print(f"normbox-lab: {args.file}: {line} (nothing stored)", file=sys.stderr)
+            return exc.exit_code
+    print(f"prediction of {args.renderer!r} for run {args.ref_run} stored as run {run_id} "
+          f"(artifact {aid}); compare with `normbox-lab compare {args.ref_run} --renderer "
+          f"{args.renderer}`")
     return 0

@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "also the error model.")
     c.add_argument("run", metavar="REFERENCE_RUN_ID")
     c.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run the fits came from")
+    c.add_argument("--renderer", metavar="NAME",
+                   help="compare another renderer's prediction (`normbox-lab import "
+                        "prediction`) instead of ours")
     _accept_flagged(c)
     add_store_argument(c)
     c.set_defaults(handler=_compare)
@@ -135,7 +138,8 @@ def _compare(args: argparse.Namespace) -> int:
     from normbox_lab.analyze.pipeline import compare_run
 
     with _open(args) as store:
-        c = compare_run(store, args.run, args.brdf_run, accept_flagged=args.accept_flagged)
+        c = compare_run(store, args.run, args.brdf_run, accept_flagged=args.accept_flagged,
+                        renderer=args.renderer)
     print(f"ΔE00 mean {np.nanmean(c.delta_e00):.2f}, max {np.nanmax(c.delta_e00):.2f}; "
           f"NRMSE mean {100 * np.nanmean(c.nrmse):.2f} %")
     for label, n in c.rating_counts().items():
