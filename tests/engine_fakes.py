@@ -202,6 +202,9 @@ class FakeLab:
     def instrument(self, role: str) -> Any:
         return self.instruments[role]
 
+    def light_sources(self) -> tuple[str, ...]:
+        return ("sphere",)
+
     def luminance_hint_cd_m2(self, step: Any) -> float:
         return self.world.luminance_cd_m2(step.params.get("patch"),
                                           float(step.params.get("angle_deg", 0.0)))

@@ -4,6 +4,7 @@ instrument cannot do fails as a typed plan error."""
 
 from __future__ import annotations
 
+import ast
 import re
 from pathlib import Path
 
@@ -27,7 +28,7 @@ CLAIMS = {
     CS2000A: BASIC | {"RemoteControllable", "SpectrumReadable", "Abortable", "Recoverable"},
     AptRotationStage: BASIC | {"Movable", "Homeable", "Stoppable"},
     ZaberRotationStage: BASIC | {"Movable", "Homeable", "Stoppable"},
-    SphereLightSource: BASIC | {"Switchable", "LampLevel", "Settling", "Abortable"},
+    SphereLightSource: BASIC | {"Switchable", "LampLevel", "LampMonitor", "Settling", "Abortable"},
     QEPro: BASIC | {"TemperatureReadable"},
     Gonioreflectometer: BASIC | {"BrdfReadable", "Calibratable", "Stoppable"},
 }
@@ -67,16 +68,45 @@ def test_engine_fakes_are_the_roles_they_stand_for():
 
 
 ENGINE_MODULES = ("engine", "steps", "plan", "estimate", "retry", "runner", "events", "session",
-                  "quality")
+                  "quality", "operator")
 PROBE = re.compile(r"\b(hasattr|getattr)\s*\(")
 
 
-def test_engine_and_console_never_probe_instruments_by_attribute_name():
-    root = Path(eng.__file__).parent
-    for name in ENGINE_MODULES:
-        text = (root / f"{name}.py").read_text(encoding="utf-8")
-        assert not PROBE.search(text), f"acquire/{name}.py probes with hasattr/getattr"
-    controller = (root.parent / "tui" / "controller.py").read_text(encoding="utf-8")
+def _code_strings_and_calls(tree: ast.AST) -> tuple[list[str], list[str]]:
+    """String constants of the code (docstrings left out) and the names of functions called."""
+    docstrings = {id(body[0].value) for node in ast.walk(tree)
+                  if isinstance(node, (ast.Module, ast.ClassDef, ast.FunctionDef,
+                                       ast.AsyncFunctionDef))
+                  for body in [node.body] if body and isinstance(body[0], ast.Expr)
+                  and isinstance(body[0].value, ast.Constant)}
+    strings = [n.value for n in ast.walk(tree) if isinstance(n, ast.Constant)
+               and isinstance(n.value, str) and id(n) not in docstrings]
+    calls = [n.func.id for n in ast.walk(tree) if isinstance(n, ast.Call)
+             and isinstance(n.func, ast.Name)]
+    return strings, calls
+
+
+@pytest.mark.parametrize("name", ENGINE_MODULES)
+def test_engine_operator_and_gates_ask_capabilities_not_names(name):
+    """No hasattr/getattr probe and no hard-coded lamp role ("sphere") in the engine, the
+    operators and the quality gates: they ask the capabilities (`LabAccess.light_sources`,
+    `isinstance(inst, Settling)`) and the world's Protocol (`OperatorWorld`)."""
+    path = Path(eng.__file__).parent / f"{name}.py"
+    strings, calls = _code_strings_and_calls(ast.parse(path.read_text(encoding="utf-8")))
+    assert not {"hasattr", "getattr"} & set(calls), f"acquire/{name}.py probes with hasattr/getattr"
+    sphere = [s for s in strings if re.search(r"\bsphere\b", s)]
+    assert sphere == [], f"acquire/{name}.py names the sphere: {sphere}"
+
+
+def test_the_ast_check_sees_a_probe_and_a_role_literal():
+    strings, calls = _code_strings_and_calls(ast.parse(
+        '"""the sphere (a docstring)"""\nif hasattr(x, "y"): lab.instrument("sphere")\n'))
+    assert calls == ["hasattr"] and strings == ["y", "sphere"]
+
+
+def test_the_console_never_probes_instruments_by_attribute_name():
+    controller = (Path(eng.__file__).parent.parent / "tui" / "controller.py").read_text(
+        encoding="utf-8")
     # the console asks capabilities; getattr remains only for readings and its own state
     assert "hasattr(" not in controller
     assert not re.search(r"getattr\(\s*inst\b", controller)

@@ -341,3 +341,52 @@ def test_stop_while_waiting_for_an_answer_pauses_and_resume_asks_again(store):
     r = make(lab2, store, SMALL).run(resume=e.run_uuid)
     assert asked_again[0] == first.message
     assert r.status == "done" and r.done == 12
+
+
+# --- lamps are found by capability, never by the role name "sphere" -----------------------------
+
+def _lab_with_lamps_named(sphere_role: str, extra_lamp: str | None = None) -> FakeLab:
+    """The fake lab with its light source under another role name (and maybe a second lamp
+    the plan never names)."""
+    from engine_fakes import FakeLamp
+
+    lab = FakeLab()
+    lamp = lab.instruments.pop("sphere")
+    lab.instruments[sphere_role] = lamp
+    lamps = [sphere_role]
+    if extra_lamp is not None:
+        lab.instruments[extra_lamp] = FakeLamp(lab.clock)
+        lamps.append(extra_lamp)
+    lab.light_sources = lambda: tuple(lamps)
+    return lab
+
+
+def test_an_emergency_stop_switches_off_every_lamp_of_the_lab(store):
+    lab = _lab_with_lamps_named("sphere", extra_lamp="gonio_lamp")
+    lab.instruments["gonio_lamp"].set_output(True)
+    e = make(lab, store, SMALL)
+    lab.radiometer.during[3] = e.emergency_stop
+    res = e.run()
+    assert res.status == "paused" and res.done == 2
+    # the lamp the plan does not name goes off too: it is a light source of the lab
+    assert lab.instruments["sphere"].state() == "off"
+    assert lab.instruments["gonio_lamp"].state() == "off"
+
+
+def test_a_lamp_under_any_role_name_is_waited_for_and_named_in_the_fault(store):
+    """The radiometer reading waits for the lab's light source whatever its role is called, and
+    a lamp that keeps dropping out is named by its own role in the operator's question."""
+    lab = _lab_with_lamps_named("panel_light")
+    plan = eng.build_plan("reference-sweep", {"angles_deg": [30], "patches": [1, 2],
+                                              "lamp": "panel_light"}, lab)
+    lab.operator.fault_answers = ["skip"]
+    e = eng.Engine(lab, store, plan, max_suspensions=2)
+    for n in range(1, 4):
+        lab.radiometer.during[n] = lambda: lab.instruments["panel_light"].glitch(10.0)
+    res = e.run()
+    assert res.skipped == ("a30/p01",) and res.done == 1
+    faults = [d for _, k, d in store.events(res.run_id) if k == "fault"]
+    assert faults and all(d["role"] == "panel_light" for d in faults)
+    suspended = [d["role"] for _, k, d in store.events(res.run_id) if k == "suspended"]
+    assert len(suspended) >= 2 and set(suspended) == {"panel_light"}
+

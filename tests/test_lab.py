@@ -173,6 +173,34 @@ def test_virtual_operator_acts_on_the_world_and_answers_faults(world):
         VirtualOperator(world, clock, fault_policy="pray")
 
 
+def test_virtual_operator_answers_only_what_the_prompt_offers(world):
+    """Preparing an instrument (an APT/Zaber power blip while homing) offers retry / abort:
+    once its retries are used up the virtual operator aborts, it never answers 'skip' (which
+    stopped the run with "operator answered 'skip'; expected one of retry, abort")."""
+    op = VirtualOperator(world, VirtualClock(), fault_policy="retry", max_fault_retries=2)
+    prepare = PromptRequest(1, "prepare/rotator", "fault", "power blip", ("retry", "abort"), {})
+    assert [op(prepare) for _ in range(3)] == ["retry", "retry", "abort"]
+    skipper = VirtualOperator(world, VirtualClock(), fault_policy="skip")
+    assert skipper(prepare) == "abort"
+
+
+def test_the_operator_world_is_a_protocol_not_probed_attribute_by_attribute(world):
+    from normbox_lab.acquire.operator import OperatorWorld
+
+    assert isinstance(world, OperatorWorld)
+
+    class PatchesOnly:
+        def place_patch(self, n: int) -> None: ...
+
+    with pytest.raises(NormboxError, match="PatchesOnly"):
+        VirtualOperator(PatchesOnly(), VirtualClock())
+    # a material given as (ASCII) digits is that patch
+    op = VirtualOperator(world, VirtualClock())
+    op(PromptRequest(1, "m", "operator", "mount", ("ok",),
+                     {"action": "mount_gonio_material", "material": "7"}))
+    assert world.gonio_material == "patch-7"
+
+
 def test_terminal_operator_reads_answers():
     import io
 

@@ -28,7 +28,7 @@ from typing import Any
 
 from normbox_lab.acquire import registry
 from normbox_lab.acquire.config import LabConfig
-from normbox_lab.core.capabilities import Closable, Identifiable
+from normbox_lab.core.capabilities import Closable, Identifiable, Settling
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
 
@@ -76,6 +76,12 @@ class Lab:
         if all(r in self.config.instruments for r in GONIO_ROLES):
             roles.append("gonio")
         return roles
+
+    def light_sources(self) -> tuple[str, ...]:
+        """The roles whose driver is a light source (`Settling`), from the driver classes of
+        the registry: nothing is opened to answer."""
+        return tuple(role for role, cfg in self.config.instruments.items()
+                     if issubclass(driver_class(cfg.driver), Settling))
 
     def instrument(self, role: str) -> Any:
         inst = self._open.get(role)

@@ -2,9 +2,10 @@
 
 - `VirtualOperator` (simulated labs): carries out what a prompt asks on the virtual world
   ("place patch N" → `world.place_patch(N)`, "mount material" → `world.mount_gonio_material`,
-  "aim at panel point" → `world.aim_panel`), taking `response_s` of lab-clock time, and answers
-  fault prompts with a fixed policy (retry / skip / abort; retry at most `max_fault_retries`
-  times per key, then skip).
+  "aim at panel point" → `world.aim_panel`; the world is an `OperatorWorld`), taking
+  `response_s` of lab-clock time, and answers fault prompts with a fixed policy (retry / skip /
+  abort; retry at most `max_fault_retries` times per key, then skip) — only ever with a choice
+  the prompt offers (a prompt without "skip" gets "abort" once retries are used up).
 - `TerminalOperator` (real labs, `normbox-lab run`): prints the prompt and reads the answer
   (in a simulated lab with `--terminal-operator`, "ok" also does the action in the world).
 """
@@ -12,9 +13,35 @@
 from __future__ import annotations
 
 import sys
-from typing import Any, TextIO
+from typing import Any, Protocol, TextIO, runtime_checkable
 
 from normbox_lab.core.clock import Clock
+from normbox_lab.core.errors import NormboxError
+
+
+@runtime_checkable
+class OperatorWorld(Protocol):
+    """What an operator does by hand in a simulated lab, done to the virtual Normbox (both
+    worlds, `sim.world.VirtualNormbox` and `sim.analytic_world.AnalyticWorld`, are one)."""
+
+    def place_patch(self, n: int) -> None:
+        """Put ColorChecker patch `n` (1–24) on the sample holder."""
+        ...
+
+    def mount_gonio_material(self, name: str | int) -> None:
+        """Mount a material ("patch-7", "wall") on the gonioreflectometer."""
+        ...
+
+    def aim_panel(self, x_mm: float, y_mm: float) -> None:
+        """Aim the radiometer at a point of the light panel (light map)."""
+        ...
+
+
+def _operator_world(world: object) -> OperatorWorld | None:
+    if world is None or isinstance(world, OperatorWorld):
+        return world
+    raise NormboxError(f"a simulated operator needs a world that places patches, mounts "
+                       f"gonio materials and aims at the panel; {type(world).__name__} does not")
 
 
 class VirtualOperator:
@@ -24,7 +51,7 @@ class VirtualOperator:
                  response_s: float = 5.0, max_fault_retries: int = 3) -> None:
         if fault_policy not in ("retry", "skip", "abort"):
             raise ValueError(f"fault policy must be retry, skip or abort, not {fault_policy!r}")
-        self.world = world
+        self.world = _operator_world(world)
         self.clock = clock
         self.fault_policy = fault_policy
         self.expected_response_s = float(response_s)
@@ -38,6 +65,9 @@ class VirtualOperator:
             choice = self.fault_policy
             if choice == "retry" and n > self.max_fault_retries:
                 choice = "skip"
+            if choice not in req.choices:
+                # e.g. preparing an instrument offers only retry / abort: never skip there
+                choice = "abort" if "abort" in req.choices else req.choices[0]
             self.log.append((req.key, choice))
             return choice
         self.clock.sleep(self.expected_response_s)
@@ -46,19 +76,19 @@ class VirtualOperator:
         return "ok"
 
 
-def act_on_world(world: Any, req: Any) -> None:
+def act_on_world(world: OperatorWorld | None, req: Any) -> None:
     """Do in the simulated world what an operator prompt asks (nothing without a world)."""
     if world is None:
         return
     action = req.data.get("action")
-    if action == "place_patch" and hasattr(world, "place_patch"):
+    if action == "place_patch":
         world.place_patch(int(req.data["patch"]))
-    elif action == "mount_gonio_material" and hasattr(world, "mount_gonio_material"):
+    elif action == "mount_gonio_material":
         material = req.data["material"]
-        if isinstance(material, int) or str(material).isdigit():
+        if isinstance(material, int) or (str(material).isascii() and str(material).isdigit()):
             material = f"patch-{int(material)}"     # the worlds' material names
         world.mount_gonio_material(material)
-    elif action == "aim_panel" and hasattr(world, "aim_panel"):
+    elif action == "aim_panel":
         world.aim_panel(float(req.data["x_mm"]), float(req.data["y_mm"]))
 
 
@@ -73,7 +103,7 @@ class TerminalOperator:
         self.stream_in = stream_in or sys.stdin
         self.stream_out = stream_out or sys.stdout
         self.before = before          # called before asking (e.g. to pause a progress bar)
-        self.world = world            # a simulated lab: "ok" does the action in the world
+        self.world = _operator_world(world)   # a simulated lab: "ok" does the action there
 
     def __call__(self, req: Any) -> str:
         if self.before is not None:

@@ -36,7 +36,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
-from typing import Any, Protocol, runtime_checkable
+from typing import Any
 
 #: where each default comes from (shown by `normbox-lab qa --limits` and in docs)
 LIMIT_SOURCES: dict[str, str] = {
@@ -147,13 +147,6 @@ def limits_from_text(text: str, path: str = "lab config") -> QualityLimits:
         return ConfigError(path, line, f"{table}.{key}" if key else table, message)
 
     return parse_limits(data.get("quality"), err)
-
-
-@runtime_checkable
-class LampMonitor(Protocol):
-    """A light source that reports its own output (the sphere's MEAS:LUM?)."""
-
-    def luminance_cd_m2(self) -> float: ...
 
 
 @dataclass(frozen=True)
@@ -280,7 +273,7 @@ class RunGates:
                 if abs(change) > self.limits.lamp_drift_percent:
                     specs.append(FlagSpec(key, "lamp-drift", "warning", change,
                                           self.limits.lamp_drift_percent,
-                                          f"sphere monitor {float(mon):.4g} cd/m², "
+                                          f"lamp monitor {float(mon):.4g} cd/m², "
                                           f"{change:+.2f} % from {self.lamp_first[0]} "
                                           f"(limit ±{self.limits.lamp_drift_percent:g} %)"))
         return self._record(specs)
@@ -313,5 +306,5 @@ class RunGates:
         return self._record(specs)
 
 
-__all__ = ["LIMIT_SOURCES", "FlagSpec", "LampMonitor", "QualityLimits", "RunGates", "brdf_flags",
+__all__ = ["LIMIT_SOURCES", "FlagSpec", "QualityLimits", "RunGates", "brdf_flags",
            "limits_from_text", "parse_limits", "spectral_flags"]

@@ -26,7 +26,7 @@ from typing import Any, Protocol
 from normbox_lab.acquire.estimate import DryRun, dry_run
 from normbox_lab.acquire.events import EngineEvent, Operator, PromptRequest, RunResult
 from normbox_lab.acquire.plan import Plan
-from normbox_lab.acquire.quality import LampMonitor, RunGates, limits_from_text
+from normbox_lab.acquire.quality import RunGates, limits_from_text
 from normbox_lab.acquire.retry import RetryPolicy, Skip, StopAtPrompt, run_with_retry
 from normbox_lab.acquire.steps import (
     KINDS,
@@ -43,6 +43,7 @@ from normbox_lab.core.capabilities import (
     BrdfReadable,
     Calibratable,
     Homeable,
+    LampMonitor,
     Recoverable,
     RemoteControllable,
     Settling,
@@ -71,6 +72,11 @@ class LabAccess(Protocol):
     operator: Operator | None
 
     def instrument(self, role: str) -> Any: ...
+    def light_sources(self) -> tuple[str, ...]:
+        """The roles of the lab whose instrument is a light source (`Settling`), known without
+        opening any (a radiometer reading needs each of them stable; an emergency stop switches
+        each of them off)."""
+        ...
     def luminance_hint_cd_m2(self, step: Step) -> float:
         """Expected luminance of a reading (the radiometer's timing model needs it)."""
         ...
@@ -151,9 +157,6 @@ class Engine:
         self._ratio = 1.0
         self._hook_context: dict[str, Any] = {}
         self._remaining_s = 0.0
-        #: per segment: (role, capability) → whether that instrument has it (drivers do not
-        #: change type while a segment runs; a reopened port is the same driver)
-        self._has: dict[tuple[str, type], bool] = {}
         self._light_cache: dict[tuple[str, tuple[str, ...]], tuple[str, ...]] = {}
 
     # --- subscribers ---------------------------------------------------------------------------
@@ -236,8 +239,9 @@ class Engine:
         return _Busy(self, (role, inst))
 
     def has(self, role: str, capability: type) -> bool:
-        """Whether the instrument of `role` has `capability` (asked once per segment)."""
-        return self._role_has(role, capability)
+        """Whether the instrument of `role` has `capability`: ``isinstance``, answered from the
+        capabilities' own per-type cache (`core.capabilities._CapabilityMeta`)."""
+        return isinstance(self.instrument(role), capability)
 
     def abort_requested(self) -> bool:
         return self._abort.is_set()
@@ -331,7 +335,7 @@ class Engine:
         self._gates = RunGates(self.store, self.run_id, limits_from_text(
             self.store.get_run(self.run_id).lab_config, "lab config"))
         self._known = {}     # physical state after a (re)start: unknown
-        self._has, self._light_cache = {}, {}
+        self._light_cache = {}
         self.state = "running"
         t0 = self.clock.now_s()
         taken = 0
@@ -484,8 +488,8 @@ class Engine:
 
     def _halt_all(self) -> None:
         roles = list(self.plan.roles)
-        if self._emergency.is_set() and "sphere" not in roles:
-            roles.append("sphere")                 # every lamp of the lab goes off
+        if self._emergency.is_set():               # every lamp of the lab goes off
+            roles += [r for r in self.lab.light_sources() if r not in roles]
         for role in roles:
             try:
                 inst = self.instrument(role)
@@ -509,9 +513,9 @@ class Engine:
         while True:
             for j in self.plan.pending_state_steps(i, self._known):
                 self._run_state_step(j, for_key=step.key)
+        role = step.role                      # the lamp that last dropped out, once one has
             if suspensions >= self.max_suspensions:
                 # the lamp keeps dropping out: a persistent fault, the operator decides
-                role = next((r for r, v in step.requires.items() if v == "stable"), "sphere")
                 exc = NotReady(f"unstable during {suspensions} attempts at {step.key}",
                                instrument=role)
                 self._store_event("fault", key=step.key, role=role, attempt=suspensions,
@@ -521,26 +525,28 @@ class Engine:
                     self._store_event("skip", key=step.key, role=role, error=str(exc))
                     raise Skip(step.key)
                 suspensions = 0
-            if self._unstable_suspend(step):
-                suspensions += 1
+            unstable = self._unstable_suspend(step)
+            if unstable:
+                role, suspensions = unstable, suspensions + 1
                 continue                      # suspended and back: re-establish, then measure
             self._emit("step-started", step.key, kind=step.kind, label=step.describe())
             reading = self.with_retry(step.key, step.role,
                                       lambda: kind.execute(step, self, step.key))
             if self._abort.is_set():
                 raise OperatorAbort("abort requested")
-            if self._unstable_suspend(step, after=True):
-                suspensions += 1
+            unstable = self._unstable_suspend(step, after=True)
+            if unstable:
+                role, suspensions = unstable, suspensions + 1
                 continue                      # the interrupted reading is taken again
             break
         meta = {k: v for k, v in step.params.items() if k != "role"}
         meta["segment"] = self.segment
         if step.requires:
             meta["requires"] = dict(step.requires)
-        for role in (r for r, v in step.requires.items() if v == "stable"):
-            if self._role_has(role, LampMonitor):  # the lamp's own monitor, for the drift gate
-                lamp = self.instrument(role)
-                meta["lamp_monitor_cd_m2"] = float(self.with_retry(step.key, role,
+        for lamp_role in (r for r, v in step.requires.items() if v == "stable"):
+            lamp = self.instrument(lamp_role)
+            if isinstance(lamp, LampMonitor):     # the lamp's own monitor, for the drift gate
+                meta["lamp_monitor_cd_m2"] = float(self.with_retry(step.key, lamp_role,
                                                                    lamp.luminance_cd_m2))
         record = kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
@@ -595,18 +601,11 @@ class Engine:
                                 f"without requiring one of its calibrate steps' states; add a "
                                 f"calibrate step (sets=...) and require it")
 
-    def _role_has(self, role: str, capability: type) -> bool:
-        """`isinstance(instrument(role), capability)`, asked once per segment."""
-        key = (role, capability)
-        has = self._has.get(key)
-        if has is None:
-            has = self._has[key] = isinstance(self.instrument(role), capability)
-        return has
-
     def _light_roles(self, step: Step) -> tuple[str, ...]:
         """Lamps that must be stable for this reading: those the step requires stable, and —
-        for a radiometer reading — every light source of the plan and the lab's ``sphere``,
-        whether the protocol declared it or not (warm-up is a precondition, not a habit).
+        for a radiometer reading — every light source of the plan and of the lab
+        (`LabAccess.light_sources`), whether the protocol declared it or not (warm-up is a
+        precondition, not a habit).
         Worked out once per segment for each (reading role, required lamps), unless a lamp
         could not be reached (then asked again at the next reading)."""
         required = tuple(r for r, v in step.requires.items() if v == "stable")
@@ -616,12 +615,12 @@ class Engine:
             return roles
         found = list(required)
         complete = True
-        if self._role_has(step.role, SpectrumReadable):
-            for r in (*self.plan.roles, "sphere"):
+        if self.has(step.role, SpectrumReadable):
+            for r in (*self.plan.roles, *self.lab.light_sources()):
                 if r in found or r == step.role:
                     continue
                 try:
-                    if self._role_has(r, Settling):
+                    if self.has(r, Settling):
                         found.append(r)
                 except KeyError:          # the lab has no such role
                     continue
@@ -632,13 +631,13 @@ class Engine:
             self._light_cache[key] = roles
         return roles
 
-    def _unstable_suspend(self, step: Step, after: bool = False) -> bool:
+    def _unstable_suspend(self, step: Step, after: bool = False) -> str:
         """Suspender: a lamp this reading needs stable (`_light_roles`) is not → wait, return
-        True."""
+        its role ("" when every lamp was stable)."""
         roles = self._light_roles(step)
         for role in roles:
             lamp = self.instrument(role)
-            if not self._role_has(role, Settling):
+            if not isinstance(lamp, Settling):
                 require(lamp, Settling, role, step.key)       # raises the PlanError
             # the check talks to the lamp: inside the retry loop like any instrument call
             if self.with_retry(step.key, role, lamp.is_stable):
@@ -654,8 +653,8 @@ class Engine:
             self.state = "running"
             self._store_event("unsuspended", key=step.key, role=role)
             self._emit("unsuspended", step.key, role=role)
-            return True
-        return False
+            return role
+        return ""
 
     def _run_state_step(self, j: int, for_key: str) -> None:
         step = self.plan.steps[j]

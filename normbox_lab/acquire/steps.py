@@ -81,7 +81,7 @@ def move(key: str, role: str, angle_deg: float, label: str = "") -> Step:
                 sets={role: float(angle_deg)}, label=label)
 
 
-def wait_stable(key: str, role: str = "sphere", *, timeout_s: float = 3600.0,
+def wait_stable(key: str, role: str, *, timeout_s: float = 3600.0,
                 level_percent: float | None = None) -> Step:
     params: dict[str, Any] = {"role": role, "timeout_s": float(timeout_s)}
     if level_percent is not None:
@@ -224,7 +224,7 @@ class WaitStableKind(StepKind):
     name = "wait-stable"
 
     def describe(self, step: Step) -> str:
-        return f"wait until {step.role or 'sphere'} is stable"
+        return f"wait until {step.role or 'the lamp'} is stable"
 
     def estimate_s(self, step: Step, est: EstimateContext) -> float:
         stable = est.lamps_stable.get(step.role, False)

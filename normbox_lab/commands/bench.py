@@ -52,12 +52,11 @@ class _TimedCalls:
     timing adds no per-line cost of its own."""
 
     def __init__(self, inst, timer) -> None:
-        from normbox_lab.acquire.quality import LampMonitor
         from normbox_lab.core.capabilities import CAPABILITIES
 
         self.spent_s = 0.0
         self._depth = 0
-        names = {n for cap in (*CAPABILITIES, LampMonitor) for n in vars(cap)
+        names = {n for cap in CAPABILITIES for n in vars(cap)
                  if not n.startswith("_")}
         for name in sorted(names):
             if callable(getattr(type(inst), name, None)):

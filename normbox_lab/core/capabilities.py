@@ -21,7 +21,7 @@ driver                             capabilities
 ``drivers.rotator_apt``,           Identifiable, Closable, HealthPollable, Movable, Homeable,
 ``drivers.rotator_zaber``          Stoppable
 ``drivers.sphere``                 Identifiable, Closable, HealthPollable, Switchable,
-                                   LampLevel, Settling, Abortable
+                                   LampLevel, LampMonitor, Settling, Abortable
 ``drivers.qepro.QEPro``            Identifiable, Closable, HealthPollable, TemperatureReadable
 ``drivers.gonio``                  Identifiable, Closable, HealthPollable, BrdfReadable,
                                    Calibratable, Stoppable
@@ -216,6 +216,14 @@ class LampLevel(Protocol, metaclass=_CapabilityMeta):
 
 
 @runtime_checkable
+class LampMonitor(Protocol, metaclass=_CapabilityMeta):
+    def luminance_cd_m2(self) -> float:
+        """The light source's own monitor of its output (the sphere's MEAS:LUM?), recorded
+        with every reading that needs the lamp stable (the lamp-drift gate reads it)."""
+        ...
+
+
+@runtime_checkable
 class Settling(Protocol, metaclass=_CapabilityMeta):
     def is_stable(self) -> bool:
         """The output is within its regulation band (readings may be taken)."""
@@ -231,7 +239,7 @@ CAPABILITIES: tuple[type, ...] = (
     Identifiable, Closable, HealthPollable, RemoteControllable, Recoverable,
     Movable, Homeable, Stoppable, Abortable,
     SpectrumReadable, BrdfReadable, Calibratable, TemperatureReadable,
-    Switchable, LampLevel, Settling,
+    Switchable, LampLevel, LampMonitor, Settling,
 )
 
 
@@ -301,6 +309,7 @@ __all__ = [
     "Instrument",
     "InstrumentIdentity",
     "LampLevel",
+    "LampMonitor",
     "LightSource",
     "Movable",
     "Recoverable",
