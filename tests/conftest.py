@@ -37,3 +37,18 @@ def lab_env(monkeypatch, tmp_path):
     monkeypatch.setattr(registry, "DRIVERS", {**registry.DRIVERS, **fakes})
     monkeypatch.chdir(tmp_path)
     return tmp_path
+
+
+@pytest.fixture(autouse=True)
+def _scripted_ports_are_used_up():
+    """Every `wire.ScriptedPort` a test made has seen every exchange of its script by the end
+    of the test (unless the test called `leave_unfinished()`): like pymeasure's
+    ``expected_protocol``, a script is a specification, not a suggestion."""
+    import wire
+
+    wire.LIVE.clear()
+    yield
+    ports = [p for p in wire.LIVE if not p.unfinished_ok]
+    wire.LIVE.clear()
+    for port in ports:
+        port.assert_done()

@@ -103,12 +103,24 @@ def test_an_unknown_url_scheme_is_an_instrument_error():
 
 
 def test_drivers_import_the_neutral_transport_and_never_the_simulator():
+    """Imported in a fresh interpreter (this one has the simulator loaded by conftest), every
+    driver module leaves no module of `normbox_lab.sim` in sys.modules, however it would be
+    spelt (``from normbox_lab import sim`` included); and none opens ports by itself."""
     import normbox_lab.drivers
 
-    for path in sorted(Path(normbox_lab.drivers.__file__).parent.glob("*.py")):
-        text = path.read_text(encoding="utf-8")
-        assert "normbox_lab.sim" not in text, path.name
-        assert "serial_for_url" not in text, path.name
+    folder = Path(normbox_lab.drivers.__file__).parent
+    names = sorted(p.stem for p in folder.glob("*.py") if p.stem != "__init__")
+    script = ("import importlib, json, sys\n"
+              f"for name in {names!r}:\n"
+              "    importlib.import_module('normbox_lab.drivers.' + name)\n"
+              "print(json.dumps(sorted(m for m in sys.modules if m == 'normbox_lab.sim' "
+              "or m.startswith('normbox_lab.sim.'))))\n")
+    out = subprocess.run([sys.executable, "-c", script], check=False, text=True,
+                         capture_output=True, timeout=120, cwd=Path(__file__).parent)
+    assert out.returncode == 0, out.stderr
+    assert len(names) >= 7 and json.loads(out.stdout.strip().splitlines()[-1]) == []
+    for name in names:
+        assert "serial_for_url" not in (folder / f"{name}.py").read_text(encoding="utf-8"), name
 
 
 # --- Port and the one link-recovery loop ----------------------------------------------------
@@ -180,3 +192,24 @@ def test_reopen_closes_an_open_port_first():
     port.close()
     transport.reopen(port)
     assert port.is_open
+
+
+# --- ScriptedPort checks itself -------------------------------------------------------------
+
+def test_a_scripted_port_fails_when_an_expected_exchange_never_happened():
+    from wire import LIVE, Exchange, ScriptedPort
+
+    with ScriptedPort([Exchange(b"A\n", b"ok\n")]) as port:
+        port.write(b"A\n")
+        assert port.readline() == b"ok\n"
+    with pytest.raises(AssertionError, match=r"still expected: \[b'B\\n'\]"):
+        with ScriptedPort([Exchange(b"A\n", b"ok\n"), Exchange(b"B\n")]) as port:
+            port.write(b"A\n")
+    # an exception inside the block is the failure shown, not the unfinished script
+    with pytest.raises(RuntimeError, match="driver broke"):
+        with ScriptedPort([Exchange(b"A\n")]):
+            raise RuntimeError("driver broke")
+    # every port made in a test is checked when the test ends (conftest); these are excused
+    assert port in LIVE
+    for p in LIVE:
+        p.leave_unfinished()

@@ -5,14 +5,18 @@ for ``engine_fakes``).  Pass it to a driver's constructor in place of a serial p
 
 The script is a list of exchanges: the exact bytes the driver must write, and the bytes the
 "instrument" answers (after an optional delay on the test's clock).  A write that differs from
-the script fails the test at once with both byte strings; `assert_done()` checks that the
-whole script was used.
+the script fails the test at once with both byte strings.  Every expected exchange must have
+happened, as in pymeasure's ``expected_protocol``: a ``with ScriptedPort(...) as port:`` block
+checks it when it ends, and every port a test made is checked when the test ends (the
+autouse fixture in conftest.py calls `assert_done()`), so no test can forget it.  A test that
+stops a driver half-way on purpose says so with `leave_unfinished()`.
 
-    port = ScriptedPort([
+    with ScriptedPort([
         Exchange(b"RMT,1\\n", b"OK\\n"),
         Exchange(b"MES,1\\n", [(1.5, b"OK,2.00\\n"), (4.0, b"OK\\n")]),  # two timed replies
         Exchange(b"MES,1\\n", raises=SerialException("unplugged")),      # the write fails
-    ], clock=VirtualClock())
+    ], clock=VirtualClock()) as port:
+        ...
 
 Reads behave like pyserial with `timeout`: they return what has arrived by then; on a
 `VirtualClock` the wait moves the clock (to the next reply or to the timeout), so tests never
@@ -26,6 +30,9 @@ from dataclasses import dataclass, field
 from normbox_lab.core.clock import VirtualClock
 
 Reply = bytes | list[tuple[float, bytes]]
+
+#: the ports made since the current test began (conftest checks each when the test ends)
+LIVE: list[ScriptedPort] = []
 
 
 @dataclass
@@ -50,6 +57,21 @@ class ScriptedPort:
         self._rx = bytearray()
         self._partial = bytearray()
         self._step = 0
+        self.unfinished_ok = False
+        LIVE.append(self)
+
+    def __enter__(self) -> ScriptedPort:
+        return self
+
+    def __exit__(self, exc_type: object, *exc: object) -> None:
+        if exc_type is None:          # (an exception from the block is the failure to show)
+            self.assert_done()
+
+    def leave_unfinished(self) -> ScriptedPort:
+        """This test stops before the script's end on purpose (a fault, an abort): the end-of-
+        test check is waived for this port."""
+        self.unfinished_ok = True
+        return self
 
     # --- writing ------------------------------------------------------------------------------
     def write(self, data: bytes) -> int:
@@ -137,6 +159,10 @@ class ScriptedPort:
         self.is_open = True
 
     # --- checks -------------------------------------------------------------------------------
+    @property
+    def done(self) -> bool:
+        return self._step >= len(self.script) and not self._partial
+
     def assert_done(self) -> None:
         left = [ex.expect for ex in self.script[self._step:]]
         assert not left, f"script not finished; still expected: {left!r}"
