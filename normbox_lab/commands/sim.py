@@ -49,6 +49,34 @@ def register(sub: argparse._SubParsersAction) -> None:
     lat.add_argument("device", choices=("cs1000a", "cs2000a"), metavar="DEVICE",
                      help="cs1000a or cs2000a")
     lat.set_defaults(handler=_latency)
+    camp = simsub.add_parser(
+        "campaign", help="deterministic simulation testing of the whole lab",
+        description="Draw N scenarios from the seed (a protocol and its parameters, a fault "
+                    "schedule over every emulator's fault kinds, the operator's answers, "
+                    "pauses, emergency stops and kill -9 followed by --resume), run each "
+                    "through normbox-lab itself in the simulated lab and check the "
+                    "invariants: the world's truth, typed failures, no hang, consistent "
+                    "state, exact resume.  A failing scenario is shrunk and printed with the "
+                    "command that reproduces it.  Last line: 'N scenarios: V violations' "
+                    "(V counts scenario x violation class); exit 1 when V > 0.")
+    camp.add_argument("--scenarios", type=int, default=30, metavar="N",
+                      help="number of scenarios (default 30)")
+    camp.add_argument("--seed", type=int, default=0, metavar="S",
+                      help="campaign seed (scenario i of seed S is always the same)")
+    camp.add_argument("--jobs", type=int, default=1, metavar="J",
+                      help="scenarios run in J parallel processes")
+    camp.add_argument("--keep", metavar="DIR",
+                      help="keep every scenario's lab, store, output and journals under DIR")
+    camp.add_argument("--replay", metavar="JSON",
+                      help="run one scenario given as JSON (what a failure prints)")
+    camp.add_argument("--normbox-share", type=float, default=0.0, metavar="P",
+                      help="share of radiometer scenarios on the Mitsuba world (default 0: "
+                           "the analytic world)")
+    camp.add_argument("--no-shrink", dest="shrink", action="store_false",
+                      help="report failing scenarios without shrinking them")
+    camp.add_argument("--quiet", action="store_true",
+                      help="print only failing scenarios and the summary")
+    camp.set_defaults(handler=_campaign)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
@@ -98,6 +126,26 @@ def _serve(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     return 0
+
+
+def _campaign(args: argparse.Namespace) -> int:
+    from normbox_lab.sim.campaign import run_campaign
+
+    if args.scenarios < 1 or args.jobs < 1:
+        return _fail("--scenarios and --jobs must be at least 1")
+    if not 0.0 <= args.normbox_share <= 1.0:
+        return _fail("--normbox-share must be within [0, 1]")
+    if args.replay is not None:
+        from normbox_lab.sim.scenario import Scenario
+
+        try:
+            Scenario.from_json(args.replay)
+        except (ValueError, TypeError, KeyError) as exc:
+            return _fail(f"--replay wants a scenario as printed by a campaign: {exc}")
+    results = run_campaign(args.scenarios, args.seed, args.jobs, args.keep,
+                           shrink_failures=args.shrink, normbox_share=args.normbox_share,
+                           replay=args.replay, verbose=not args.quiet)
+    return 1 if any(r.violations for r in results) else 0
 
 
 def _latency(args: argparse.Namespace) -> int:

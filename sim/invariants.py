@@ -1,0 +1,447 @@
+"""The invariants the simulation campaign checks after each scenario (docs/simulation-testing.md).
+
+(a) **Oracle.**  Every stored reading without an *error* flag agrees with the world's truth for
+    that reading — the noise-free value at the geometry the world really rendered, at the
+    lamp's set level — within the instrument's stated uncertainty:
+    radiometers ±2 % radiometric and ±0.3 nm wavelength (`sim.radiometer_common`), 5
+    significant digits on the wire, the sphere's 0.02 % noise and slow drift; the gonio ±2 %
+    plus the white standard's ±0.7 % and the spectrometer's own scatter.  The geometry the
+    world rendered must also be the one the reading claims (patch, sample angle within
+    `ANGLE_TOLERANCE_DEG`, panel point, gonio material and arm angles).
+(b) **Typed failures.**  A segment that ends by itself never prints a traceback; a non-zero
+    exit comes with one typed line (``normbox-lab: …``) or the run's status line; exit 0 only
+    when the run's data are complete or every missing reading carries an error flag.
+(c) **No hang.**  No reading takes longer (virtual clock) than its drivers' silent retries
+    allow — `DRIVER_ATTEMPTS` × (the engine's own estimate for it + `DRIVER_TIMEOUT_S`) —
+    plus, per fault, warning, suspension and prompt the engine recorded for it, a retry
+    allowance; no segment outlives its wall-clock limit.
+(d) **Consistent state.**  Store, ``runs`` and ``qa`` agree on the run's status, readings and
+    flags; a stored reading carries no skip flag; "running" means a live owner holds the run
+    lock; every reading a killed process reported stored is in the store.
+(e) **Resume.**  With kills, the resumed run's readings match an uninterrupted run of the same
+    scenario: the same keys when both are done, the same claimed geometry, values within both
+    readings' uncertainty.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.sim.harness import Execution, qa_listing, runs_listing
+
+RADIOMETRIC = 0.02
+WAVELENGTH_NM = 0.3
+DIGITS_REL = 1e-4                  # "#.####e±#": half a unit in the 5th digit, with margin
+LAMP_REL = 0.003                   # sphere noise (4σ of 0.02 %) + slow drift over a run
+ABS_FLOOR = 2e-9                   # values below 1e-9 are sent as 0.0000e-9
+GONIO_REL = 0.027                  # ±2 % gonio + ±0.7 % white standard
+ANGLE_TOLERANCE_DEG = 0.25
+AIM_TOLERANCE_MM = 0.5
+FAULT_ALLOWANCE_S = 120.0          # timeouts, drains, reconnect windows of one retry
+DRIVER_ATTEMPTS = 4                # a driver's own silent retries: the try and 3 more
+DRIVER_TIMEOUT_S = 30.0            # a command timeout, a drain and a re-handshake
+PROMPT_ALLOWANCE_S = 60.0
+STATUS_LINE = re.compile(r"^run [0-9a-f-]{36} \(id \d+\): ")
+
+
+@dataclass(frozen=True)
+class Violation:
+    invariant: str          # a … e
+    cls: str                # a short class for grouping and shrinking, e.g. "a:spectral"
+    message: str
+
+    def line(self) -> str:
+        return f"({self.invariant}) {self.cls}: {self.message}"
+
+
+# --- (a) the oracle --------------------------------------------------------------------------
+_ANALYTIC: Any = None
+
+
+def analytic_world() -> Any:
+    global _ANALYTIC
+    if _ANALYTIC is None:
+        from normbox_lab.sim.analytic_world import AnalyticWorld
+
+        _ANALYTIC = AnalyticWorld()
+    return _ANALYTIC
+
+
+def spectral_bounds(truth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The band-by-band interval a correct radiometer reading of `truth` (1 nm grid) lies in."""
+    t = np.asarray(truth, dtype=float)
+    slope = np.zeros_like(t)
+    if t.size > 1:
+        d = np.abs(np.diff(t))
+        slope[:-1] = d
+        slope[1:] = np.maximum(slope[1:], d)
+    lo = np.maximum(t - WAVELENGTH_NM * slope, 0.0) * (1 - RADIOMETRIC)
+    hi = (t + WAVELENGTH_NM * slope) * (1 + RADIOMETRIC)
+    margin = (DIGITS_REL + LAMP_REL) * np.abs(t) + ABS_FLOOR
+    return lo - margin, hi + margin
+
+
+def _claimed_material(meta: dict[str, Any]) -> str:
+    m = meta.get("material")
+    return f"patch-{int(m)}" if isinstance(m, int) or str(m).isdigit() else str(m)
+
+
+def spectral_truth(meta: dict[str, Any], view: dict[str, Any] | None,
+                   wavelength_nm: np.ndarray) -> tuple[np.ndarray | None, list[str]]:
+    """(truth on `wavelength_nm`, geometry mismatches) for a stored radiometer reading."""
+    world = analytic_world()
+    problems: list[str] = []
+    nominal = 1.0 if view is None else float(view.get("nominal_output", 1.0))
+    if "x_mm" in meta:                                   # the light map
+        x, y = float(meta["x_mm"]), float(meta["y_mm"])
+        aim = None if view is None else view.get("aim")
+        if view is not None and (aim is None or math.hypot(aim[0] - x, aim[1] - y)
+                                 > AIM_TOLERANCE_MM):
+            problems.append(f"claims panel point ({x:+.0f}, {y:+.0f}) mm, the world showed "
+                            f"{'the sample' if aim is None else tuple(round(v) for v in aim)}")
+        truth = world.panel_radiance(x, y) * nominal
+    else:
+        patch = meta.get("patch")
+        angle = float(meta.get("angle_deg", 90.0))
+        if view is not None:
+            if view.get("aim") is not None:
+                problems.append(f"claims patch {patch} at {angle:g}°, the radiometer looked "
+                                "at the panel")
+            if patch is not None and view.get("patch") != int(patch):
+                problems.append(f"claims patch {patch}, the world held patch "
+                                f"{view.get('patch')}")
+            if abs(float(view["angle_deg"]) - angle) > ANGLE_TOLERANCE_DEG:
+                problems.append(f"claims {angle:g}°, the sample stood at "
+                                f"{float(view['angle_deg']):.2f}°")
+            angle = float(view["angle_deg"])
+        if view is not None and view.get("truth") is not None:
+            truth = np.asarray(view["truth"], dtype=float)
+        else:
+            truth = world.radiance_at(None if patch is None else int(patch), angle) * nominal
+    wl = world.wavelength_nm
+    if truth.shape != wl.shape or not np.array_equal(np.asarray(wavelength_nm, float), wl):
+        truth = np.interp(np.asarray(wavelength_nm, float), wl, truth)
+    return truth, problems
+
+
+def check_spectral(key: str, meta: dict[str, Any], arrays: dict[str, np.ndarray],
+                   view: dict[str, Any] | None) -> list[str]:
+    wl = np.asarray(arrays["wavelength_nm"], dtype=float)
+    measured = np.asarray(arrays["radiance_W_sr_m2_nm"], dtype=float)
+    truth, problems = spectral_truth(meta, view, wl)
+    if truth is None:
+        return problems
+    if measured.shape != truth.shape or not np.all(np.isfinite(measured)):
+        return [*problems, (f"{measured.size} values (finite: "
+                            f"{np.isfinite(measured).all()}), expected {truth.size} finite")]
+    lo, hi = spectral_bounds(truth)
+    bad = np.flatnonzero((measured < lo) | (measured > hi))
+    if bad.size:
+        ratio = measured[bad] / np.where(truth[bad] != 0, truth[bad], np.nan)
+        worst = bad[int(np.nanargmax(np.abs(np.nan_to_num(ratio - 1, nan=np.inf))))]
+        problems.append(
+            f"{bad.size}/{wl.size} bands outside ±2 %/±0.3 nm of the truth; worst "
+            f"{wl[worst]:.0f} nm: {measured[worst]:.4g} vs {truth[worst]:.4g} "
+            f"(×{measured[worst] / truth[worst] if truth[worst] else math.inf:.3f}); "
+            f"median ratio {np.nanmedian(measured / np.where(truth > 0, truth, np.nan)):.4f}")
+    return problems
+
+
+def check_brdf(key: str, meta: dict[str, Any], arrays: dict[str, np.ndarray],
+               note: dict[str, Any] | None) -> list[str]:
+    problems: list[str] = []
+    claimed = _claimed_material(meta)
+    if meta.get("blocked"):
+        return problems                       # a declared shadowed geometry: no value claimed
+    if note is not None:
+        if str(note.get("material")) != claimed:
+            problems.append(f"claims {claimed}, the gonio held {note.get('material')}")
+        for arm in ("theta_i_deg", "theta_o_deg"):
+            if arm in meta and abs(float(note[arm]) - float(meta[arm])) > 0.5:
+                problems.append(f"claims {arm} {float(meta[arm]):g}, the arm stood at "
+                                f"{float(note[arm]):.2f}")
+    world = analytic_world()
+    wl = np.asarray(arrays["wavelength_nm"], dtype=float)
+    f = np.asarray(arrays["brdf_per_sr"], dtype=float)
+    truth = np.interp(wl, world.wavelength_nm, world._rho(claimed)) / np.pi
+    band = (wl >= 420) & (wl <= 700) & (truth > 0)
+    if not np.all(np.isfinite(f)) or not band.any():
+        return [*problems, "non-finite BRDF values"]
+    r = f[band] / truth[band]
+    med = float(np.median(r))
+    sigma = 1.4826 * float(np.median(np.abs(r - med)))
+    sigma_med = 1.2533 * sigma / math.sqrt(r.size)
+    if abs(med - 1.0) > GONIO_REL + 4 * sigma_med:
+        problems.append(f"BRDF ×{med:.3f} of the truth over 420-700 nm (limit ±"
+                        f"{GONIO_REL + 4 * sigma_med:.3f})")
+    limit = GONIO_REL + 6 * sigma + 0.01
+    out = np.abs(r - 1.0) > limit
+    if out.any():
+        i = int(np.argmax(np.abs(r - 1.0)))
+        problems.append(f"{int(out.sum())} bands beyond ±{limit:.3f}; worst "
+                        f"{wl[band][i]:.0f} nm ×{r[i]:.3f}")
+    return problems
+
+
+def _notes(ex: Execution) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for seg in ex.segments:
+        for e in seg.journal:
+            if e.get("ev") == "reading-stored":
+                out[e["key"]] = e
+    return out
+
+
+def oracle(ex: Execution, store: Any, run_id: int, error_keys: set[str]) -> list[Violation]:
+    out = []
+    notes = _notes(ex)
+    for r in store.readings(run_id):
+        if r.key in error_keys:
+            continue
+        note = notes.get(r.key, {})
+        if r.kind == "brdf":
+            problems = check_brdf(r.key, r.metadata, r.arrays, note.get("brdf"))
+        else:
+            problems = check_spectral(r.key, r.metadata, r.arrays, note.get("view"))
+        for p in problems:
+            out.append(Violation("a", f"a:{r.kind}", f"{r.key} stored without an error "
+                                                     f"flag: {p}"))
+    return out
+
+
+# --- (b) typed failures, (c) no hang -----------------------------------------------------------
+def typed_failures(ex: Execution, complete: bool, missing_unflagged: list[str]) -> list[Violation]:
+    out = []
+    for i, seg in enumerate(ex.segments):
+        if seg.rc is None:
+            continue
+        if "Traceback (most recent call last)" in seg.stderr:
+            last = [ln for ln in seg.stderr.strip().splitlines() if ln.strip()][-1:]
+            name = (last[0].split(":")[0].strip() if last else "?")[:60]
+            out.append(Violation("b", f"b:traceback:{name}",
+                                 f"segment {i} printed a traceback: {last[0] if last else ''}"))
+            continue
+        if seg.rc != 0:
+            typed = any(ln.startswith("normbox-lab: ") for ln in seg.stderr.splitlines())
+            status = any(STATUS_LINE.match(ln) for ln in seg.stdout.splitlines())
+            resume = any(ln.startswith("resume with: ") for ln in seg.stdout.splitlines())
+            if not (typed or status or resume):
+                out.append(Violation("b", "b:untyped-exit",
+                                     f"segment {i} exited {seg.rc} without a typed line"))
+        elif i == len(ex.segments) - 1 or seg.action is None or not seg.fired:
+            if not complete:
+                out.append(Violation(
+                    "b", "b:exit-0-incomplete",
+                    f"segment {i} exited 0 but the run lacks {len(missing_unflagged)} "
+                    f"readings without an error flag ({', '.join(missing_unflagged[:3])})"))
+        elif not complete:
+            out.append(Violation(
+                "b", "b:exit-0-incomplete",
+                f"segment {i} ({seg.action.label()}) exited 0 with the run incomplete and "
+                f"unflagged ({', '.join(missing_unflagged[:3])})"))
+    return out
+
+
+def no_hang(ex: Execution) -> list[Violation]:
+    out = []
+    for i, seg in enumerate(ex.segments):
+        if seg.hung:
+            out.append(Violation("c", "c:wall-clock",
+                                 f"segment {i} still running after {seg.wall_s:.0f} s "
+                                 "(wall clock): killed"))
+        estimates: dict[str, float] = {}
+        suspend_s = 600.0
+        counts: dict[str, dict[str, int]] = {}
+        for e in seg.journal:
+            ev = e.get("ev")
+            if ev == "run-started":
+                estimates = e.get("estimates") or {}
+                suspend_s = float(e.get("suspend_timeout_s") or suspend_s)
+            elif ev in ("fault", "suspended", "prompt", "warning"):
+                c = counts.setdefault(e.get("key", ""), {})
+                c[ev] = c.get(ev, 0) + 1
+            elif ev == "step-finished" and e["d"].get("kind") in ("measure",):
+                key = e["key"]
+                est = float(estimates.get(key, 0.0))
+                if est <= 0:
+                    continue
+                c = counts.get(key, {})
+                bound = (DRIVER_ATTEMPTS * (est + DRIVER_TIMEOUT_S)
+                         + (c.get("fault", 0) + c.get("warning", 0)) * (est + FAULT_ALLOWANCE_S)
+                         + c.get("suspended", 0) * (est + suspend_s)
+                         + c.get("prompt", 0) * (est + PROMPT_ALLOWANCE_S))
+                took = float(e["d"].get("duration_s", 0.0))
+                if took > bound:
+                    out.append(Violation(
+                        "c", "c:step-time",
+                        f"segment {i}: {key} took {took:.0f} s (virtual) > bound {bound:.0f} s "
+                        f"(estimate {est:.0f} s, {c or 'no faults'})"))
+    return out
+
+
+# --- (d) consistent state, (e) resume -----------------------------------------------------------
+RUNS_LINE = re.compile(r"^\s*(\d+)\s+([0-9a-f]{8})\s+(\S+)\s+(.+?)\s+(\d+)/(\d+)\s")
+
+
+def _runs_line(text: str, uuid: str) -> tuple[str, int, int] | None:
+    for ln in text.splitlines():
+        m = RUNS_LINE.match(ln)
+        if m and uuid.startswith(m.group(2)):
+            return m.group(4).strip(), int(m.group(5)), int(m.group(6))
+    return None
+
+
+def lock_is_free(store_path: Any, uuid: str) -> bool:
+    from normbox_lab.acquire.store import RunLock
+    from normbox_lab.core.errors import StoreError
+
+    lock = RunLock(store_path, uuid)
+    existed = lock.path.exists()
+    try:
+        lock.acquire()
+    except StoreError:
+        return False
+    lock.release()
+    if not existed and lock.path.exists():
+        lock.path.unlink()
+    return True
+
+
+def consistent_state(ex: Execution, store: Any, rec: Any, keys: set[str],
+                     flags: list[Any]) -> list[Violation]:
+    out = []
+    for i, seg in enumerate(ex.segments):
+        if seg.runs_out is not None:
+            shown = _runs_line(seg.runs_out[1], ex.run_uuid or "")
+            if shown is not None and shown[0] == "running":
+                out.append(Violation("d", "d:running-without-owner",
+                                     f"after segment {i} was killed, `runs` shows the run "
+                                     "'running' with no live owner"))
+        for e in seg.journal:
+            if e.get("ev") == "reading-stored" and e["key"] not in keys:
+                out.append(Violation("d", "d:lost-reading",
+                                     f"segment {i} reported {e['key']} stored; the store "
+                                     "lacks it"))
+    if len(keys) != rec.done:
+        out.append(Violation("d", "d:done-count",
+                             f"store says done {rec.done}, holds {len(keys)} readings"))
+    if rec.status == "done" and len(keys) != rec.planned:
+        out.append(Violation("d", "d:done-incomplete",
+                             f"status done with {len(keys)}/{rec.planned} readings"))
+    if rec.status == "running" and lock_is_free(ex.store, rec.uuid):
+        out.append(Violation("d", "d:running-without-owner",
+                             "the store says 'running' but nobody holds the run lock"))
+    for f in flags:
+        if f.key in keys and ("skip" in f.gate.lower() or "skipped" in f.message.lower()):
+            out.append(Violation("d", "d:stale-skip-flag",
+                                 f"{f.key} is stored but keeps the flag {f.gate!r}"))
+    from normbox_lab.analyze import qa
+
+    shown_status = qa.run_status(store, rec.id)
+    rc, text, err = runs_listing(ex.workdir, ex.store, "final-runs")
+    line = _runs_line(text, rec.uuid)
+    if rc != 0 or line is None:
+        out.append(Violation("d", "d:runs-command", f"`runs` exited {rc}, no line for the run "
+                                                    f"({err.strip()[-120:]})"))
+    elif line != (shown_status, rec.done, rec.planned):
+        out.append(Violation("d", "d:runs-disagrees",
+                             f"`runs` shows {line}, the store {shown_status} "
+                             f"{rec.done}/{rec.planned}"))
+    rc, text, err = qa_listing(ex.workdir, ex.store, str(rec.id), "final-qa")
+    s = qa.summary(store, rec.id)
+    lines = [ln for ln in text.strip().splitlines() if ln.strip()]
+    if not lines or lines[-1] != s.line():
+        out.append(Violation("d", "d:qa-disagrees",
+                             f"`qa` ends {lines[-1] if lines else '(nothing)'!r}, the store "
+                             f"{s.line()!r}"))
+    elif rc != (1 if s.errors else 0):
+        out.append(Violation("d", "d:qa-exit", f"`qa` exited {rc} with {s.errors} errors"))
+    elif not any(f": {shown_status}" in ln for ln in lines[:1]):
+        out.append(Violation("d", "d:qa-status",
+                             f"`qa` heads {lines[0]!r}, the status is {shown_status!r}"))
+    return out
+
+
+def resume_matches(ex: Execution, store: Any, rec: Any, error_keys: set[str]) -> list[Violation]:
+    from normbox_lab.acquire.store import Store
+
+    ref = ex.reference
+    if ref is None or ref.run_uuid is None:
+        return []
+    out = []
+    with Store(ref.store) as rs:
+        rrec = rs.get_run(ref.run_uuid)
+        ref_errors = {f["key"] for f in rs.flag_rows(run_id=rrec.id) if f["severity"] == "error"}
+        ref_readings = {r.key: r for r in rs.readings(rrec.id)}
+    mine = {r.key: r for r in store.readings(rec.id)}
+    if rec.status == "done" and rrec.status == "done" and set(mine) != set(ref_readings):
+        out.append(Violation("e", "e:keys", f"resumed run holds {sorted(set(mine) ^ set(ref_readings))[:4]} "
+                                            "unlike the uninterrupted run"))
+    geometry = ("angle_deg", "patch", "x_mm", "y_mm", "theta_i_deg", "theta_o_deg",
+                "material", "tilt_deg")
+    for key in sorted(set(mine) & set(ref_readings)):
+        a, b = mine[key], ref_readings[key]
+        ga = {k: a.metadata.get(k) for k in geometry}
+        gb = {k: b.metadata.get(k) for k in geometry}
+        if ga != gb:
+            out.append(Violation("e", "e:geometry", f"{key}: {ga} resumed vs {gb} uninterrupted"))
+            continue
+        if key in error_keys or key in ref_errors or a.kind != "spectral":
+            continue
+        va = np.asarray(a.arrays["radiance_W_sr_m2_nm"], float)
+        vb = np.asarray(b.arrays["radiance_W_sr_m2_nm"], float)
+        lo, hi = spectral_bounds(vb)
+        # two independent readings of the same truth: each within its band of it
+        spread = (hi - lo) + ABS_FLOOR
+        if va.shape != vb.shape or np.any(np.abs(va - vb) > spread):
+            out.append(Violation("e", "e:values", f"{key}: resumed and uninterrupted readings "
+                                                  "differ by more than their uncertainty"))
+    return out
+
+
+def check(ex: Execution) -> list[Violation]:
+    """Every invariant on one executed scenario."""
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze import qa
+
+    out = no_hang(ex)
+    if ex.run_uuid is None:
+        out += typed_failures(ex, True, [])
+        return out
+    try:
+        store = Store(ex.store)
+    except Exception as exc:              # noqa: BLE001 - reported as a violation
+        return [*out, Violation("d", "d:store-unreadable", f"{type(exc).__name__}: {exc}")]
+    with store:
+        rec = store.get_run(ex.run_uuid)
+        flags = qa.flags(store, rec.id)
+        error_keys = {f.key for f in flags if f.severity == "error"}
+        keys = set(store.keys(rec.id))
+        planned = _planned_keys(ex, rec)
+        missing = sorted(k for k in planned - keys if k not in error_keys)
+        complete = (rec.status == "done" and len(keys) == rec.planned) or (
+            bool(planned) and not missing)
+        out += typed_failures(ex, complete, missing)
+        out += oracle(ex, store, rec.id, error_keys)
+        out += consistent_state(ex, store, rec, keys, flags)
+        out += resume_matches(ex, store, rec, error_keys)
+    return out
+
+
+def _planned_keys(ex: Execution, rec: Any) -> set[str]:
+    """The plan's reading keys (from the journals' estimates, which cover every missing key
+    of a segment, plus what is stored)."""
+    keys: set[str] = set()
+    for seg in ex.segments:
+        for e in seg.journal:
+            if e.get("ev") == "run-started":
+                keys |= set(e.get("estimates") or {})
+    return keys
+
+
+__all__ = ["Violation", "check", "check_brdf", "check_spectral", "spectral_bounds"]
