@@ -87,11 +87,15 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
             dry = str(app.query_one("#run-info", Static).render())
             assert "ETA" not in dry
             assert "in a simulated lab the remaining time is measured once the run goes" in dry
-            await start_and_wait_for_the_second_prompt(pilot, app, parameters=False)
+            await pilot.press("s")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 1")
+            clock.advance(40.0)                  # the first reading takes 40 s of wall time
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                        and app.progress_done == 1, "prompt 2")
             log = [line.text for line in app.query_one("#events").lines]
             assert any(line.startswith("starting reference-sweep angles_deg=[30, 90] "
                                        "patches=[1, 9, 19] ") for line in log), log
-            clock.advance(40.0)                  # the first reading took 40 s of wall time
             finish = datetime.datetime.fromtimestamp(clock.wall_time_s() + 200.0)
             assert app.remaining_text() == f"remaining 3:20 · done ≈ {finish:%H:%M}"
 
@@ -824,3 +828,98 @@ def test_x_stops_also_while_typing_in_a_parameter_field(lab_env):  # noqa: F811
             assert not app.session.busy                      # and s did not start a run
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_stop_during_a_lamp_warm_up_ends_the_segment_paused_and_resumable(tmp_path):
+    """`Engine.stop()` (quitting the console) no longer waits for the warm-up (up to 5 min
+    at time scale 1): the wait ends at its next poll, the run is paused, and a resume warms
+    the lamp up and completes it."""
+    from engine_fakes import FakeLab
+
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.store import Store
+
+    with Store(tmp_path / "w.sqlite") as store:
+        lab = FakeLab()
+        plan = eng.build_plan("reference-sweep", {"angles_deg": [30], "patches": [7, 9]}, lab)
+        engine = eng.Engine(lab, store, plan, wait_when_paused=True)
+        polls: list[float] = []
+
+        def on_event(ev) -> None:
+            if ev.kind == "step-started" and ev.data.get("kind") == "wait-stable":
+                polls.append(lab.clock.now_s())
+                engine.stop()
+        engine.subscribe(on_event)
+        result = engine.run()
+        assert result.status == "paused" and result.done == 0
+        assert lab.clock.now_s() - polls[0] <= engine.poll_s          # one poll at most
+        assert lab.sphere.is_stable() is False                        # it was still warming
+        reasons = [d.get("reason") for _, k, d in store.events(result.run_id) if k == "stop"]
+        assert reasons == ["stopped at the sphere warm-up of lamp"]
+        assert store.get_run(result.run_id).status == "paused"
+        again = eng.Engine(lab, store, plan).run(resume=result.run_id)
+        assert again.status == "done" and again.done == 2
+
+
+def test_ctrl_q_in_the_lamp_warm_up_leaves_at_once_and_the_run_resumes(lab_env, monkeypatch):  # noqa: F811
+    """The console's Ctrl+Q during the lamp warm-up: the console is gone within 2 s (it used
+    to wait for the warm-up), the run is paused with nothing measured, and it resumes."""
+    import threading
+    import time
+
+    from engine_fakes import FakeLamp
+
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.tui.controller import Session
+
+    never = threading.Event()
+    # a lamp that takes 10 ms to answer and never gets stable while the console is up
+    monkeypatch.setattr(FakeLamp, "is_stable", lambda self: never.wait(0.01))
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+    left: list[float] = []
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await until(pilot, lambda: "remaining: measuring… (lamp warming up)" in str(
+                app.query_one("#run-info", Static).render()), "the warm-up")
+            t0 = time.monotonic()
+            await pilot.press("ctrl+q")
+            await until(pilot, lambda: not app.is_running, "the console to leave",
+                        timeout_s=10.0)
+            left.append(time.monotonic() - t0)
+    asyncio.run(scenario())
+    assert left and left[0] < 2.0, left
+    assert session.wait(5.0)
+    session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "paused" and s.keys(run.id) == set()
+    never.set()                                   # the lamp is stable now
+    again = Session(session.config, lab_env / "tui.sqlite", world="analytic", time_scale=0.0,
+                    virtual_operator=True)
+    again.resume_run(run.id)
+    assert again.wait(30.0)
+    assert again.result.status == "done" and again.result.done == 6
+    again.close()
+
+
+def test_a_running_run_without_a_live_owner_is_shown_interrupted(lab_env):  # noqa: F811
+    """A closed terminal or a kill leaves a run stored as `running`: the run lock tells
+    whether a process still executes it; without one the console shows it interrupted (and
+    offers to resume it), with one it stays running."""
+    session = new_session(lab_env)
+    store = session.open_store()
+    dead = store.create_run("reference-sweep", parameters={}, planned=6, status="running")
+    alive = store.create_run("reference-sweep", parameters={}, planned=6, status="running")
+    lock = store.lock_run(alive.id)              # a live owner (this process)
+    try:
+        shown = {r.id: r.status for r in session.runs()}
+        assert shown == {dead.id: "interrupted", alive.id: "running"}
+        assert [r.id for r in session.unfinished_runs()] == [dead.id, alive.id]
+    finally:
+        lock.release()
+    assert {r.id: r.status for r in session.runs()}[alive.id] == "interrupted"
+    session.close()

@@ -246,6 +246,9 @@ class Engine:
     def abort_requested(self) -> bool:
         return self._abort.is_set()
 
+    def stop_requested(self) -> bool:
+        return self._stop.is_set()
+
     def ask_operator(self, key: str, message: str, data: Mapping[str, Any]) -> str:
         return self._ask(PromptRequest(next(self._prompt_ids), key, "operator", message,
                                        ("ok",), dict(data)))
@@ -373,7 +376,7 @@ class Engine:
         except StopAtPrompt as exc:
             # stopped while a question was open: the unanswered step is asked again on resume
             status = "paused"
-            self._store_event("stop", reason=f"stopped at the prompt of {exc}")
+            self._store_event("stop", reason=f"stopped at {exc}")
         except OperatorAbort as exc:
             status = "aborted"
             self._halt_all()
@@ -703,7 +706,7 @@ class Engine:
                 if self._abort.is_set():
                     raise OperatorAbort("abort requested during a prompt")
                 if not self._answered.is_set():
-                    raise StopAtPrompt(req.key)
+                    raise StopAtPrompt(f"the prompt of {req.key}")
                 choice = self._answer or req.choices[0]
         finally:
             self._pending_prompt = None

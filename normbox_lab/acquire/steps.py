@@ -144,6 +144,9 @@ class StepRunner(Protocol):
         """`isinstance(instrument(role), capability)`, cached while the run goes on."""
         ...
     def abort_requested(self) -> bool: ...
+    def stop_requested(self) -> bool:
+        """`Engine.stop()` was called: a wait (a lamp warm-up) ends the segment paused."""
+        ...
     def ask_operator(self, key: str, message: str, data: Mapping[str, Any]) -> str: ...
 
 
@@ -167,6 +170,10 @@ def wait_until_stable(run: StepRunner, role: str, timeout_s: float, *, switch_on
     while not lamp.is_stable():
         if run.abort_requested():
             raise OperatorAbort("abort requested")
+        if run.stop_requested():       # quitting: no need to wait minutes for the warm-up
+            from normbox_lab.acquire.retry import StopAtPrompt
+
+            raise StopAtPrompt(f"the {role} warm-up of {key or role}")
         if isinstance(lamp, Switchable) and lamp.state() == "off":
             raise NotReady(f"{role} is off", instrument=role)
         if run.clock.now_s() >= deadline:

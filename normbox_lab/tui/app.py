@@ -408,6 +408,16 @@ class NormboxConsole(App):
             self.prompt_screen.dismiss("")
         self._log("quitting: the run pauses after the current reading (q again: abort)")
         self.notify("pausing the run before quitting… (q again: abort now)")
+        # a warm-up, a prompt or a pause end at once; a move or a reading under way at a
+        # real pace may take longer: the console leaves anyway, the command waits for it
+        self.set_timer(self.QUIT_WAIT_S, self._leave)
+
+    #: seconds the console waits for the run to pause before it leaves the screen anyway
+    QUIT_WAIT_S = 1.5
+
+    def _leave(self) -> None:
+        if self.quitting and self.is_running:
+            self.exit()
 
     def action_emergency_stop(self) -> None:
         """x: every axis stops and every lamp goes off now; a run ends paused (resumable)."""
@@ -463,6 +473,7 @@ class NormboxConsole(App):
 
         k = ev.kind
         d = ev.data
+        self.progress.on_event(k, d)           # one-off waits (warm-up, pauses) for the rate
         if k in ("run-started", "step-finished", "suspended", "unsuspended"):
             self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
@@ -476,7 +487,8 @@ class NormboxConsole(App):
             self.progress.step = f"{ev.key} · {d.get('label', d.get('kind', ''))}"
             self._update_run_info()
         elif k == "progress":
-            self.progress.progressed(d["done"], float(d["eta_s"]))
+            self.progress.progressed(d["done"], float(d["eta_s"]),
+                                     d.get("remaining_estimate_s"))
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":
@@ -615,6 +627,8 @@ class NormboxConsole(App):
     def _tick(self) -> None:
         try:
             self._refresh_dirty()
+            if self.session.busy and self.panes_built:
+                self._update_run_info()        # the remaining time counts down between events
         except NoMatches:          # the console is closing: the widgets are gone
             pass
 

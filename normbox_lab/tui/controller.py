@@ -156,7 +156,30 @@ class Session:
         return self.lab
 
     def unfinished_runs(self) -> list[Any]:
-        return [r for r in self.open_store().runs() if r.status in UNFINISHED]
+        return [r for r in self.runs() if r.status in UNFINISHED]
+
+    def runs(self) -> list[Any]:
+        """The store's runs as the console shows them: a run stored as `running` whose
+        execution lock no process holds (its owner died: a closed terminal, a kill) is
+        `interrupted` — resumable, never shown as running."""
+        from dataclasses import replace
+
+        return [replace(r, status="interrupted") if r.status == "running"
+                and not self.run_is_owned(r.id) else r for r in self.open_store().runs()]
+
+    def run_is_owned(self, run_id: int) -> bool:
+        """Whether a live process (this one included) holds the run's execution lock."""
+        from normbox_lab.core.errors import StoreError
+
+        engine = self.engine
+        if engine is not None and self.busy and engine.run_id == run_id:
+            return True
+        try:
+            lock = self.open_store().lock_run(run_id)
+        except StoreError:
+            return True
+        lock.release()
+        return False
 
     # --- protocols ---------------------------------------------------------------------------
     def default_parameters(self, protocol: str) -> dict[str, Any]:

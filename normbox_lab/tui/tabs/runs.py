@@ -41,7 +41,7 @@ class RunsPane(TabPane):
         tab = self.query_one("#runs-table", DataTable)
         selected = self.selected_run_id()
         tab.clear()
-        runs = self.store.runs()
+        runs = self.app.session.runs()          # a run whose owner died: interrupted
         flags = qa.summaries_by_run(self.store)
         for r in runs:
             tab.add_row(*run_row(r, flags.get(r.id)), key=str(r.id))
