@@ -14,10 +14,10 @@
 Everything goes through the same code the lab uses: the engine drives the drivers, the drivers
 talk bytes to the emulators, the store keeps every reading, the pipeline reads the store.
 
-Rendering: by default both the world (truth materials) and the prediction (fitted materials)
-use the band-vector renderer `fastrender.FastNormbox` with per-configuration seeds, one scene
-per process; `--renderer stock` uses Mitsuba's own spectral path tracer (`render.render_view`,
-cached on disk), slower.  `--quick` is the reduced version for tests: 4 patches × 3 angles,
+Rendering: by default both the world (truth materials, `sim.fast_world.FastVirtualNormbox`) and
+the prediction (fitted materials) use the band-vector renderer `fastrender.FastNormbox` with
+per-configuration seeds from independent streams, one scene per process; `--renderer stock`
+uses Mitsuba's own spectral path tracer (`render.render_view`, cached on disk), slower.  `--quick` is the reduced version for tests: 4 patches × 3 angles,
 coarse renders.
 """
 
@@ -36,15 +36,13 @@ CAMERA_ANGLE_DEG = 45.0
 QUICK_ANGLES = [30, 60, 90]
 FULL_ANGLES = list(range(30, 91, 5))
 
-#: target largest relative standard error per 5 nm band of the fast renderer, per quality
-
 
 @dataclass
 class DemoOptions:
     quick: bool = False
     truth: str = "default"          # default | model (closure) | paper
     noise: bool = True              # instrument noise of the emulators
-    errors: str | None = None       # error-source spec (sim.errors); truth "paper": PAPER_SPEC
+    errors: str | None = None       # error-source spec (core.error_sources); "paper": PAPER_SPEC
     store: str | None = None
     out_dir: str = "demo-out"
     renderer: str = "fast"          # fast | stock
@@ -63,7 +61,11 @@ class DemoResult:
 def error_spec(opts: DemoOptions) -> str | None:
     """The error-source spec of the campaign: `--errors`, on top of the paper's set for
     `--truth paper`; None when neither asks for one (the emulators' own noise only)."""
-    from normbox_lab.sim.errors import PAPER_SPEC, error_sources_from_config, parse_error_spec
+    from normbox_lab.core.error_sources import (
+        PAPER_SPEC,
+        error_sources_from_config,
+        parse_error_spec,
+    )
 
     if opts.truth != "paper":
         return None if opts.errors is None else parse_error_spec(opts.errors).spec()
@@ -99,57 +101,39 @@ def demo_config(opts: DemoOptions, quality: str, cache_dir: Path) -> Any:
     return replace(base, seed=opts.seed, instruments=instruments, render=render)
 
 
-class _FastRenderWorld:
-    """Mixin for the virtual Normbox: render truth through `FastNormbox` (shared scene)."""
-
-    fast: Any = None
-    target_rel_se: float = 0.004
-
-    def render(self, patch, angle_deg, *, direct_only=False, quality=None):
-        from normbox_lab.predict.fastrender import config_seed
-        from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG
-
-        angle = round(float(angle_deg) / ANGLE_RESOLUTION_DEG) * ANGLE_RESOLUTION_DEG
-        mat = self.patch_material(patch)
-        target, base, pilot = self.target_rel_se, 1, 1 << 14
-        if self.errors.render_rel_se:
-            # rendering error: the truth's own noise, independent of the prediction's, at the
-            # given worst-band relative SE (a small pilot, so the render does not overshoot it)
-            target, base, pilot = self.errors.render_rel_se, 7919 + self.errors.seed, 1 << 11
-        return self.fast.render_view(patch=mat, wall=self.wall, holder=self.holder,
-                                     angle_deg=angle, lamp=self.lamp,
-                                     target_rel_se=target, direct_only=direct_only,
-                                     seed=config_seed(base, f"{mat.name}@{angle:g}"),
-                                     pilot_paths=pilot)
-
-
 def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Callable | None]:
-    """The virtual Normbox, and the render function the prediction should use."""
+    """The virtual Normbox, and the render function the prediction should use.
+
+    Fast renderer: the world renders the truth with its own random numbers
+    (`sim.fast_world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`, both at the
+    quality's target standard error: the comparison sees both Monte-Carlo errors, as a
+    measurement would."""
     from normbox_lab.sim.world import VirtualNormbox
 
     if opts.renderer == "stock":
         return VirtualNormbox(config=config), None
     from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox, config_seed
+    from normbox_lab.sim.fast_world import PREDICTION_SEED, FastVirtualNormbox
 
-    world_cls = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})
-    world = world_cls(config=config)
+    target = FAST_TARGET_REL_SE[quality]
+    world = FastVirtualNormbox(config=config, target_rel_se=target)
     # the truth geometry (perturbed by the `geometry`/`homogeneity` error sources, if on)
-    world.fast = FastNormbox(world.geometry)
     fast = world.fast if world.geometry == config.geometry else FastNormbox(config.geometry)
-    world.target_rel_se = FAST_TARGET_REL_SE[quality]
 
     def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
                direct_only=False):
-        name = f"{_truth_name(patch.name)}@{float(angle_deg):g}"
         return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
-                                lamp=lamp, target_rel_se=world.target_rel_se,
-                                direct_only=direct_only, seed=config_seed(1, name))
+                                lamp=lamp, target_rel_se=target, direct_only=direct_only,
+                                seed=config_seed(PREDICTION_SEED,
+                                                 f"{config_name(patch.name)}@{float(angle_deg):g}"))
     return world, render
 
 
-def _truth_name(fit_name: str) -> str:
-    """Fit artifact names (p07, wall) → the truth material names (patch-7, wall), so truth and
-    prediction of one configuration share their random numbers."""
+def config_name(fit_name: str) -> str:
+    """Fit artifact names (p07, wall) → the truth material names (patch-7, wall): truth and
+    prediction name a configuration alike, so their seeds differ only by the stream's base
+    (`TRUTH_RENDER_SEED` vs `PREDICTION_SEED`), and a world given ``render_seed =
+    PREDICTION_SEED`` shares the prediction's random numbers exactly."""
     if fit_name.startswith("p") and fit_name[1:].isdigit():
         return f"patch-{int(fit_name[1:])}"
     return fit_name

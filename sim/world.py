@@ -12,10 +12,10 @@ World state, and who changes it:
   (until the next `place_patch`/`clear_aim`);
 - the gonioreflectometer's sample: `mount_gonio_material("patch-1".."patch-24" | "wall")`.
 
-Error sources (`sim.errors.ErrorSources`, from `errors=` or the lab config's `[render] errors`),
-all off by default: the sample-angle errors move the rendered angle; geometry and homogeneity
-make the truth geometry (`self.geometry`) differ from the nominal one (`self.nominal_geometry`,
-what the prediction uses); diffusivity and lamp scale the light on the sample but not the light
+Error sources (`core.error_sources.ErrorSources`, from `errors=` or the lab config's
+`[render] errors`), all off by default: the sample-angle errors move the rendered angle;
+geometry and homogeneity make the truth geometry (`self.geometry`) differ from the nominal one
+(`self.nominal_geometry`, what the prediction uses); diffusivity and lamp scale the light on the sample but not the light
 map's view of the panel; the CS-1000A's gain and wavelength shift act on `radiance_in_view()`;
 the gonioreflectometer's calibration, non-linearity and noise on `brdf_truth()`.
 
@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.error_sources import ErrorSources, error_sources_from_config, parse_error_spec
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.materials import (
     Material,
@@ -45,7 +46,6 @@ from normbox_lab.predict.materials import (
 )
 from normbox_lab.predict.render import Lamp, RenderResult, luminance_cd_m2, render_view
 from normbox_lab.predict.scene import as_geometry, panel_map_at
-from normbox_lab.sim.errors import ErrorSources, error_sources_from_config, parse_error_spec
 
 #: render angles are rounded to this (rotator encoder noise must not defeat the cache)
 ANGLE_RESOLUTION_DEG = 0.001

@@ -67,7 +67,7 @@ def test_the_paper_spec_gives_the_papers_nse_pattern():
     """The paper (§6.3.5): its NSE, (reference − prediction) / reference, is slightly higher at
     65° and slightly lower at 80° than at the neighbouring angles, for every patch.  The paper
     spec's offsets must produce exactly that sign in the paper's convention."""
-    from normbox_lab.sim.errors import PAPER_SPEC, parse_error_spec
+    from normbox_lab.core.error_sources import PAPER_SPEC, parse_error_spec
 
     offsets = parse_error_spec(PAPER_SPEC).angle_offset_deg
     R, P, _ = sweep(offsets, noise=0.0)

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from normbox_lab.analyze.budget import BudgetInputs, compute_budget, errors_for_run
+from normbox_lab.core.error_sources import PAPER_FIGURES, parse_error_spec
 from normbox_lab.core.errors import ConfigError
-from normbox_lab.sim.errors import PAPER_FIGURES, parse_error_spec
 
 WL = np.arange(380.0, 781.0, 1.0)
 ANGLES = np.arange(30.0, 91.0, 15.0)

@@ -9,16 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab.analyze.budget import (
-    BudgetInputs,
-    compute_budget,
-    render_derivatives,
-    virtual_prediction,
-    virtual_sweep,
-)
+from normbox_lab.analyze.budget import BudgetInputs, compute_budget
+from normbox_lab.analyze.budget_derivatives import render_derivatives
+from normbox_lab.core.error_sources import parse_error_spec
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.materials import truth_patch, truth_wall
-from normbox_lab.sim.errors import parse_error_spec
+from normbox_lab.sim.fast_world import virtual_prediction, virtual_sweep
 
 pytestmark = pytest.mark.slow
 

@@ -1,6 +1,8 @@
 """The whole virtual campaign closes on itself: with the fit model as the truth and instrument
 noise off, what the instruments measured and what the pipeline predicts from its own fits agree
-(the remaining difference is Monte-Carlo noise of the quick renders and the fit's grid)."""
+within the Monte-Carlo noise of the quick renders: truth and prediction draw independent random
+numbers, each to the quick target (worst band 2 %), so the acceptance is NRMSE ≤ 0.5 % + 3 ×
+their combined standard error (the truth's taken equal to the prediction's: same target)."""
 
 from pathlib import Path
 
@@ -15,8 +17,17 @@ def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):
     result = run_demo(DemoOptions(quick=True, truth="model", noise=False,
                                   out_dir=str(tmp_path / "demo")), log=lines.append)
     s = result.summary
-    # measured: NRMSE mean 0.14 %, max 0.40 %; ΔE00 max 0.05 (quick renders, 2 % target SE)
-    assert s["nrmse_max_pct"] < 0.5, s
+    # measured (one run, quick renders, independent noise): NRMSE mean 0.51 %, max 1.98 %;
+    # ΔE00 max 0.16
+    with Store(result.store) as store:
+        run_id = result.runs["reference-sweep"]
+        pred = store.latest_artifact("prediction", f"ref-run-{run_id}").arrays
+        comp = store.latest_artifact("comparison", f"ref-run-{run_id}").arrays
+    sigma = (np.sqrt(2.0 * np.mean(pred["std_error"] ** 2, axis=-1))
+             / np.mean(comp["reference"], axis=-1))
+    nrmse = comp["nrmse"]
+    assert np.all(nrmse <= 0.005 + 3.0 * sigma), (nrmse, sigma)
+    assert np.median(nrmse / sigma) > 0.2            # the noise is not shared: it shows
     assert s["delta_e00_max"] < 0.2, s
     assert set(s["nrmse_by_angle_pct"]) == {f"{a:g}" for a in QUICK_ANGLES}
     assert result.report.exists() and result.report.stat().st_size > 10_000
@@ -26,7 +37,7 @@ def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):
     for path in s["camera_files"].values():
         head = Path(path).read_bytes()[:8]
         assert head in (b"\x89PNG\r\n\x1a\n", b"v/1\x01\x02\x00\x00\x00"), path
-    # truth = model and the same random numbers: the images differ only by the fit
+    # truth = model and (in the camera view) the same random numbers: only the fit differs
     assert s["camera_delta_e00"]["patch_region"] < 0.5, s["camera_delta_e00"]
     with Store(result.store) as store:
         ref = store.get_run(result.runs["reference-sweep"])

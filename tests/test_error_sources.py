@@ -7,16 +7,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from normbox_lab.core.errors import ConfigError
-from normbox_lab.predict.materials import truth_brdf_inplane, truth_material
-from normbox_lab.predict.render import RenderResult
-from normbox_lab.sim.errors import (
+from normbox_lab.core.error_sources import (
     GEOMETRY_FIELDS,
     PAPER_SPEC,
     SOURCE_FIELDS,
     Magnitude,
     parse_error_spec,
 )
+from normbox_lab.core.errors import ConfigError
+from normbox_lab.predict.materials import truth_brdf_inplane, truth_material
+from normbox_lab.predict.render import RenderResult
 from normbox_lab.sim.world import VirtualNormbox
 
 BANDS_NM = np.arange(380.0, 781.0, 5.0)
@@ -188,8 +188,13 @@ def test_gonio_calibration_nonlinearity_noise(off):
     assert 0.5e-3 < np.std(rel) < 2e-3
 
 
-def test_fast_world_render_error_uses_independent_seeds():
-    from normbox_lab.demo import _FastRenderWorld
+def test_fast_world_renders_with_its_own_random_numbers():
+    from normbox_lab.predict.fastrender import config_seed
+    from normbox_lab.sim.fast_world import (
+        PREDICTION_SEED,
+        TRUTH_RENDER_SEED,
+        FastVirtualNormbox,
+    )
 
     calls = []
 
@@ -197,11 +202,18 @@ def test_fast_world_render_error_uses_independent_seeds():
         def render_view(self, **kw):
             calls.append((kw["seed"], kw["target_rel_se"]))
 
-    for spec in ("off", "render=0.01"):
-        w = type("W", (_FastRenderWorld, VirtualNormbox), {})(errors=spec)
-        w.fast = Fast()
+    for spec in ("off", "render=0.01", "render=0.01,seed=5"):
+        w = FastVirtualNormbox(errors=spec, fast=Fast())
         w.render(19, 30.0)
-    assert calls[0][1] == 0.004 and calls[1][1] == 0.01 and calls[0][0] != calls[1][0]
+    # the quality's target, or the render source's; never the prediction's seed
+    assert [t for _, t in calls] == [0.004, 0.01, 0.01]
+    assert calls[0][0] == config_seed(TRUTH_RENDER_SEED + 1, "patch-19@30")
+    assert calls[2][0] == config_seed(TRUTH_RENDER_SEED + 5, "patch-19@30")
+    assert config_seed(PREDICTION_SEED, "patch-19@30") not in {s for s, _ in calls}
+    # common random numbers only when asked for
+    w = FastVirtualNormbox(errors="off", fast=Fast(), render_seed=PREDICTION_SEED)
+    w.render(19, 30.0)
+    assert calls[-1][0] == config_seed(PREDICTION_SEED, "patch-19@30")
 
 
 # --- the spec -----------------------------------------------------------------------------------

@@ -56,10 +56,15 @@ def _world(truth):
     return make_world(config, DemoOptions(truth=truth), "quick")
 
 
-def test_closure_truth_model_no_noise(tmp_path, monkeypatch):
-    """Truth inside the model family, no instrument: the pipeline closes on itself.  Truth and
-    prediction of one configuration share their random numbers (fast renderer, one scene)."""
+def test_pipeline_closes_on_itself_with_common_random_numbers(tmp_path, monkeypatch):
+    """Truth inside the model family, no instrument, and (unlike the demo's default, and unlike
+    the statistical closure of test_closure.py) the world rendering with the prediction's
+    random numbers: the quick renders' noise cancels, so what is left is the pipeline's own
+    plumbing (fit recovery, scene, light), checked tightly at quick quality."""
+    from normbox_lab.sim.fast_world import PREDICTION_SEED
+
     world, render = _world("model")
+    world.render_seed = PREDICTION_SEED
     with Store(tmp_path / "s.sqlite") as store:
         brdf = _gonio_run(store, "model")
         ref = _reference_run(store, world)

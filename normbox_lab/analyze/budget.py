@@ -1,6 +1,6 @@
 """The error budget: each error source's contribution to NSE / NRMSE / ΔE00, per patch × angle.
 
-Each source of the error path (`normbox_lab.sim.errors`, plus the fitting error) is a
+Each source of the error path (`normbox_lab.core.error_sources`, plus the fitting error) is a
 distribution; its effect on the reference-minus-prediction difference is propagated through
 the comparison by sampling its draws with the structure the source has in the lab (per reading,
 per sweep angle, per campaign), linearised where that is accurate:
@@ -31,22 +31,25 @@ parametric bootstrap over the measurement sources.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
-from normbox_lab.sim.errors import GEOMETRY_FIELDS, PAPER_FIGURES, ErrorSources, parse_error_spec
+from normbox_lab.core.error_sources import (
+    GEOMETRY_FIELDS,
+    PAPER_FIGURES,
+    SOURCE_FIELDS,
+    ErrorSources,
+    parse_error_spec,
+)
+from normbox_lab.core.errors import ConfigError
 
 #: the budget's sources, in table order
 BUDGET_SOURCES = ("angle", "angle-sweep", "angle-offset", "geometry", "cs1000", "cs1000-wl",
                   "qepro-snr", "qepro-nonlin", "gonio-cal", "homogeneity", "diffusivity",
                   "lamp", "render", "fit")
-#: geometry derivatives: step of the central differences (mm); homogeneity step (fraction)
-GEOMETRY_STEP_MM = 2.0
-HOMOGENEITY_STEP = 0.03
-ANGLE_STEP_DEG = 1.0
 N_GONIO_GEOMETRIES = 153
 
 
@@ -305,69 +308,6 @@ def _pivot(observed: np.ndarray, boot: np.ndarray) -> np.ndarray:
     return np.array([np.maximum(observed - (hi - med), 0.0), observed + (med - lo)])
 
 
-# --- derivatives with the fast renderer -------------------------------------------------------
-def render_derivatives(patch_materials: Sequence[Any], wall: Any, angle_deg: Sequence[float],
-                       wavelength_nm: np.ndarray, *, geometry: Any, lamp: Any = None,
-                       white: Any = None, n_paths: int = 1 << 14, seed: int = 11,
-                       with_geometry: bool = True,
-                       progress: Callable[[str, int, int], None] | None = None
-                       ) -> dict[str, Any]:
-    """∂P/∂s for every patch × angle, and the relative geometry / homogeneity derivatives per
-    angle (with `white`, default the first patch), by central differences; each pair of
-    renders shares its seed (common random numbers)."""
-    from dataclasses import replace
-
-    from normbox_lab.predict.fastrender import FastNormbox, config_seed
-
-    progress = progress or (lambda stage, done, total: None)
-    angles = [float(a) for a in angle_deg]
-
-    def interp(r: Any) -> np.ndarray:
-        return np.interp(wavelength_nm, r.wavelength_nm, r.radiance)
-
-    box = FastNormbox(geometry)
-    n_p = len(patch_materials)
-    d_angle = np.zeros((n_p, len(angles), wavelength_nm.size))
-    total = 2 * n_p * len(angles)
-    done = 0
-    # one configuration at a time, not all patches per path: the offset estimate sums over
-    # the patches, and derivative noise shared by all of them (one set of paths) adds up
-    # coherently there; measured on the paper campaign it pulled every offset by about −1°
-    for ai, a in enumerate(angles):
-        for pi, m in enumerate(patch_materials):
-            s = config_seed(seed, f"{m.name}@{a:g}")
-            pair = [interp(box.render_view(patch=m, wall=wall, angle_deg=a + sgn * ANGLE_STEP_DEG,
-                                           lamp=lamp, n_paths=n_paths, seed=s))
-                    for sgn in (1, -1)]
-            d_angle[pi, ai] = (pair[0] - pair[1]) / (2 * ANGLE_STEP_DEG)
-            done += 2
-            progress("derivatives", done, total)
-    out: dict[str, Any] = {"d_angle": d_angle}
-    if not with_geometry:
-        return out
-    g0 = box.geometry
-    w = white if white is not None else patch_materials[0]
-    steps: dict[str, tuple[float, str]] = {f: (GEOMETRY_STEP_MM, f) for f in GEOMETRY_FIELDS}
-    steps["homogeneity"] = (HOMOGENEITY_STEP, "panel_homogeneity_percent")
-    rel: dict[str, np.ndarray] = {}
-    for key, (step, attr) in steps.items():
-        unit = 100.0 if key == "homogeneity" else 1.0
-        boxes = [FastNormbox(replace(g0, **{attr: getattr(g0, attr) + sgn * step * unit}))
-                 for sgn in (1, -1)]
-        r = np.zeros((len(angles), wavelength_nm.size))
-        for ai, a in enumerate(angles):
-            s = config_seed(seed, f"{key}@{a:g}")
-            up, down = (interp(b.render_view(patch=w, wall=wall, angle_deg=a, lamp=lamp,
-                                             n_paths=2 * n_paths, seed=s)) for b in boxes)
-            mid = 0.5 * (up + down)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                r[ai] = np.where(mid > 0, (up - down) / (2 * step) / mid, 0.0)
-        rel[key] = r
-    out["d_homogeneity_rel"] = rel.pop("homogeneity")
-    out["d_geometry_rel"] = rel
-    return out
-
-
 def errors_for_run(lab_config_text: str, sources: str | None) -> ErrorSources:
     """The distributions the budget propagates: the run's `[render] errors` if the run came
     from the virtual Normbox with a spec, else the paper's figures; `sources` (a spec, or
@@ -381,265 +321,11 @@ def errors_for_run(lab_config_text: str, sources: str | None) -> ErrorSources:
     base = parse_error_spec(render_cfg.get("errors") or PAPER_FIGURES)
     if not sources:
         return base
-    from normbox_lab.sim.errors import SOURCE_FIELDS
-
     names = [s.strip() for s in sources.split(",") if s.strip()]
     if all("=" not in s for s in names):
         unknown = [n for n in names if n not in SOURCE_FIELDS and n != "fit"]
         if unknown:
-            from normbox_lab.core.errors import ConfigError
-
             raise ConfigError("--sources", 0, f"errors.{unknown[0]}",
                               f"unknown error source; known: {', '.join(BUDGET_SOURCES)}")
         return base.only(*[n for n in names if n != "fit"])
     return parse_error_spec(sources, source="--sources")
-
-
-# --- on a stored campaign ----------------------------------------------------------------------
-def _virtual_run(lab_config_text: str) -> bool:
-    """A run of the demo's virtual Normbox with an error spec (fast renderer, shared seeds)."""
-    import tomllib
-
-    try:
-        return bool(tomllib.loads(lab_config_text or "").get("render", {}).get("errors"))
-    except tomllib.TOMLDecodeError:
-        return False
-
-
-def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
-                      with_geometry: bool = True,
-                      progress: Callable[[str, int, int], None] | None = None
-                      ) -> tuple[BudgetInputs, dict[str, float]]:
-    """Reference, prediction, fit error model and the renderer's derivatives of a stored
-    reference sweep (after `predict` and `compare`)."""
-    import time
-
-    from normbox_lab.acquire.config import parse_config
-    from normbox_lab.analyze.queries import (
-        fit_key,
-        lamp_from_light_map,
-        latest_fits,
-        latest_run,
-        reference_data,
-        white_index,
-    )
-    from normbox_lab.core.errors import StoreError
-    from normbox_lab.predict.materials import Material
-
-    run = store.get_run(ref_run)
-    ref = reference_data(store, run.id)
-    try:
-        pred = store.latest_artifact("prediction", f"ref-run-{run.id}").arrays
-    except (KeyError, LookupError, StoreError) as exc:
-        raise StoreError(f"run {run.id} has no prediction: run `normbox-lab predict` "
-                         f"first ({exc})") from exc
-    try:
-        fit_nse = store.latest_artifact("error-model", f"ref-run-{run.id}").arrays[
-            "simulated_nse"]
-        fit_nse = np.broadcast_to(fit_nse, ref.radiance.shape).copy()
-    except (KeyError, LookupError, StoreError):
-        fit_nse = None
-    fits = latest_fits(store)
-    geometry = parse_config(run.lab_config, f"run {run.id} lab config").geometry \
-        if run.lab_config else None
-    light = latest_run(store, "light-map")
-    lamp = lamp_from_light_map(store, light.id if light is not None else None)
-    mats = [Material.from_fit(fits[fit_key(p)]) for p in ref.patches]
-    white = white_index(ref.patches)
-    t0 = time.perf_counter()
-    der = render_derivatives(mats, Material.from_fit(fits["wall"]), ref.angle_deg,
-                             ref.wavelength_nm, geometry=geometry, lamp=lamp,
-                             white=mats[white], n_paths=n_paths, with_geometry=with_geometry,
-                             progress=progress)
-    timings = {"derivatives": time.perf_counter() - t0}
-    x = BudgetInputs(ref.wavelength_nm, ref.angle_deg, list(ref.patches), ref.radiance,
-                     pred["radiance"], pred["std_error"], der["d_angle"],
-                     der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
-                     white, shared_noise=_virtual_run(run.lab_config))
-    return x, timings
-
-
-def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
-               n_paths: int = 1 << 14, n_draws: int = 64,
-               progress: Callable[[str, int, int], None] | None = None) -> BudgetResult:
-    """The error budget of a stored reference sweep; stored as artifact "error-budget"."""
-    import time
-
-    from normbox_lab.analyze.angles import estimate_angle_offsets
-
-    run = store.get_run(ref_run)
-    errors = errors_for_run(run.lab_config, sources)
-    names = list(BUDGET_SOURCES)
-    if sources and all("=" not in s for s in sources.split(",")):
-        names = [n for n in BUDGET_SOURCES if n in {s.strip() for s in sources.split(",")}]
-    need_geometry = any(errors.is_on(n) for n in ("geometry", "homogeneity"))
-    x, timings = budget_inputs_run(store, run.id, n_paths=n_paths,
-                                   with_geometry=need_geometry, progress=progress)
-    t0 = time.perf_counter()
-    offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
-    result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
-    timings["propagation"] = time.perf_counter() - t0
-    result.timings_s = timings
-    result.store(store, f"ref-run-{run.id}", run_ref=run.id)
-    return result
-
-
-# --- validation on the virtual Normbox ---------------------------------------------------------
-def virtual_sweep(errors: ErrorSources | str, patches: Sequence[int], angles: Sequence[float],
-                  *, truth: str = "model", target_rel_se: float = 0.02,
-                  boxes: dict | None = None) -> np.ndarray:
-    """The virtual Normbox's reference sweep (angle-major, the world's 1 nm spectra) with the
-    given error sources, rendered by the fast renderer with the demo's per-configuration seeds
-    (so with every source off it equals `virtual_prediction` exactly)."""
-    from normbox_lab.demo import _FastRenderWorld
-    from normbox_lab.predict.fastrender import FastNormbox
-    from normbox_lab.sim.world import VirtualNormbox
-
-    boxes = boxes if boxes is not None else {}
-    world = type("FastVirtualNormbox", (_FastRenderWorld, VirtualNormbox), {})(
-        truth=truth, errors=errors)
-    key = repr(world.geometry)
-    if key not in boxes:
-        boxes[key] = FastNormbox(world.geometry)
-    world.fast = boxes[key]
-    world.target_rel_se = target_rel_se
-    out = np.zeros((len(patches), len(angles), world.wavelength_nm.size))
-    for ai, a in enumerate(angles):
-        world.set_sample_angle(float(a))
-        for pi, p in enumerate(patches):
-            world.place_patch(int(p))
-            out[pi, ai] = world.radiance_in_view()[1]
-    return out
-
-
-def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
-                       truth: str = "model", target_rel_se: float = 0.02,
-                       boxes: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """The prediction with the truth materials themselves (no fitting error), nominal
-    geometry, the world's seeds: (radiance, std_error) on the world's 1 nm grid."""
-    from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
-    from normbox_lab.predict.fastrender import FastNormbox, config_seed
-    from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
-    from normbox_lab.predict.render import Lamp
-    from normbox_lab.predict.scene import as_geometry
-
-    boxes = boxes if boxes is not None else {}
-    g = as_geometry(None)
-    box = boxes.setdefault(repr(g), FastNormbox(g))
-    wl = RADIOMETER_WAVELENGTHS_NM
-    rad = np.zeros((len(patches), len(angles), wl.size))
-    se = np.zeros_like(rad)
-    wall = truth_wall(truth)
-    for ai, a in enumerate(angles):
-        for pi, p in enumerate(patches):
-            m = truth_patch(int(p), truth)
-            r = box.render_view(patch=m, wall=wall, holder=holder_material(),
-                                angle_deg=float(a), lamp=Lamp(), target_rel_se=target_rel_se,
-                                seed=config_seed(1, f"{m.name}@{float(a):g}"))
-            rad[pi, ai] = np.interp(wl, r.wavelength_nm, r.radiance)
-            se[pi, ai] = np.interp(wl, r.wavelength_nm, r.std_error)
-    return rad, se
-
-
-# --- the paper's observations, measured on a campaign ------------------------------------------
-def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, str]]:
-    """(observation, the paper's value, ours) for the paper-scenario table of
-    docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
-    from normbox_lab.analyze.compare import ComparisonResult
-    from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
-    from normbox_lab.analyze.queries import latest_fits, latest_run
-
-    run = store.get_run(ref_run)
-    c = ComparisonResult.from_artifact(store.latest_artifact("comparison", f"ref-run-{run.id}"))
-    ang = c.angle_deg
-    small = (ang >= 30) & (ang <= 60)
-    nr = 100 * c.nrmse
-    rows = []
-    in_band = np.mean((nr[:, small] >= 2) & (nr[:, small] <= 5))
-    rows.append(("NRMSE at 30–60° within [2, 5] %", "mostly",
-                 (f"{100 * in_band:.0f} % of configurations "
-                  f"(median {np.median(nr[:, small]):.2f} %)")))
-    by = np.mean(nr, axis=0)
-    rows.append(("NRMSE by angle, mean over patches (%)", "flat, then rising from 65°",
-                 ", ".join(f"{a:g}° {v:.1f}" for a, v in zip(ang, by))))
-    cr = c.correlations
-    rows.append(("r(radiance, NRMSE) 65–90°", "negative (NRMSE grows as radiance falls)",
-                 f"{cr.get('radiance_nrmse_large', float('nan')):+.2f}"))
-    rows.append(("r(radiance, RMSE) 30–60° / 65–90°", "0.84 / 0.62",
-                 (f"{cr.get('radiance_rmse_small', float('nan')):.2f} / "
-                  f"{cr.get('radiance_rmse_large', float('nan')):.2f}")))
-    fits = latest_fits(store)
-    errs = {k: float(v.fit_error_pct) for k, v in fits.items()}
-    patch_errs = [v for k, v in errs.items() if k.startswith("p") and k != "p18"]
-    rows.append(("BRDF fit errors", "5–10 %, patch 18 ≈ 18 %",
-                 (f"{min(patch_errs):.1f}–{max(patch_errs):.1f} %, patch 18 "
-                  f"{errs.get('p18', float('nan')):.1f} %, "
-                  f"wall {errs.get('wall', float('nan')):.1f} %")))
-    de = c.delta_e00
-    above2 = sorted({int(c.patch_names[p].split()[0]) for p, _ in zip(*np.nonzero(de > 2))})
-    rows.append(("ΔE00", "mostly < 1; patches 10, 13, 19, 24 slightly > 2 at some angles",
-                 (f"{100 * np.mean(de < 1):.0f} % < 1, max {np.max(de):.2f}; > 2: "
-                  f"{', '.join(map(str, above2)) or 'none'}")))
-    brdf = latest_run(store, "brdf-inplane")
-    if brdf is not None and "wall" in fits:
-        data = data_from_store_run(store, brdf.id)
-        if "wall" in data and np.any(np.isclose(ang, 90.0)):
-            e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
-            e = np.interp(c.wavelength_nm, data["wall"].wavelength_nm, e)
-            # the paper's NSE sign (reference − prediction); the fit error (fit − measured)
-            nse90 = -np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :], axis=0)
-            ok = np.isfinite(nse90) & np.isfinite(e)
-            r = float(np.corrcoef(nse90[ok], e[ok])[0, 1])
-            rows.append(("NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ",
-                         "follows it, rising to the red",
-                         (f"{r:+.2f} (NSE 450 / 700 nm: "
-                          f"{100 * np.interp(450, c.wavelength_nm, nse90):+.1f} / "
-                          f"{100 * np.interp(700, c.wavelength_nm, nse90):+.1f} %)")))
-    # in the paper's sign: its NSE is (reference − prediction) / reference, ours the opposite
-    nse_mean = -100 * np.nanmean(c.nse, axis=(0, 2))
-    for a in (65.0, 80.0):
-        i = int(np.argmin(np.abs(ang - a)))
-        if 0 < i < ang.size - 1 and abs(ang[i] - a) < 1e-6:
-            dev = nse_mean[i] - 0.5 * (nse_mean[i - 1] + nse_mean[i + 1])
-            rows.append((f"NSE (paper's sign) at {a:g}° minus its neighbours' mean",
-                         "slightly higher at 65°, slightly lower at 80°, all patches",
-                         (f"{dev:+.2f} % (patches with the sign of the mean: "
-                          f"{_same_sign(c.nse, i):.0f} %)")))
-    budgets = store.artifacts("error-budget", f"ref-run-{run.id}")
-    if budgets and "angle_offset_deg" in budgets[-1].arrays:
-        arr = budgets[-1].arrays
-        rows.append(("estimated angle offsets (budget)",
-                     "(implied: 65° set below, 80° above the true angle)", ", ".join(
-            f"{a:g}° {o:+.2f}±{ci:.2f}" for a, o, ci in zip(
-                arr["angle_offset_angle_deg"], arr["angle_offset_deg"],
-                arr["angle_offset_ci95_deg"]) if a in (60, 65, 70, 75, 80, 85))))
-    return rows
-
-
-def _same_sign(nse: np.ndarray, i: int) -> float:
-    per_patch = np.nanmean(nse, axis=2)
-    dev = per_patch[:, i] - 0.5 * (per_patch[:, i - 1] + per_patch[:, i + 1])
-    return 100 * float(np.mean(np.sign(dev) == np.sign(np.mean(dev))))
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`python -m normbox_lab.analyze.budget paper-table STORE REF_RUN`: the paper-scenario
-    table (markdown) of a compared reference run."""
-    import argparse
-
-    from normbox_lab.acquire.store import Store
-
-    p = argparse.ArgumentParser(prog="python -m normbox_lab.analyze.budget")
-    p.add_argument("what", choices=["paper-table"])
-    p.add_argument("store")
-    p.add_argument("run")
-    args = p.parse_args(argv)
-    with Store(args.store) as store:
-        print("| observation | paper | ours |\n|---|---|---|")
-        for name, paper, ours in paper_observations(store, args.run):
-            print(f"| {name} | {paper} | {ours} |")
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--paths", type=int, default=1 << 14,
                    help="paths per derivative render (default 16384)")
     p.add_argument("--draws", type=int, default=64, help="draws per source (default 64)")
+    p.add_argument("--paper-table", action="store_true",
+                   help="print the paper-scenario table (markdown: observation | paper | ours) "
+                        "of the compared run instead of computing a budget")
     add_store_argument(p)
     p.set_defaults(handler=_budget)
 
@@ -34,11 +37,13 @@ def _budget(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from normbox_lab.acquire.store import Store
-    from normbox_lab.analyze.budget import budget_run
+    from normbox_lab.analyze.budget_store import budget_run
     from normbox_lab.core.errors import StoreError
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")
+    if args.paper_table:
+        return _paper_table(args)
     t0 = time.perf_counter()
     with Store(args.store) as store:
         r = budget_run(store, args.run, sources=args.sources, n_paths=args.paths,
@@ -56,4 +61,15 @@ def _budget(args: argparse.Namespace) -> int:
     t = r.timings_s
     print(f"time: derivatives {t.get('derivatives', 0):.1f} s, propagation "
           f"{t.get('propagation', 0):.1f} s, total {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _paper_table(args: argparse.Namespace) -> int:
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze.budget_store import paper_observations
+
+    with Store(args.store) as store:
+        print("| observation | paper | ours |\n|---|---|---|")
+        for name, paper, ours in paper_observations(store, args.run):
+            print(f"| {name} | {paper} | {ours} |")
     return 0

@@ -49,7 +49,7 @@ def _demo(args: argparse.Namespace) -> int:
 
     console = Console(stderr=True)
     if args.errors is not None:
-        from normbox_lab.sim.errors import parse_error_spec
+        from normbox_lab.core.error_sources import parse_error_spec
 
         parse_error_spec(args.errors)       # a bad spec fails before anything runs
     opts = DemoOptions(quick=args.quick, truth=args.truth, noise=args.noise == "on",

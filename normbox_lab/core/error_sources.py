@@ -1,9 +1,11 @@
-"""Error sources of the virtual Normbox (the Normbox paper's error path, its §5 and Fig. 4).
+"""Error sources of the Normbox (the Normbox paper's error path, its §5 and Fig. 4): their
+names, specs and distributions, shared by the simulator and the analysis.
 
-Each source is a switch with a magnitude.  The virtual Normbox (`sim.world.VirtualNormbox`)
+Each source is a switch with a magnitude.  The virtual Normbox (`normbox_lab.sim.world`)
 applies the switched-on sources where they arise in the lab, so the rest of the pipeline meets
-them exactly as it would meet the real ones; `normbox-lab budget` propagates the same
-distributions through the pipeline.
+them exactly as it would meet the real ones; `normbox-lab budget` (`normbox_lab.analyze`)
+propagates the same distributions through the pipeline.  Neither imports the other: both
+import this module.
 
 A *spec* is a comma-separated list of ``name=value`` (``demo --errors SPEC``, or the lab
 config's ``[render] errors = "SPEC"`` / a ``[render.errors]`` table of the same names):
@@ -29,7 +31,7 @@ paper's set, `PAPER_SPEC`.  Unknown names and bad values raise `ConfigError` nam
 | homogeneity | fraction | panel map deviates from the assumed one (same pattern) | ±3 % | world panel map |
 | diffusivity | fraction | light reaching the sample vs the light map's view, per campaign | ±2.6 % | world radiance |
 | lamp | fraction | lamp output, sweep vs light-map session | < 1 % | world radiance |
-| render | rel. SE | the world's Monte-Carlo error, independent of the prediction's | — | world renders |
+| render | rel. SE | the world's Monte-Carlo error per band (its renders are independent of the prediction's; this sets their target) | — | world renders |
 
 The fitting error is not a switch here: it is the truth materials' departure from the fit
 family (`--truth default|model|paper`, `predict.materials`).  f_fs is the reading's full scale
@@ -112,7 +114,7 @@ class ErrorSources:
     homogeneity: Magnitude = Magnitude()
     diffusivity: Magnitude = Magnitude()
     lamp_repeatability: Magnitude = Magnitude()
-    render_rel_se: float = 0.0                   # 0 = the world shares the prediction's noise
+    render_rel_se: float = 0.0                   # 0 = the world renders at its quality's target
     seed: int = 1
 
     # --- queries ----------------------------------------------------------------------------
