@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from report_fixtures import synthetic_report_data
 
-from normbox_lab.analyze.report import ReportData, build_html, write_report
+from normbox_lab.analyze.report import ReportData, build_html, fmt_number, write_report
 
 FIGURES = ["fig-reference", "fig-prediction", "fig-rmse", "fig-nrmse", "fig-deltae", "fig-nse",
            "fig-polar-patch08", "fig-errormodel", "fig-nse-fit"]
@@ -52,9 +52,9 @@ def test_report_is_self_contained_and_complete(full_report):
     # the ΔE00 table carries the comparison's numbers, 24 patch rows
     table = re.search(r'id="tab-deltae">.*?</table>', text, re.DOTALL).group(0)
     assert table.count("<tr>") == 25
-    assert f">{data.comparison.delta_e00[3, 4]:.3g}<" in table
+    assert f">{fmt_number(data.comparison.delta_e00[3, 4])}<" in table
     fits = re.search(r'id="tab-fits">.*?</table>', text, re.DOTALL).group(0)
-    assert f">{data.fits['wall'].alpha:.3g}<" in fits
+    assert f">{fmt_number(data.fits['wall'].alpha)}<" in fits
 
 
 def test_report_with_comparison_only(comparison_report):
@@ -113,11 +113,11 @@ def test_summary_comes_first_with_the_headline_numbers(comparison_report):
     # NRMSE by angle in percent, the worst configuration, the rating counts
     nrmse_row = re.search(r'id="tab-nrmse-angle">.*?</table>', summary, re.DOTALL).group(0)
     for a in range(c.angle_deg.size):
-        assert f">{100 * np.nanmean(c.nrmse[:, a]):.3g}<" in nrmse_row
+        assert f">{fmt_number(100 * np.nanmean(c.nrmse[:, a]))}<" in nrmse_row
     p, a = np.unravel_index(np.nanargmax(c.delta_e00), c.delta_e00.shape)
     worst = re.search(r'id="tab-worst">.*?</table>', summary, re.DOTALL).group(0)
     assert re.search(rf"<th>{c.patch_names[p]}</th><td>{c.angle_deg[a]:g}°</td>"
-                     rf'<td class="r\d">{c.delta_e00[p, a]:.3g}</td>', worst)
+                     rf'<td class="r\d">{re.escape(fmt_number(c.delta_e00[p, a]))}</td>', worst)
     counts = c.rating_counts()
     assert f"{counts['below JND']}" in summary
     assert "tab-nrmse-angle" in tabs and "tab-worst" in tabs

@@ -86,14 +86,33 @@ def _esc(x: Any) -> str:
     return html.escape(str(x))
 
 
-def _fmt(v: Any, digits: int = 4) -> str:
-    """Table text of a value: floats with `digits` significant digits; no "inf"/"nan"."""
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+#: the report's one number format: significant digits of every table number
+SIGNIFICANT_DIGITS = 3
+
+
+def fmt_number(v: float, digits: int = SIGNIFICANT_DIGITS) -> str:
+    """A number with exactly `digits` significant digits, trailing zeros kept ("1.00",
+    "1.60", "0.0747"); below 10⁻³ or from 10⁵ on as "2.02×10⁻⁵" (no "e" notation)."""
+    v = float(v)
+    if np.isnan(v):
+        return "—"
+    if np.isinf(v):
+        return "∞" if v > 0 else "−∞"
+    if v == 0.0:
+        return "0"
+    if 1e-3 <= abs(v) < 1e5:
+        text = np.format_float_positional(v, precision=digits, unique=False,
+                                          fractional=False, trim="k")
+        return text[:-1] if text.endswith(".") else text
+    mantissa, exponent = f"{v:.{digits - 1}e}".split("e")
+    return f"{mantissa}×10{str(int(exponent)).translate(_SUPERSCRIPT)}"
+
+
+def _fmt(v: Any, digits: int = SIGNIFICANT_DIGITS) -> str:
+    """Table text of a value: floats through `fmt_number`; no "inf"/"nan"."""
     if isinstance(v, float | np.floating):
-        if np.isnan(v):
-            return "—"
-        if np.isinf(v):
-            return "∞" if v > 0 else "−∞"
-        return f"{float(v):.{digits}g}"
+        return fmt_number(float(v), digits)
     return str(v)
 
 
@@ -128,7 +147,10 @@ class _Doc:
         self.sections[-1][2].append((fid, title))
 
     def table(self, tid: str, title: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
-              cell_class: Any = None, caption: str = "", digits: int = 4) -> None:
+              cell_class: Any = None, caption: str = "", digits: int = SIGNIFICANT_DIGITS
+              ) -> None:
+        """A table; every float cell through `fmt_number` (`digits` is kept for callers and
+        ignored: one number format in the whole report)."""
         out = [f'<div class="table" id="{tid}"><h3>{_esc(title)}</h3>']
         if caption:
             out.append(f'<p class="caption">{_esc(caption)}</p>')
@@ -141,7 +163,7 @@ class _Doc:
                 cls = cell_class(i, j, v) if cell_class else ""
                 attr = f' class="{cls}"' if cls else ""
                 tag = "th" if j == 0 else "td"
-                out.append(f"<{tag}{attr}>{_esc(_fmt(v, digits))}</{tag}>")
+                out.append(f"<{tag}{attr}>{_esc(_fmt(v))}</{tag}>")
             out.append("</tr>")
         out.append("</tbody></table></div></div>")
         self.parts.append("".join(out))
@@ -164,9 +186,12 @@ class _Doc:
 
 
 def _rating_class(_i: int, j: int, v: Any) -> str:
+    """The rating colour of a ΔE00 cell, from the value as printed (a "1.00" is ≤ 1)."""
     if j == 0 or not isinstance(v, float | np.floating) or not np.isfinite(v):
         return ""
-    return f"r{int(rating_index(v))}"
+    shown = float(fmt_number(float(v)).replace("×10", "e").translate(
+        str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")))
+    return f"r{int(rating_index(shown))}"
 
 
 _CSS = """
@@ -191,7 +216,7 @@ figure{margin:1rem 0} figure img{max-width:100%;height:auto;display:block}
 figcaption,.caption{font-size:.9rem;color:var(--muted);max-width:none}
 .scroll{overflow-x:auto}
 table{border-collapse:collapse;font-size:.8rem;font-variant-numeric:tabular-nums}
-td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right}
+td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right;white-space:nowrap}
 thead th{background:#eeeeee;text-align:center} tbody th{text-align:left;background:#f7f7f7;
 font-weight:600}
 .r0{background:RC0;color:RT0} .r1{background:RC1;color:RT1} .r2{background:RC2;color:RT2}
@@ -246,6 +271,8 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     hl = headline(c, adapted) if c is not None and adapted is not None else None
     _summary_section(doc, d, c, hl)
     _qa_section(doc, d.flags)
+    if d.renderers or d.paper:
+        _renderers_section(doc, d, c)
     if c is not None and adapted is not None:
         _comparison_sections(doc, d, c, adapted, hl)
     if d.images:
@@ -282,7 +309,9 @@ def _summary_section(doc: _Doc, d: ReportData, c: ComparisonResult | None,
     doc.html(f'<p class="qa-summary">{_esc(_qa_line(d.flags))}</p>')
     if hl is not None and c is not None:
         n_cfg = int(np.isfinite(c.delta_e00).sum())
-        doc.html(f"<p class='verdict'>{_esc(hl.verdict)}</p>")
+        verdict = (f"Simulated campaign (virtual Normbox, emulated instruments): {hl.verdict}"
+                   if d.simulated else hl.verdict)
+        doc.html(f"<p class='verdict'>{_esc(verdict)}</p>")
         white_name = c.patch_names[c.white_patch]
         qa_txt, qa_sub = _qa_card(d.flags)
         doc.html("<div class='cards'>"
@@ -322,11 +351,52 @@ def _summary_section(doc: _Doc, d: ReportData, c: ComparisonResult | None,
     else:
         doc.html("<p>No comparison in this report: the summary needs a comparison of "
                  "predictions with reference readings.</p>")
-    campaign = _campaign_line(d)
-    if campaign:
-        doc.html(f"<p class='note'>{_esc(campaign)}</p>")
     for n in d.notes:
         doc.html(f"<p class='note'>{_esc(n)}</p>")
+
+
+def _renderers_section(doc: _Doc, d: ReportData, c: ComparisonResult | None) -> None:
+    """Renderers side by side, the paper's published figures beside this run's, and the
+    spectral-vs-RGB rendering error."""
+    from normbox_lab.analyze.compare import RATING_SCALE
+
+    doc.section("renderers", "Renderers and the paper side by side")
+    if d.renderers:
+        angles = [] if c is None else [f"{a:g}°" for a in c.angle_deg]
+        rows = []
+        for r in d.renderers:
+            nr = list(r.nrmse_by_angle_pct) + [float("nan")] * (len(angles)
+                                                                 - len(r.nrmse_by_angle_pct))
+            rows.append([r.renderer, r.version, float(r.delta_e00_mean),
+                         float(r.delta_e00_max), *map(float, nr[:len(angles)]),
+                         " / ".join(str(n) for n in r.rating_counts)])
+        doc.table("tab-renderers", "Every renderer against the measurement (one row each)",
+                  ["renderer", "version", "ΔE00 mean", "ΔE00 max",
+                   *[f"NRMSE {a} [%]" for a in angles],
+                   "ratings (" + " / ".join(lab for _, lab in RATING_SCALE) + ")"],
+                  rows, caption="The same reference run, the same comparison (paper "
+                  "convention ΔE00, NRMSE = RMSE / mean reference radiance) for our "
+                  "prediction and each imported renderer (normbox-lab import prediction).")
+    if d.paper:
+        doc.table("tab-paper", "The paper's published figures beside this run",
+                  ["observation", "paper (published)", "this run"],
+                  [list(row) for row in d.paper],
+                  caption="Where the Normbox paper gives a figure, this run's value beside "
+                  "it (NSE in the paper's sign: reference − prediction).")
+    for e in d.rendering_errors:
+        hdr = ["patch", *[f"{a:g}°" for a in e.angle_deg], "mean"]
+        doc.table(f"tab-rgb-{e.rgb}", f"Spectral vs RGB rendering: ΔE00 between {e.rgb} and "
+                  f"{e.spectral}, per patch and sample angle",
+                  hdr, [[n, *map(float, e.delta_e00[p]), float(np.nanmean(e.delta_e00[p]))]
+                        for p, n in enumerate(e.patch_names)],
+                  cell_class=lambda i, j, v, n=len(hdr): _rating_class(i, j, v)
+                  if j < n - 1 else "",
+                  caption="The colour error an RGB (triplet) rendering of the same scene "
+                  "adds: ΔE00 between the two renderers' predictions (XYZ normalised by the "
+                  "spectral renderer's white at the white angle, Lab D65). Against the "
+                  "measurement: mean ΔE00 " + ", ".join(
+                      f"{k} {fmt_number(float(np.nanmean(v)))}"
+                      for k, v in e.delta_e00_vs_reference.items()) + ".")
 
 
 def _qa_section(doc: _Doc, flags: Sequence[Any] | None) -> None:

@@ -53,6 +53,14 @@ class ReportData:
     budget: tuple[dict[str, Any], list[str]] | None = None
     #: methods: name → value rows (software versions, seeds, render quality, MC error)
     methods: dict[str, str] = field(default_factory=dict)
+    #: a campaign of the virtual Normbox (emulated instruments): the verdict says "simulated"
+    simulated: bool = False
+    #: every renderer's comparison (`report_renderers.RendererRow`), ours first
+    renderers: list[Any] = field(default_factory=list)
+    #: spectral-vs-RGB rendering errors (`report_renderers.RenderingError`)
+    rendering_errors: list[Any] = field(default_factory=list)
+    #: (observation, the paper's published figure, this run) rows
+    paper: list[tuple[str, str, str]] = field(default_factory=list)
 
 
 @dataclass

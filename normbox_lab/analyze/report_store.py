@@ -19,6 +19,7 @@ import numpy as np
 from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
 from normbox_lab.analyze.queries import fit_key, latest_fits
 from normbox_lab.analyze.report_data import ImageFigure, ReportData
+from normbox_lab.core.errors import StoreError
 
 #: distributions whose versions the methods section lists (no import: metadata only)
 SOFTWARE = ("normbox-lab", "numpy", "scipy", "colour-science", "mitsuba", "drjit",
@@ -136,12 +137,30 @@ def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str |
     budget = (budgets[-1].arrays, budgets[-1].metadata["sources"]) if budgets else None
     methods = {f"software: {k}": v for k, v in software_versions().items()}
     methods.update(prediction_methods(store, run_id))
+    instruments = campaign_instruments(store, run_ids)
+    from normbox_lab.analyze.report_renderers import rendering_error, renderer_rows
+
+    rows = renderer_rows(store, run_id)
+    rgb = [r.renderer for r in rows if "rgb" in (r.renderer + r.version).lower()]
+    spectral = [r.renderer for r in rows if r.renderer != "normbox-lab"
+                and "spectral" in (r.renderer + r.version).lower()]
+    errors = [e for e in (rendering_error(store, run_id, spectral[0] if spectral else None, n)
+                          for n in rgb) if e is not None]
+    try:
+        from normbox_lab.analyze.budget_store import paper_observations
+
+        paper = paper_observations(store, run_id)
+    except (StoreError, KeyError, ValueError):
+        paper = []
     return ReportData(
+        simulated=any("(emulated)" in str(i.get("model", "")) for i in instruments)
+        or "sim://" in store.get_run(run_id).lab_config,
+        renderers=rows, rendering_errors=errors, paper=paper,
         comparison=comparison, fits=fits, brdf_data=data, error_model=em,
         title=f"Normbox validation report — reference run {run_id}",
         polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
         patch_fit_names=patch_fit_names, notes=list(notes), images=images,
-        runs=campaign_runs(store, run_ids), instruments=campaign_instruments(store, run_ids),
+        runs=campaign_runs(store, run_ids), instruments=instruments,
         flags=quality_flags(store, run_ids), budget=budget, methods=methods,
         metadata={"store": str(store.path), "reference run": run_id,
                   "BRDF run": brdf_id if brdf_id is not None else "—"})
