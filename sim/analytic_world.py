@@ -18,11 +18,11 @@ The 24 reflectances come from the virtual Normbox's cached table (`materials.py`
 
 from __future__ import annotations
 
-from typing import Any
 
 import numpy as np
 
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.sim.world_state import WorldState
 
 H_J_S = 6.62607015e-34
 C_M_S = 2.99792458e8
@@ -53,8 +53,9 @@ def _v_lambda() -> np.ndarray:
     return 1.019 * np.exp(-285.4 * (wl / 1000.0 - 0.559) ** 2)
 
 
-class AnalyticWorld:
-    """The `World` protocol in closed form; state is changed by the operator and the rotator."""
+class AnalyticWorld(WorldState):
+    """The `World` protocol in closed form; state (`WorldState`) is changed by the operator and
+    the rotator."""
 
     def __init__(self, *, lamp_cct_K: float = 3100.0, panel_luminance_cd_m2: float = 3000.0,
                  direct_solid_angle_sr: float = 0.25, indirect_solid_angle_sr: float = 0.08,
@@ -67,52 +68,7 @@ class AnalyticWorld:
         self.direct_sr = direct_solid_angle_sr
         self.indirect_sr = indirect_solid_angle_sr
         self.homogeneity = panel_homogeneity_percent / 100.0
-        self.patch: int | None = None
-        self.sample_angle_deg = 90.0
-        self.lamp_level = 1.0               # 0 = off; the sphere emulator may set it
-        self.aim: tuple[float, float] | None = None   # (x_mm, y_mm) on the panel, or None
-        self.gonio_material: str | int | None = None
-        self.placed: list[int] = []
-        self.rotator: Any = None            # attach_rotator: an object with angle_deg()
-        self.sphere: Any = None             # attach_sphere: an object with relative_output()
-
-    # --- what the operator and the motors change --------------------------------------------
-    def place_patch(self, n: int) -> None:
-        if not 1 <= int(n) <= 24:
-            raise ValueError(f"no ColorChecker patch {n}")
-        self.patch = int(n)
-        self.placed.append(int(n))
-        self.aim = None
-
-    def remove_patch(self) -> None:
-        self.patch = None
-
-    def set_sample_angle(self, angle_deg: float) -> None:
-        self.sample_angle_deg = float(angle_deg)
-
-    def attach_rotator(self, rotator: Any) -> None:
-        """The rotator emulator (its `angle_deg()` is read at every measurement)."""
-        self.rotator = rotator
-
-    def attach_sphere(self, sphere: Any) -> None:
-        """The sphere emulator (its `relative_output()` scales the light)."""
-        self.sphere = sphere
-
-    def angle_deg(self) -> float:
-        if self.rotator is not None:
-            return float(self.rotator.angle_deg())
-        return self.sample_angle_deg
-
-    def relative_output(self) -> float:
-        if self.sphere is not None:
-            return float(self.sphere.relative_output())
-        return self.lamp_level
-
-    def aim_panel(self, x_mm: float, y_mm: float) -> None:
-        self.aim = (float(x_mm), float(y_mm))
-
-    def mount_gonio_material(self, name: str | int) -> None:
-        self.gonio_material = name
+        super().__init__()
 
     # --- what the instruments see -----------------------------------------------------------
     def _rho(self, material: str | int | None) -> np.ndarray:

@@ -1,23 +1,18 @@
 """The virtual Normbox: the physics behind every emulator (the `World` protocol of sim/core.py).
 
-World state, and who changes it:
-- the patch on the holder: `place_patch(n)` / `remove_patch()` (the operator step, or the
-  virtual operator);
-- the sample angle: the rotator emulator attached with `attach_rotator(obj)` (its
-  `angle_deg()` is read at every measurement), or `set_sample_angle(angle_deg)` when none is
-  attached;
-- the lamp: the sphere emulator attached with `attach_sphere(obj)` (`relative_output()` scales
-  the radiance, `state()` is recorded), or the `lamp_level` attribute (default 1.0);
-- the light-map aim: `aim_panel(x_mm, y_mm)` points the radiometer at a point of the opal panel
-  (until the next `place_patch`/`clear_aim`);
-- the gonioreflectometer's sample: `mount_gonio_material("patch-1".."patch-24" | "wall")`.
+World state (`sim.world_state.WorldState`, shared with `analytic_world.AnalyticWorld`): the
+patch on the holder, the sample angle (the attached rotator emulator's, else
+`set_sample_angle`), the lamp (the attached sphere emulator's output and state, else
+`lamp_level`), the light-map aim, and the gonioreflectometer's sample
+(`mount_gonio_material("patch-1".."patch-24" | "wall")`, validated here).
 
 Error sources (`core.error_sources.ErrorSources`, from `errors=` or the lab config's
 `[render] errors`), all off by default: the sample-angle errors move the rendered angle;
 geometry and homogeneity make the truth geometry (`self.geometry`) differ from the nominal one
-(`self.nominal_geometry`, what the prediction uses); diffusivity and lamp scale the light on the sample but not the light
-map's view of the panel; the CS-1000A's gain and wavelength shift act on `radiance_in_view()`;
-the gonioreflectometer's calibration, non-linearity and noise on `brdf_truth()`.
+(`self.nominal_geometry`, what the prediction uses); diffusivity and lamp scale the light on
+the sample but not the light map's view of the panel; the CS-1000A's gain and wavelength shift
+act on `radiance_in_view()`; the gonioreflectometer's calibration, non-linearity and noise on
+`brdf_truth()`.
 
 What the instruments see:
 - `radiance_in_view()` → (wavelength_nm 380…780 step 1, W·sr⁻¹·m⁻²·nm⁻¹): a Mitsuba render
@@ -46,12 +41,13 @@ from normbox_lab.predict.materials import (
 )
 from normbox_lab.predict.render import Lamp, RenderResult, luminance_cd_m2, render_view
 from normbox_lab.predict.scene import as_geometry, panel_map_at
+from normbox_lab.sim.world_state import WorldState
 
 #: render angles are rounded to this (rotator encoder noise must not defeat the cache)
 ANGLE_RESOLUTION_DEG = 0.001
 
 
-class VirtualNormbox:
+class VirtualNormbox(WorldState):
     """The `World` protocol, rendered with Mitsuba.  Cheap to construct: nothing renders (and
     Mitsuba is not imported) until the first `radiance_in_view()`."""
 
@@ -59,6 +55,7 @@ class VirtualNormbox:
                  quality: str | None = None, lamp: Lamp | None = None,
                  cache_dir: str | None = None, variant: str | None = None,
                  errors: ErrorSources | str | None = None) -> None:
+        super().__init__()
         render_cfg = dict(getattr(config, "render", None) or {})
         if isinstance(errors, ErrorSources):
             self.errors = errors
@@ -81,62 +78,14 @@ class VirtualNormbox:
         self.wavelength_nm = RADIOMETER_WAVELENGTHS_NM.copy()
         self.wall = truth_wall(self.truth, self.geometry.wall_lightness_L)
         self.holder = holder_material()
-        self.patch: int | None = None
-        self.placed: list[int] = []
-        self.sample_angle_deg = 90.0
-        self.lamp_level = 1.0
-        self.rotator: Any = None
-        self.sphere: Any = None
-        self.aim: tuple[float, float] | None = None
-        self.gonio_material: str | int | None = None
         self.last_render: RenderResult | None = None
-        self.lamp_state: Any = None
 
-    # --- what the operator and the motors change ----------------------------------------------
-    def place_patch(self, n: int) -> None:
-        if not 1 <= int(n) <= 24:
-            raise ValueError(f"no ColorChecker patch {n} (1..24)")
-        self.patch = int(n)
-        self.placed.append(int(n))
-        self.aim = None
-
-    def remove_patch(self) -> None:
-        self.patch = None
-
-    def set_sample_angle(self, angle_deg: float) -> None:
-        self.sample_angle_deg = float(angle_deg)
-
-    def attach_rotator(self, rotator: Any) -> None:
-        """An object with `angle_deg()` (the rotator emulator); None detaches."""
-        self.rotator = rotator
-
-    def attach_sphere(self, sphere: Any) -> None:
-        """An object with `relative_output()` and `state()` (the sphere emulator)."""
-        self.sphere = sphere
-
-    def aim_panel(self, x_mm: float, y_mm: float) -> None:
-        self.aim = (float(x_mm), float(y_mm))
-
-    def clear_aim(self) -> None:
-        self.aim = None
-
+    # --- what the operator changes (the rest: `WorldState`) -------------------------------------
     def mount_gonio_material(self, name: str | int) -> None:
         truth_material(name, self.truth)          # validates the name
         self.gonio_material = name
 
     # --- state as the instruments see it -------------------------------------------------------
-    def angle_deg(self) -> float:
-        if self.rotator is not None:
-            return float(self.rotator.angle_deg())
-        return float(self.sample_angle_deg)
-
-    def relative_output(self) -> float:
-        if self.sphere is not None:
-            state = getattr(self.sphere, "state", None)
-            self.lamp_state = state() if callable(state) else state
-            return float(self.sphere.relative_output())
-        return float(self.lamp_level)
-
     def patch_material(self, n: int | None) -> Material:
         return self.holder if n is None else truth_patch(int(n), self.truth)
 

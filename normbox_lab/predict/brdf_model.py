@@ -110,8 +110,10 @@ def ct_ggx_brdf(wi: np.ndarray, wo: np.ndarray, kd: Any, ks: Any, alpha: float, 
 
 
 @dataclass
-class MaterialFit:
-    """One material's fitted model parameters (store artifact kind "fit", name = material)."""
+class GgxParameters:
+    """The fit model's parameters of one material: spectra kd, ks on `wavelength_nm`, GGX
+    roughness α, the global Fresnel η, the constant c (sr⁻¹).  The fitted `MaterialFit` and
+    the rendered `materials.Material` (which adds the truth's extras) both extend it."""
 
     name: str
     wavelength_nm: np.ndarray
@@ -120,6 +122,12 @@ class MaterialFit:
     alpha: float
     eta: float
     c: float
+
+
+@dataclass
+class MaterialFit(GgxParameters):
+    """One material's fitted model parameters (store artifact kind "fit", name = material)."""
+
     fit_error_pct: float          # relative RMS error of the fit over all valid samples, in %
     w: float                      # cos^w θi weighting exponent used in the cost
     cost: float = float("nan")    # final Löw log cost E (paper Eq. 9)

@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM, COLORCHECKER_DATASET, PATCH_NAMES
+from normbox_lab.predict.brdf_model import GgxParameters
 
 #: the common grid the materials are tabulated on (the ColorChecker N Ohta data: 5 nm)
 MATERIAL_WAVELENGTHS_NM = BAND_WAVELENGTHS_NM
@@ -99,17 +100,12 @@ PAPER_TRUTH_CHANGES: dict[int | str, tuple[float, float, float, float, float]] =
 }
 
 
-@dataclass(frozen=True)
-class Material:
-    """One material of the BRDF family above.  Spectra on `wavelength_nm` (any increasing grid;
-    constant extrapolation outside it).  `kb` None = no backscatter lobe."""
+@dataclass
+class Material(GgxParameters):
+    """One material of the BRDF family above: the fit model's parameters (`GgxParameters`) and
+    the truth's extras.  Spectra on `wavelength_nm` (any increasing grid; constant
+    extrapolation outside it).  `kb` None = no backscatter lobe."""
 
-    name: str
-    wavelength_nm: np.ndarray
-    kd: np.ndarray
-    ks: np.ndarray
-    alpha: float
-    eta: float
     c: float = 0.0
     deta_per_100nm: float = 0.0
     kb: np.ndarray | None = None
