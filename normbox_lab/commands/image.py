@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 from normbox_lab.commands.common import add_store_argument
 
@@ -95,6 +96,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--every", type=int, default=3, help="every N-th 5 nm band (default 3)")
     t.add_argument("--spp", type=int, default=64, help="samples per pixel per batch")
     t.add_argument("--batches", type=int, default=10, help="independent batches (default 10)")
+    t.add_argument("--reference-spp", type=int, default=1024,
+                   help="stock spectral reference: samples per pixel per batch (10 batches)")
+    t.add_argument("--false-alarm", type=float, default=0.001,
+                   help="chance that the check fails when both renderers agree (default 0.001)")
     t.add_argument("--seed", type=int, default=0)
     t.set_defaults(handler=_triplet)
 
@@ -290,16 +295,43 @@ def _triplet(args: argparse.Namespace) -> int:
           file=sys.stderr, flush=True)
     tri = render_triplets(patch, wall, args.angle, wavelengths_nm=bands, spp=args.spp,
                           batches=args.batches, seed=args.seed)
+    ref_batches = 10
     ref = render_view(patch=patch, wall=wall, angle_deg=args.angle, cache=False, seed=args.seed,
-                      quality=Quality("triplet-check", spp=1024, batches=10))
+                      quality=Quality("triplet-check", spp=args.reference_spp,
+                                      batches=ref_batches))
     on = np.isin(np.asarray(ref.wavelength_nm), bands)
-    z = tri.z_scores(SimpleNamespace(wavelength_nm=np.asarray(ref.wavelength_nm)[on],
-                                     radiance=ref.radiance[on], std_error=ref.std_error[on]))
+    other = SimpleNamespace(wavelength_nm=np.asarray(ref.wavelength_nm)[on],
+                            radiance=ref.radiance[on], std_error=ref.std_error[on])
+    z = tri.z_scores(other)
+    limit = triplet_z_limit(tri.std_error, other.std_error, args.batches, ref_batches,
+                            args.false_alarm)
     print(f"triplet render {tri.render_time_s:.1f} s ({tri.variant}); spectral {ref.render_time_s:.1f} s "
           f"({ref.variant})")
     print(f"max |z| {np.max(np.abs(z)):.2f}, mean z² {np.mean(z ** 2):.2f} over {z.size} bands "
-          f"(agreement within Monte-Carlo error: mean z² ≈ 1, |z| < 4)")
-    return 0 if np.max(np.abs(z)) < 4.0 else 1
+          f"(agreement within Monte-Carlo error: mean z² ≈ 1, every |z| below its band's limit "
+          f"{np.min(limit):.2f}–{np.max(limit):.2f}: Student t, Welch degrees of freedom, "
+          f"Šidák over the bands, false alarm {args.false_alarm:g})")
+    print(f"radiance ratio triplet / spectral: mean {np.mean(tri.radiance / other.radiance):.5f}"
+          f" ± {np.std(tri.radiance / other.radiance, ddof=1) / np.sqrt(z.size):.5f}")
+    return 0 if np.all(np.abs(z) < limit) else 1
+
+
+def triplet_z_limit(se_a: Any, se_b: Any, batches_a: int, batches_b: int,
+                    false_alarm: float) -> Any:
+    """Per band, the |z| that a difference of two batch means exceeds by chance with
+    probability 1 − (1 − false_alarm)^(1/bands) (Šidák: the whole check fails by chance with
+    probability `false_alarm` when the bands are independent).  Each SE comes from its batches'
+    spread, so z follows Student's t with the Welch–Satterthwaite degrees of freedom, not a
+    normal law (with 10 batches, |z| ≥ 4 happens 1 time in 300 per band)."""
+    import numpy as np
+    from scipy.stats import t as student_t
+
+    a2 = np.asarray(se_a, dtype=np.float64) ** 2
+    b2 = np.asarray(se_b, dtype=np.float64) ** 2
+    dof = (a2 + b2) ** 2 / np.maximum(a2 ** 2 / (batches_a - 1) + b2 ** 2 / (batches_b - 1),
+                                      1e-300)
+    per_band = 1.0 - (1.0 - float(false_alarm)) ** (1.0 / a2.size)
+    return student_t.isf(per_band / 2.0, np.maximum(dof, 1.0))
 
 
 def _whitebalance(args: argparse.Namespace) -> int:

@@ -149,35 +149,36 @@ class _TripletScene:
                  pixels: int, max_depth: int) -> None:
         import mitsuba as mi
 
-        from normbox_lab.predict.scene import as_geometry, panel_cells_m, scene_dict
+        from normbox_lab.predict.scene import as_geometry, panel_map, scene_dict
 
         g = as_geometry(geometry)
         wl0 = np.full(3, 550.0)
         self.bsdfs = {role: mi.load_dict(bsdf_dict(materials[role], wl0)) for role in _ROLES}
         film = {"type": "hdrfilm", "width": int(pixels), "height": int(pixels),
                 "pixel_format": "rgb", "component_format": "float32", "rfilter": {"type": "box"}}
+        # one emitting panel with a 5×5 RGB bitmap (lamp × map, nearest filter): with 25
+        # emitting cells, emitter sampling followed the order in which Mitsuba loaded them,
+        # which changes from load to load, so a seed did not repeat its numbers
+        self.cell_map = panel_map(g.panel_homogeneity_percent)
         d = scene_dict(g, angle_deg=float(angle_deg), patch_bsdf=self.bsdfs["patch"],
                        wall_bsdf=self.bsdfs["wall"], holder_bsdf=self.bsdfs["holder"],
                        post_bsdf=self.bsdfs["post"], lamp_values=np.ones(2),
                        lamp_grid_nm=np.array([360.0, 830.0]), film=film,
-                       max_depth=max_depth, panel_radiance=None)
-        self.cell_factors = np.array([factor for _, _, _, factor in panel_cells_m(g)])
-        for k in range(self.cell_factors.size):
-            d[f"panel_{k:02d}"]["emitter"] = {"type": "area",
-                                              "radiance": {"type": "rgb", "value": [1.0] * 3}}
+                       max_depth=max_depth,
+                       panel_radiance={"type": "bitmap", "raw": True, "filter_type": "nearest",
+                                       "wrap_mode": "clamp",
+                                       "bitmap": mi.Bitmap(self._panel_rgb(np.ones(3)))})
         self.scene = mi.load_dict(d, parallel=False)
         self.params = mi.traverse(self.scene)
-        self.emitter_keys = self._emitter_keys()
         self.bsdf_params = {role: mi.traverse(b) for role, b in self.bsdfs.items()}
 
-    def _emitter_keys(self) -> list[str]:
-        keys = [k for k in self.params.keys()  # noqa: SIM118 (iterating yields pairs)
-                if k.startswith("panel_") and k.endswith("emitter.radiance.value")]
-        keys.sort()
-        if len(keys) != self.cell_factors.size:
-            raise RuntimeError(f"expected {self.cell_factors.size} panel emitters in the RGB "
-                               f"scene, found {len(keys)}: {keys[:3]}…")
-        return keys
+    def _panel_rgb(self, lamp_values: np.ndarray) -> np.ndarray:
+        """(5, 5, 3) float32 bitmap of the panel: the map's cell j along world y, i along x;
+        on the downward-facing rectangle u runs along +x and v along −y (bitmap row 0 at v = 0),
+        hence the rows reversed (as `mitsuba_bsdf.NormboxPanelTexture`)."""
+        cells = np.asarray(self.cell_map, dtype=np.float64)[::-1]
+        return np.ascontiguousarray(cells[:, :, None] * np.asarray(lamp_values)[None, None, :],
+                                    dtype=np.float32)
 
     def set_triplet(self, materials: dict[str, Any], lamp: Any,
                     wavelengths_nm: np.ndarray) -> None:
@@ -191,9 +192,10 @@ class _TripletScene:
                 elif key.endswith(".reflectance.value"):             # the diffuse
                     p[key] = _color(2.0 * kd)
             p.update()
-        lamp_values = lamp_rgb(lamp, wavelengths_nm)
-        for key, factor in zip(self.emitter_keys, self.cell_factors, strict=True):
-            self.params[key] = _color(lamp_values * factor)
+        import mitsuba as mi
+
+        self.params["panel.emitter.radiance.data"] = mi.TensorXf(
+            self._panel_rgb(lamp_rgb(lamp, wavelengths_nm)))
         self.params.update()
 
 
