@@ -34,10 +34,11 @@ at 10 bits per byte.
 
 from __future__ import annotations
 
+import math
+import re
 import struct
+from collections.abc import Callable
 from typing import Any
-
-import numpy as np
 
 from normbox_lab.core import transport
 from normbox_lab.core.capabilities import InstrumentIdentity
@@ -51,6 +52,7 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.core.types import SpectralReading
 from normbox_lab.drivers.radiometer_common import (
+    TRANSFER_READS,
     KonicaMinoltaRadiometer,
     Transfer,
     check_spectrum,
@@ -65,6 +67,7 @@ SPECTRAL_LINES = 15
 SPECTRAL_LINE_VALUES = 28
 BINARY_BLOCKS = (60, 60, 60, 60, 60, 60, 41)
 FIRST_REPLY_TIMEOUT_S = 15.0        # pre-measurement is "about 1–10 s"
+STR_REPLY = re.compile(rb"^OK,\d,\d,[0-9.]+$")
 
 #: error codes (CS-2000 2008 texts; a VB CS-1000A driver uses the same list — unconfirmed)
 ERRORS = {
@@ -99,6 +102,7 @@ class CS1000A(KonicaMinoltaRadiometer):
     errors = ERRORS
     remote_prefix = "RMT,"
     cancel_command = "MES,0"
+    sync_command = b"STR"
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
                  baud: int = 9600, data_format: str = "ascii", observer_deg: int = 2,
@@ -138,6 +142,10 @@ class CS1000A(KonicaMinoltaRadiometer):
                                   firmware="", simulated=url.startswith("sim://"),
                                   extra={"port": url, "baud": str(self.baud),
                                          "note": "the CS-1000A has no identification command"})
+
+    def is_sync_reply(self, raw: bytes) -> bool:
+        """STR's ``OK,<time mode>,<speed>,<time>``: no other command answers three fields."""
+        return STR_REPLY.match(raw) is not None
 
     def _enter_remote(self) -> None:
         self.parse_reply(self.exchange(b"RMT,1"))
@@ -200,9 +208,11 @@ class CS1000A(KonicaMinoltaRadiometer):
     def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
         """Pre-measurement + 2·t + command and data transfer time at this baud rate."""
         t = integration_time_s(luminance_cd_m2, self.speed, self.time_mode, self.time_s)
-        # bytes on the line: MES,1 + 2 replies, BDR + colorimetry, BDR + 15 spectral lines
-        n_bytes = 6 + 12 + 3 + 10 + 3 + 2 + 90 + 10 + 3 + SPECTRAL_LINES * 2 + 401 * 10 + 2 * 15
-        exchanges = 2 + 2 + 1 + SPECTRAL_LINES
+        # bytes on the line: MES,1 + 2 replies; twice (every block is read until two reads
+        # agree): BDR + colorimetry, BDR + 15 spectral lines
+        transfer_bytes = 10 + 3 + 2 + 90 + 10 + 3 + SPECTRAL_LINES * 2 + 401 * 10 + 2 * 15
+        n_bytes = 6 + 12 + TRANSFER_READS * transfer_bytes
+        exchanges = 2 + TRANSFER_READS * (2 + 1 + SPECTRAL_LINES)
         return pre_measurement_s(luminance_cd_m2) + 2 * t + n_bytes * 10.0 / self.baud \
             + exchanges * 0.02
 
@@ -210,7 +220,7 @@ class CS1000A(KonicaMinoltaRadiometer):
     def _run_measurement(self) -> float:
         try:
             self._write(b"MES,1")
-            first = self._read_line(FIRST_REPLY_TIMEOUT_S)
+            first = self.read_reply(FIRST_REPLY_TIMEOUT_S)
             assert first is not None
             fields = self.parse_reply(first)
             if len(fields) != 1:
@@ -219,14 +229,18 @@ class CS1000A(KonicaMinoltaRadiometer):
             if not 0 < t_s <= 600:
                 raise self._protocol("MES,1: integration time out of range", first)
             wait_s = 2 * t_s * 1.2 + 10.0
-            final = self._read_line(wait_s, watch_abort=True)
+            final = self.read_reply(wait_s, watch_abort=True)
             if final is None:                            # abort() from another thread
                 self._cancel_quietly()
                 raise self._aborted()
             if self.parse_reply(final):
                 raise self._protocol("MES,1: expected a bare OK at the end", final)
             return t_s
-        except (InstrumentTimeout, ProtocolError):
+        except InstrumentTimeout:
+            self._cancel_quietly()       # the instrument may still be measuring
+            self._resync(late=True)      # a reply may still be on its way
+            raise
+        except ProtocolError:
             self._cancel_quietly()       # the instrument may still be measuring
             raise
         except DeviceError as exc:
@@ -237,11 +251,25 @@ class CS1000A(KonicaMinoltaRadiometer):
             raise
 
     def _read_data(self) -> Transfer:
-        """BDR + & blocks: the colorimetry, then the spectrum; `&` is not idempotent, so each
-        selection is retried whole (and the base class retries the whole transfer)."""
-        colour_block, raw_colour = self.with_retries(self._read_colorimetry,
-                                                     retry_device=("ER02",))
-        spectrum, raw_spectrum = self.with_retries(self._read_spectrum, retry_device=("ER02",))
+        """The colorimetric line, then the spectrum, each block read until two reads agree.
+        `&` serves the selected blocks in order (it is not idempotent), so a pass selects the
+        data with BDR and sends `&` up to the last block still in doubt."""
+        obs = 1 if self.observer_deg == 10 else 0
+        [(colour_block, raw_colour)] = self.agreed_blocks(
+            "colorimetry", 1, lambda pending, got: self._line_pass(f"BDR,1,{obs},0", [11],
+                                                                   pending, got))
+        if self.data_format == "binary":
+            blocks = self.agreed_blocks("binary spectrum", len(BINARY_BLOCKS),
+                                        lambda pending, got: self._binary_pass(obs, pending, got))
+        else:
+            counts = [SPECTRAL_LINE_VALUES] * (SPECTRAL_LINES - 1) \
+                + [401 - (SPECTRAL_LINES - 1) * SPECTRAL_LINE_VALUES]
+            blocks = self.agreed_blocks(
+                "spectrum", SPECTRAL_LINES,
+                lambda pending, got: self._line_pass(f"BDR,0,{obs},0", counts, pending, got))
+        raw_spectrum = b"\n".join(raw for _, raw in blocks)
+        spectrum = check_spectrum([v for values, _ in blocks for v in values], raw_spectrum,
+                                  self.instrument_id)
         return Transfer(spectrum, colour_block, raw=raw_colour + b"\n" + raw_spectrum)
 
     def _reading(self, trigger: float, data: Transfer) -> SpectralReading:
@@ -252,50 +280,57 @@ class CS1000A(KonicaMinoltaRadiometer):
                                 "time_mode": self.time_mode, "observer_deg": self.observer_deg,
                                 "data_format": self.data_format})
 
-    def _select(self, kind: int, binary: bool) -> None:
-        obs = 1 if self.observer_deg == 10 else 0
-        fields = self.parse_reply(self.exchange(f"BDR,{kind},{obs},{int(binary)}".encode()))
-        if fields and kind == 0 and binary:
-            pass  # extra "info" fields after OK are seen in one driver; ignored
-        self._bdr_info = fields
+    def _select(self, command: str) -> None:
+        """BDR: select the data `&` serves next (fields after OK, seen in one driver, are
+        ignored)."""
+        self.parse_reply(self.exchange(command.encode("ascii")))
 
-    def _data_line(self, expected: int | tuple[int, int]) -> tuple[list[float], bytes]:
-        raw = self.exchange(b"&")
-        if raw.startswith(b"ER"):
-            self.parse_reply(raw)          # raises DeviceError or ProtocolError
+    def _line_pass(self, select: str, counts: list[int], pending: list[int],
+                   got: Callable[[int, Any, bytes], None]) -> None:
+        """Select, then one `&` per line up to the last pending one.  A line whose content
+        does not parse, or that did not come, is left for the next pass; a status reply (OK…, ERnn) where a data line
+        belongs means the line is out of step: `ProtocolError` (or the `DeviceError`)."""
+        self._select(select)
+        timeouts = 0
+        for i in range(max(pending) + 1):
+            try:
+                raw = self.exchange(b"&")
+            except (InstrumentTimeout, ProtocolError):
+                # `&` was received and its block sent (late, cut short or lost): find where
+                # the line stands, go on with the next block; two in a row, or the line not
+                # found: end the pass
+                timeouts += 1
+                if timeouts == 2 or not self._resync(late=True):
+                    raise
+                continue
+            timeouts = 0
+            if raw.startswith((b"OK", b"ER")):
+                self.parse_reply(raw)          # ERnn raises DeviceError
+                raise self._protocol("a status reply where a data line belongs", raw)
+            try:
+                got(i, self._data_values(raw, counts[i]), raw)
+            except ProtocolError:
+                continue                       # garbled: read again in the next pass
+
+    def _binary_pass(self, obs: int, pending: list[int],
+                     got: Callable[[int, Any, bytes], None]) -> None:
+        self._select(f"BDR,0,{obs},1")
+        for i in range(max(pending) + 1):
+            n = BINARY_BLOCKS[i]
+            self._write(b"&")
+            raw = self._read_exact(4 * n, self.command_timeout_s)
+            values = list(struct.unpack(f"<{n}f", raw))
+            if all(math.isfinite(v) for v in values):
+                got(i, values, raw)
+
+    def _data_values(self, raw: bytes, expected: int) -> list[float]:
         try:
             parts = raw.decode("ascii").split(",")
         except UnicodeDecodeError:
             raise self._protocol("data block is not ASCII", raw) from None
-        lo, hi = (expected, expected) if isinstance(expected, int) else expected
-        if not lo <= len(parts) <= hi:
+        if len(parts) != expected:
             raise self._protocol(f"data block has {len(parts)} values, expected {expected}", raw)
-        return [self.parse_number(p, raw) for p in parts], raw
-
-    def _read_colorimetry(self) -> tuple[list[float], bytes]:
-        self._select(1, False)
-        return self._data_line(11)
-
-    def _read_spectrum(self) -> tuple[np.ndarray, bytes]:
-        if self.data_format == "binary":
-            self._select(0, True)
-            values: list[float] = []
-            raw_all = b""
-            for n in BINARY_BLOCKS:
-                self._write(b"&")
-                raw = self._read_exact(4 * n, self.command_timeout_s)
-                raw_all += raw
-                values += struct.unpack(f"<{n}f", raw)
-            return check_spectrum(values, raw_all, self.instrument_id), raw_all
-        self._select(0, False)
-        values = []
-        raws = b""
-        for i in range(SPECTRAL_LINES):
-            n = SPECTRAL_LINE_VALUES if i < SPECTRAL_LINES - 1 else 401 - 14 * 28
-            block, raw = self._data_line(n)
-            values += block
-            raws += raw + b"\n"
-        return check_spectrum(values, raws, self.instrument_id), raws
+        return [self.parse_number(p, raw) for p in parts]
 
 
 CS1000 = CS1000A

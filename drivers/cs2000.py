@@ -27,7 +27,9 @@ Normal, 50 Fast; Multi-Integ 2·tt; Manual ceil(2·t) + 1) + data transfer at 10
 from __future__ import annotations
 
 import math
+import re
 import struct
+from collections.abc import Callable
 from typing import Any
 
 from serial import SerialException
@@ -45,6 +47,7 @@ from normbox_lab.core.errors import (
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.core.types import SpectralReading
 from normbox_lab.drivers.radiometer_common import (
+    TRANSFER_READS,
     KonicaMinoltaRadiometer,
     Transfer,
     check_spectrum,
@@ -78,6 +81,8 @@ ND_MODES = {"off": 0, "on": 1, "auto": 2}
 SPECTRAL_BLOCK_SIZES = {1: 100, 2: 100, 3: 100, 4: 101}
 FIRST_REPLY_TIMEOUT_S = 15.0          # pre-measurement "about 1–10 s"
 HEX_UNDEFINED = "D1BA43B6"
+HEX_DIGITS = frozenset("0123456789ABCDEFabcdef")
+IDDR_REPLY = re.compile(rb"^OK00,[^,]{1,16},[12],\s*\d{1,12}$")
 
 
 def measurement_time_s(luminance_cd_m2: float, speed: str = "normal", time_s: float = 1.0) -> int:
@@ -98,6 +103,7 @@ class CS2000A(KonicaMinoltaRadiometer):
     errors = ERRORS
     remote_prefix = "RMTS,"
     cancel_command = "MEAS,0"
+    sync_command = b"IDDR"
 
     def __init__(self, port: Any, clock: Clock, *, instrument_id: str = "radiometer",
                  data_format: str = "ascii", delimiter: str = "\n", baud: int = 115200,
@@ -129,6 +135,10 @@ class CS2000A(KonicaMinoltaRadiometer):
                    data_format=data_format, delimiter=delimiter,
                    command_timeout_s=command_timeout_s, attempts=attempts,
                    reconnect_timeout_s=reconnect_timeout_s)
+
+    def is_sync_reply(self, raw: bytes) -> bool:
+        """IDDR's ``OK00,<name>,<variation>,<serial>``."""
+        return IDDR_REPLY.match(raw) is not None
 
     # --- remote mode ---------------------------------------------------------------------------------
     def _enter_remote(self) -> None:
@@ -236,8 +246,13 @@ class CS2000A(KonicaMinoltaRadiometer):
 
     def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
         ttt = measurement_time_s(luminance_cd_m2, self.speed, self.time_s)
-        n_bytes = 7 + 9 + 5 + 4 * (11 + 5 + 100 * 10) + 11 + 5 + 24 * 10 + 11 + 40
-        return pre_measurement_s(luminance_cd_m2) + ttt + n_bytes * 10.0 / self.baud + 7 * 0.02
+        # MEAS,1 + 2 replies; twice (every block read until two reads agree): 4 spectral
+        # blocks, the colorimetry, the conditions
+        transfer_bytes = 4 * (11 + 5 + 100 * 10) + 11 + 5 + 24 * 10 + 11 + 40
+        n_bytes = 7 + 9 + 5 + TRANSFER_READS * transfer_bytes
+        exchanges = 1 + TRANSFER_READS * 6
+        return pre_measurement_s(luminance_cd_m2) + ttt + n_bytes * 10.0 / self.baud \
+            + exchanges * 0.02
 
     def _cancel_quietly(self) -> None:
         """MEAS,0 whatever the state.  During the pre-measurement the instrument ignores
@@ -253,21 +268,27 @@ class CS2000A(KonicaMinoltaRadiometer):
 
     # --- measuring -------------------------------------------------------------------------------------
     def _read_data(self) -> Transfer:
-        """MEDR spectral blocks 1–4, colorimetry and conditions (idempotent reads of the
-        buffer; the base class retries the whole transfer)."""
+        """MEDR spectral blocks 1–4, colorimetry and conditions, each read until two reads
+        agree (MEDR reads the buffer, which does not change: a garbled or stray reply does)."""
         f = 1 if self.data_format == "hex" else 0
-        values: list[float] = []
-        raws = b""
-        for block, n in SPECTRAL_BLOCK_SIZES.items():
-            vals, raw = self._data(f"MEDR,1,{f},{block}", n)
-            values += vals
-            raws += raw + b"\n"
-        spectrum = check_spectrum(values, raws, self.instrument_id)
-        colour_vals, raw = self._data(f"MEDR,2,{f},00", 24)
-        conditions = self.measurement_conditions_once()
+        reads: list[tuple[str, int]] = [(f"MEDR,1,{f},{block}", n)
+                                         for block, n in SPECTRAL_BLOCK_SIZES.items()]
+        reads += [(f"MEDR,2,{f},00", 24), ("MEDR,0,0,1", 0)]
+
+        def read_pass(pending: list[int], got: Callable[[int, Any, bytes], None]) -> None:
+            for i in pending:
+                cmd, n = reads[i]
+                raw = self.exchange(cmd.encode("ascii"))
+                got(i, self._values(cmd, raw, n) if n else self._conditions(raw), raw)
+
+        blocks = self.agreed_blocks("MEDR", len(reads), read_pass)
+        raws = b"\n".join(raw for _, raw in blocks[:4])
+        spectrum = check_spectrum([v for values, _ in blocks[:4] for v in values], raws,
+                                  self.instrument_id)
+        colour_vals = blocks[4][0]
         return Transfer(spectrum, colour_vals[:11],
-                        {"conditions": conditions, "colour_values": colour_vals},
-                        raw=raws + raw)
+                        {"conditions": blocks[5][0], "colour_values": colour_vals},
+                        raw=raws + b"\n" + blocks[4][1])
 
     def _reading(self, trigger: int, data: Transfer) -> SpectralReading:
         conditions = data.extra["conditions"]
@@ -283,7 +304,9 @@ class CS2000A(KonicaMinoltaRadiometer):
                                             "T10", "duv10"), colour_vals[13:22], strict=True))})
 
     def measurement_conditions_once(self) -> dict[str, Any]:
-        raw = self.exchange(b"MEDR,0,0,1")
+        return self._conditions(self.exchange(b"MEDR,0,0,1"))
+
+    def _conditions(self, raw: bytes) -> dict[str, Any]:
         fields = self.parse_reply(raw)
         if len(fields) != 8:
             raise self._protocol("MEDR,0,0,1: expected 8 numeric fields", raw)
@@ -297,19 +320,23 @@ class CS2000A(KonicaMinoltaRadiometer):
     def _run_measurement(self) -> int:
         try:
             self._write(b"MEAS,1")
-            first = self._read_line(FIRST_REPLY_TIMEOUT_S)
+            first = self.read_reply(FIRST_REPLY_TIMEOUT_S)
             assert first is not None
             fields = self.parse_reply(first)
             if len(fields) != 1:
                 raise self._protocol("MEAS,1: expected OK00,ttt", first)
             ttt = self.parse_int(fields[0], first, 1, 999)
-            final = self._read_line(ttt * 1.2 + 10.0, watch_abort=True)
+            final = self.read_reply(ttt * 1.2 + 10.0, watch_abort=True)
             if final is None:
                 self._cancel_quietly()
                 raise self._aborted()
             self._no_fields("MEAS,1", self.parse_reply(final))
             return ttt
-        except (InstrumentTimeout, ProtocolError):
+        except InstrumentTimeout:
+            self._cancel_quietly()       # the instrument may still be measuring
+            self._resync(late=True)      # a reply may still be on its way
+            raise
+        except ProtocolError:
             self._cancel_quietly()
             raise
         except DeviceError as exc:
@@ -319,24 +346,23 @@ class CS2000A(KonicaMinoltaRadiometer):
                     from exc
             raise
 
-    def _data(self, cmd: str, expected: int) -> tuple[list[float], bytes]:
-        raw = self.exchange(cmd.encode("ascii"))
+    def _values(self, cmd: str, raw: bytes, expected: int) -> list[float]:
+        """The numbers of a MEDR data reply: exactly `expected` fields, each ``#.####e±#``
+        ASCII or exactly 8 hex digits (a big-endian float32); anything else `ProtocolError`."""
         fields = self.parse_reply(raw)
         if len(fields) != expected:
             raise self._protocol(f"{cmd}: {len(fields)} values, expected {expected}", raw)
-        if self.data_format == "hex":
-            out = []
-            for x in fields:
-                if len(x) != 8:
-                    raise self._protocol(f"{cmd}: hex value {x!r} is not 8 digits", raw)
-                try:
-                    out.append(struct.unpack(">f", bytes.fromhex(x))[0])
-                except ValueError:
-                    raise self._protocol(f"{cmd}: bad hex value {x!r}", raw) from None
-                if not math.isfinite(out[-1]):
-                    raise self._protocol(f"{cmd}: non-finite value {x!r}", raw)
-            return out, raw
-        return [self.parse_number(x, raw) for x in fields], raw
+        if self.data_format != "hex":
+            return [self.parse_number(x, raw) for x in fields]
+        out = []
+        for x in fields:
+            if len(x) != 8 or not all(c in HEX_DIGITS for c in x):
+                raise self._protocol(f"{cmd}: hex value {x[:16]!r} is not 8 hex digits", raw)
+            value = struct.unpack(">f", bytes.fromhex(x))[0]
+            if not math.isfinite(value):
+                raise self._protocol(f"{cmd}: non-finite value {x!r}", raw)
+            out.append(value)
+        return out
 
 
 CS2000 = CS2000A

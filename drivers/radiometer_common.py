@@ -12,19 +12,29 @@ Recovery (bounded): before each command stale input is flushed; a lost link (the
 `SerialException`/`OSError`) is waited for up to `reconnect_timeout_s`, the port reopened, and
 remote mode entered again before the command is repeated.
 
-Late replies: neither model numbers its replies, so a reply that arrives after its deadline
-would be taken as the answer to a later command.  After a garbled reply the line is drained until quiet;
-after a timeout (or a lost link) it is also *suspect*: for `stale_horizon_s` afterwards every
-measurement's data are read twice and kept only when two consecutive transfers agree byte for
-byte (the instrument's buffer does not change between reads; a stray late line does).  Every
-transfer is also checked for plausibility (the wire has no checksum): value counts, the range
-for the instrument, no isolated band far off its neighbours, and Lv equal to 683·Σ L·ȳ of the
-spectrum itself (CIE 1931 2° from colour-science).  An implausible transfer is read again; one
-that stays implausible raises `ProtocolError` — never a silently wrong reading.
+Late replies and garbled transfers: neither model numbers its replies nor checks its bytes, so
+a reply that arrives after its deadline would be taken as the answer to a later command, and a
+flipped bit in a data line is a plausible wrong number.  So:
+  - a reply later than its timeout is waited for up to `late_window_s` more (nothing else
+    has been sent, so it can only answer this command; it counts as a line fault); when
+    even that passes, the line is drained for as long again (the late reply is dropped when
+    it comes) before the command is repeated;
+  - every data block (a spectral or colorimetric line, a MEDR block) is read until two reads
+    agree byte for byte (`agreed_blocks`): the instrument's buffer does not change between
+    reads, a garbled or stray line does.  A reply that breaks the framing (an ``OK`` or
+    ``ER`` where data belong, a cut-short line) aborts the pass, drains the line and starts a
+    new one; after `block_reads` passes without agreement it is a `ProtocolError`;
+  - the agreed transfer is then checked for plausibility: value counts, the range for the
+    instrument, no isolated band far off its neighbours, and the instrument's own colorimetry
+    (Lv, x, y) equal to what the spectrum gives (CIE 1931 2° from colour-science).  An
+    implausible transfer is read again; one that stays implausible raises `ImplausibleData` —
+    never a silently wrong reading.
+The extra lab time per reading (the second read of every block) is in docs/radiometers.md.
 """
 
 from __future__ import annotations
 
+import functools
 import math
 import threading
 from collections.abc import Callable
@@ -52,6 +62,8 @@ T = TypeVar("T")
 COLORIMETRY_FIELDS = ("Le", "Lv", "X", "Y", "Z", "x", "y", "u′", "v′", "T", "Δuv")
 #: values the instruments print for "calculation error / undefined" (CS-2000 spec §4.2)
 SENTINELS = (-9.9999e9, -9.9e9, -9.999, -9999.0, -9.9999, -9.999999e10)
+#: reads of every data block when the line is clean (`agreed_blocks`: two must agree)
+TRANSFER_READS = 2
 
 
 class LinkLost(InstrumentError):
@@ -69,9 +81,15 @@ class SerialRadiometer:
     resync_quiet_s = 0.5
     #: ... and the drain stops after this long even if bytes keep coming
     resync_max_s = 5.0
-    #: a reply later than this after its command is not expected: the line is suspect (data
-    #: read twice and compared) for this long after each fault
-    stale_horizon_s = 120.0
+    #: a reply later than its timeout is still waited for this long (None: the command
+    #: timeout); after that the line is drained for as long again before the command is
+    #: repeated
+    late_window_s: float | None = None
+    #: passes over a data transfer before disagreeing reads are a ProtocolError
+    block_reads = 6
+    #: a query whose reply no other command gives (`is_sync_reply`): sent after a timeout to
+    #: find where the line stands
+    sync_command = b""
 
     def __init__(self, port: transport.Port, clock: Clock, *,
                  instrument_id: str = "radiometer", command_timeout_s: float = 10.0, attempts: int = 3,
@@ -90,7 +108,6 @@ class SerialRadiometer:
         self.history: list[tuple[bytes, bytes]] = []
         #: line faults seen (timeouts, garbled replies, lost links) since opening
         self.line_faults = 0
-        self._suspect_until_s = -math.inf
 
     # --- errors -------------------------------------------------------------------------------
     def _protocol(self, msg: str, raw: bytes) -> ProtocolError:
@@ -148,10 +165,28 @@ class SerialRadiometer:
     def exchange(self, cmd: bytes, timeout_s: float | None = None) -> bytes:
         """Send one command, return its reply line (no retry, no interpretation)."""
         self._write(cmd)
-        reply = self._read_line(self.command_timeout_s if timeout_s is None else timeout_s)
+        reply = self.read_reply(self.command_timeout_s if timeout_s is None else timeout_s)
         assert reply is not None
         self.history = (self.history + [(cmd, reply)])[-50:]
         return reply
+
+    def read_reply(self, timeout_s: float, *, watch_abort: bool = False) -> bytes | None:
+        """The reply to the one command outstanding.  One that has not begun within
+        `timeout_s` is waited for up to `late_window_s` more (a line fault): nothing else has
+        been sent, so a line that comes now can only answer this command.  None when
+        `watch_abort` and abort() was requested before the line began."""
+        try:
+            return self._read_line(timeout_s, watch_abort=watch_abort)
+        except InstrumentTimeout:
+            self._mark_suspect()
+            try:
+                return self._read_line(self._late_window_s(), watch_abort=watch_abort)
+            except InstrumentTimeout:
+                raise self._timeout(f"no reply within {timeout_s + self._late_window_s():g} s"
+                                    ) from None
+
+    def _late_window_s(self) -> float:
+        return self.command_timeout_s if self.late_window_s is None else self.late_window_s
 
     # --- recovery -------------------------------------------------------------------------------
     def _reconnect(self) -> None:
@@ -187,7 +222,8 @@ class SerialRadiometer:
                 self._reconnect()
             except InstrumentTimeout as exc:
                 last = exc
-                self._resync(suspect=True)       # its reply may still come, late
+                if not self._resync(late=True):  # its reply may still come, late
+                    raise                        # not even the sync query is answered
             except ProtocolError as exc:
                 last = exc
                 self._resync()
@@ -214,28 +250,121 @@ class SerialRadiometer:
 
     def _mark_suspect(self) -> None:
         self.line_faults += 1
-        self._suspect_until_s = max(self._suspect_until_s,
-                                    self.clock.now_s() + self.stale_horizon_s)
 
-    def line_suspect(self) -> bool:
-        """True while a reply to an earlier, timed-out command may still arrive."""
-        return self.clock.now_s() < self._suspect_until_s
-
-    def _resync(self, *, suspect: bool = False) -> None:
+    def _resync(self, *, late: bool = False) -> bool:
         """After a lost or garbled reply: drain the line until it has been quiet for
-        `resync_quiet_s` (at most `resync_max_s`).  `suspect`: nothing came in time, so the
-        reply may still arrive later than any drain: mark the line suspect."""
-        if suspect:
-            self._mark_suspect()
-        deadline = self.clock.now_s() + self.resync_max_s
+        `resync_quiet_s` (at most `resync_max_s`).  `late`: a reply did not come in time and
+        may still be on its way: send the model's sync query and read until its reply comes
+        (the line is first in, first out, so whatever came before it answered earlier
+        commands and is dropped).  True when the line is known to be in step."""
+        self._mark_suspect()
+        deadline_s = self.clock.now_s() + self.resync_max_s
         try:
-            while self.clock.now_s() < deadline:
+            while self.clock.now_s() < deadline_s:
                 self.port.timeout = self.resync_quiet_s
                 if not self.port.read(65536):
                     break
             self.port.reset_input_buffer()
         except (SerialException, OSError):
-            pass
+            return False
+        return self._sync() if late and self.sync_command else True
+
+    def _sync(self) -> bool:
+        """Send `sync_command` and read lines until one `is_sync_reply`, for at most the
+        command timeout plus the late window; once more if lines came but not that one.
+        False when the instrument stays silent or out of step."""
+        for _ in range(2):
+            heard = False
+            try:
+                self._write(self.sync_command)
+                deadline_s = self.clock.now_s() + self.command_timeout_s + self._late_window_s()
+                while (remaining_s := deadline_s - self.clock.now_s()) > 1e-9:
+                    line = self._read_line(remaining_s) or b""
+                    heard = True
+                    if self.is_sync_reply(line):
+                        return True
+            except ProtocolError:
+                heard = True
+            except InstrumentTimeout:
+                pass
+            except LinkLost:
+                return False
+            if not heard:
+                return False
+        return False
+
+    def is_sync_reply(self, raw: bytes) -> bool:  # pragma: no cover - per model
+        raise NotImplementedError
+
+    def _guarded(self, action: Callable[[], None], busy_wait_s: float = 2.0) -> bool:
+        """One pass of a data transfer: transport faults end the pass and make the line good
+        again (reconnect; drain, waiting up to `late_window_s` for a reply still in flight);
+        ER02 waits; ER00 (a power blip left the instrument in local mode) re-enters remote
+        mode.  Other device errors (ER20: the buffer is gone) raise.  True when the line was
+        drained."""
+        try:
+            action()
+        except LinkLost:
+            self._reconnect()
+        except (InstrumentTimeout, ProtocolError):
+            self._resync(late=True)
+        except DeviceError as exc:
+            if exc.code not in ("ER00", "ER02"):
+                raise
+            self.clock.sleep(busy_wait_s)
+            if exc.code == "ER00":
+                try:
+                    self._enter_remote()
+                except (InstrumentError, SerialException, OSError):
+                    self._resync(late=True)
+            return False
+        else:
+            return False
+        return True
+
+    def agreed_blocks(self, what: str, n_blocks: int,
+                      read_pass: Callable[[list[int], Callable[[int, Any, bytes], None]], None],
+                      ) -> list[tuple[Any, bytes]]:
+        """(value, raw) of `n_blocks` data blocks, each read until two reads gave the same
+        bytes.
+
+        ``read_pass(pending, got)`` reads (at least) the blocks in `pending` and calls
+        ``got(i, value, raw)`` for each block it read whole; a block whose content did not
+        parse is simply not reported.  At most `block_reads` passes; then `ProtocolError`."""
+        seen: list[dict[bytes, Any]] = [{} for _ in range(n_blocks)]
+        agreed: list[tuple[Any, bytes] | None] = [None] * n_blocks
+        disagreed = False
+
+        def got(i: int, value: Any, raw: bytes) -> None:
+            nonlocal disagreed
+            if agreed[i] is None:
+                if raw in seen[i]:
+                    agreed[i] = (seen[i][raw], raw)
+                else:
+                    disagreed = disagreed or bool(seen[i])
+                    seen[i][raw] = value
+
+        unsettled = False
+        for _ in range(self.block_reads):
+            pending = [i for i, a in enumerate(agreed) if a is None]
+            if not pending:
+                break
+            if disagreed or unsettled:
+                # a line was stray, or a reply came late: the reply it displaced may still
+                # be on its way; let it come and go before the next pass
+                self._resync(late=True)
+                disagreed = False
+            faults = self.line_faults
+            drained = self._guarded(functools.partial(read_pass, pending, got))
+            unsettled = self.line_faults != faults and not drained
+        missing = [i for i, a in enumerate(agreed) if a is None]
+        if missing:
+            self._mark_suspect()
+            raw = next((r for i in missing for r in seen[i]), b"")
+            raise self._protocol(f"{what}: no two of {self.block_reads} reads of block "
+                                 f"{missing[0] + 1} agree (garbled, late or stray replies on "
+                                 "the line)", raw[:200])
+        return [a for a in agreed if a is not None]
 
     # --- abort ----------------------------------------------------------------------------------
     def request_abort(self) -> bool:
@@ -310,24 +439,34 @@ SPIKE_FRACTION_OF_PEAK = 0.2
 #: Lv reported vs 683·Σ L·ȳ of the reported spectrum (5 significant digits on the wire)
 LV_RELATIVE_TOLERANCE = 0.02
 LV_ABSOLUTE_TOLERANCE_CD_M2 = 1e-3
-_YBAR: np.ndarray | None = None
+#: x, y reported vs the chromaticity of the reported spectrum (4 decimals on the wire; the
+#: instrument integrates its internal, finer spectrum)
+CHROMATICITY_TOLERANCE = 0.005
+_CMFS: np.ndarray | None = None
 
 
-def ybar_1nm() -> np.ndarray:
-    """CIE 1931 2° ȳ at 380–780 nm, 1 nm, from colour-science (lazy import)."""
-    global _YBAR
-    if _YBAR is None:
+def cmfs_1nm() -> np.ndarray:
+    """(401, 3) CIE 1931 2° x̄ ȳ z̄ at 380–780 nm, 1 nm, from colour-science (lazy import)."""
+    global _CMFS
+    if _CMFS is None:
         import colour
 
         cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"]
-        _YBAR = np.interp(RADIOMETER_WAVELENGTHS_NM, np.asarray(cmfs.wavelengths, float),
-                          np.asarray(cmfs.values, float)[:, 1])
-    return _YBAR
+        wl, values = np.asarray(cmfs.wavelengths, float), np.asarray(cmfs.values, float)
+        _CMFS = np.stack([np.interp(RADIOMETER_WAVELENGTHS_NM, wl, values[:, i])
+                          for i in range(3)], axis=1)
+    return _CMFS
 
 
-def implausibility(spectrum: np.ndarray, luminance_cd_m2: float) -> str:
-    """Why this 380–780 nm radiance spectrum (and the Lv reported with it) cannot be a
-    measurement, or "" when it can."""
+def ybar_1nm() -> np.ndarray:
+    """CIE 1931 2° ȳ at 380–780 nm, 1 nm."""
+    return cmfs_1nm()[:, 1]
+
+
+def implausibility(spectrum: np.ndarray, luminance_cd_m2: float,
+                   x_reported: float = math.nan, y_reported: float = math.nan) -> str:
+    """Why this 380–780 nm radiance spectrum, with the Lv and x, y the instrument reported
+    with it, cannot be a measurement, or "" when it can."""
     finite = spectrum[np.isfinite(spectrum)]
     if finite.size < spectrum.size // 2:
         return "more than half of the spectrum is undefined"
@@ -348,6 +487,14 @@ def implausibility(spectrum: np.ndarray, luminance_cd_m2: float) -> str:
                 LV_RELATIVE_TOLERANCE * abs(luminance_cd_m2), LV_ABSOLUTE_TOLERANCE_CD_M2):
             return (f"Lv {luminance_cd_m2:.5g} cd/m² disagrees with the spectrum's own "
                     f"{lv_spectrum:.5g} cd/m²")
+    X, Y, Z = (x[:, None] * cmfs_1nm()).sum(axis=0)
+    total = float(X + Y + Z)
+    if total > 0 and math.isfinite(x_reported) and math.isfinite(y_reported):
+        x_spectrum, y_spectrum = float(X) / total, float(Y) / total
+        if max(abs(x_spectrum - x_reported), abs(y_spectrum - y_reported)) \
+                > CHROMATICITY_TOLERANCE:
+            return (f"x, y {x_reported:.4f}, {y_reported:.4f} disagree with the spectrum's "
+                    f"own {x_spectrum:.4f}, {y_spectrum:.4f}")
     return ""
 
 
@@ -360,12 +507,6 @@ class Transfer:
     colorimetry_values: list[float]
     extra: dict[str, Any] = field(default_factory=dict)
     raw: bytes = b""
-
-    def same_as(self, other: Transfer) -> bool:
-        return (np.array_equal(self.spectrum, other.spectrum, equal_nan=True)
-                and np.array_equal(np.asarray(self.colorimetry_values),
-                                   np.asarray(other.colorimetry_values), equal_nan=True)
-                and self.extra == other.extra)
 
 
 class KonicaMinoltaRadiometer(SerialRadiometer):
@@ -475,38 +616,25 @@ class KonicaMinoltaRadiometer(SerialRadiometer):
                 self._measuring = False
 
     def _measure_once(self) -> SpectralReading:
-        faults_before = self.line_faults
         trigger = self.with_retries(self._run_measurement, retry_device=("ER02",))
-        data = self._transfer()
-        if self.line_faults != faults_before or self.line_suspect():
-            data = self._confirmed(data)
-        return self._reading(trigger, data)
-
-    def _transfer(self) -> Transfer:
-        """One whole data transfer, retried whole (bounded) on transport faults and on
-        implausible contents."""
-        return self.with_retries(self._checked_transfer, retry_device=("ER02",))
+        return self._reading(trigger, self._checked_transfer())
 
     def _checked_transfer(self) -> Transfer:
-        data = self._read_data()
-        why = implausibility(data.spectrum, undefined_to_nan(data.colorimetry_values[1]))
-        if why:
-            raise ImplausibleData(f"implausible data: {why}", raw=data.raw[:200],
-                                  instrument=self.instrument_id)
-        return data
-
-    def _confirmed(self, first: Transfer) -> Transfer:
-        """Read the buffer again until two consecutive transfers agree (bounded): a late reply
-        that slipped into one of them makes it differ."""
-        previous = first
+        """The agreed transfer (`_read_data`), read again while it is implausible (bounded by
+        `attempts`), then refused with `ImplausibleData`."""
+        why = ""
+        data: Transfer | None = None
         for _ in range(self.attempts):
-            again = self._transfer()
-            if again.same_as(previous):
-                return again
+            data = self._read_data()
+            why = implausibility(data.spectrum, undefined_to_nan(data.colorimetry_values[1]),
+                                 undefined_to_nan(data.colorimetry_values[5]),
+                                 undefined_to_nan(data.colorimetry_values[6]))
+            if not why:
+                return data
             self._mark_suspect()
-            previous = again
-        raise self._protocol(f"{self.attempts + 1} data transfers of one measurement disagree "
-                             "(late or stray replies on the line)", previous.raw[:200])
+        assert data is not None
+        raise ImplausibleData(f"implausible data: {why}", raw=data.raw[:200],
+                              instrument=self.instrument_id)
 
     def _run_measurement(self) -> Any:  # pragma: no cover - per model
         raise NotImplementedError

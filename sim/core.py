@@ -14,7 +14,8 @@ Faults: every emulator owns a `FaultInjector` built from a spec string, e.g.
 ``"no-reply=0.1,garble=0.05,late-reply=0.1:5,disconnect@7"``: ``kind=p`` fires with
 probability p per reply, ``kind@n`` fires once on the n-th reply (1-based), ``:x`` attaches a
 parameter (the delay of ``late-reply`` in seconds, for instance).  Transport-level kinds are
-applied here (`no-reply`, `late-reply`, `garble`, `truncate`, `disconnect`); device-level kinds
+applied here (`no-reply`, `late-reply`, `garble`, `truncate`, `disconnect`; where the emulator
+sets `replies_in_order`, a late reply delays the replies after it); device-level kinds
 (`device-error`, `busy`, `stall`, ...) are consulted by the emulators themselves through
 `faults.fires(kind)`.
 """
@@ -128,6 +129,9 @@ class Emulator:
     device_name = "emulator"
     #: device-level fault kinds the subclass understands (in addition to TRANSPORT_FAULTS)
     device_faults: tuple[str, ...] = ()
+    #: True for an instrument that works its commands strictly in turn: a late reply then
+    #: delays the replies after it (they never overtake it), as on its real line
+    replies_in_order = False
 
     def __init__(self, clock: Clock | None = None, faults: str = "", seed: int = 0) -> None:
         self.clock: Clock = clock if clock is not None else VirtualClock()
@@ -135,6 +139,7 @@ class Emulator:
         self._queue: list[tuple[float, int, bytes]] = []
         self._seq = itertools.count()
         self._out = bytearray()
+        self._last_reply_due_s = -float("inf")
         self.connected = True
         self.disconnected_until_s: float | None = None
 
@@ -190,17 +195,25 @@ class Emulator:
                 data = self.faults.corrupt(data)
             if hit["truncate"]:
                 data = self.faults.cut(data)
-        heapq.heappush(self._queue, (self.clock.now_s() + max(0.0, delay_s), next(self._seq), data))
+        due_s = self.clock.now_s() + max(0.0, delay_s)
+        if reply and self.replies_in_order:
+            # one line, one instrument working its commands in turn: a reply never overtakes
+            # the one before it (a late reply delays those after it)
+            due_s = max(due_s, self._last_reply_due_s)
+            self._last_reply_due_s = due_s
+        heapq.heappush(self._queue, (due_s, next(self._seq), data))
 
     def cancel_output(self) -> None:
         """Drop everything scheduled but not yet on the wire (e.g. on an abort command)."""
         self._queue.clear()
+        self._last_reply_due_s = -float("inf")
 
     def disconnect(self, duration_s: float) -> None:
         """Cable pulled / USB re-enumerated: nothing in or out for `duration_s`."""
         self.connected = False
         self.disconnected_until_s = self.clock.now_s() + duration_s
         self._queue.clear()
+        self._last_reply_due_s = -float("inf")
         self._out.clear()
         self.on_disconnect()
 

@@ -83,6 +83,7 @@ def integration_time_s(luminance_cd_m2: float, speed: int = 0, time_mode: int = 
 
 class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
     device_name = "cs1000a"
+    replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMT"
     device_faults = ("device-error", "busy", "over-range")
     terminators = (b"\n",)

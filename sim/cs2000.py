@@ -119,6 +119,7 @@ def fmt_hex(value: float) -> str:
 
 class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
     device_name = "cs2000a"
+    replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMTS"
     device_faults = ("device-error", "busy", "over-range")
 

@@ -2,7 +2,8 @@
 
 `mutate(rng, data)` applies one to three of: bit flips, deletions, insertions of random or
 "interesting" bytes (separators, signs, exponents, NaN/inf spellings, non-ASCII), duplicated
-chunks, very long digit runs, truncation, swapped fields, or wholly random bytes.  The same
+chunks, very long digit runs, truncation, swapped fields, blanks inside a field that keep its
+length (a hex value ``12 34 56`` still has 8 characters), or wholly random bytes.  The same
 seed gives the same inputs, so a failure reproduces.
 
 `ReplyPort` answers each write with the next queued reply (then nothing), so a parser is
@@ -23,7 +24,7 @@ INTERESTING = [b",", b"-", b"+", b"e", b"E", b".", b" ", b"\r", b"\n", b"\x00", 
 def mutate(rng: random.Random, data: bytes) -> bytes:
     buf = bytearray(data)
     for _ in range(rng.randint(1, 3)):
-        op = rng.randrange(10)
+        op = rng.randrange(11)
         i = rng.randrange(len(buf) + 1)
         if op == 0 and buf:                                   # bit flip
             j = min(i, len(buf) - 1)
@@ -50,6 +51,15 @@ def mutate(rng: random.Random, data: bytes) -> bytes:
             if buf:
                 j = min(i, len(buf) - 1)
                 buf[j:j + 1] = rng.choice(INTERESTING)
+        elif op == 9 and b"," in buf:                         # blanks inside a field,
+            parts = bytes(buf).split(b",")                    # its length kept ("12 34 56")
+            k = rng.randrange(len(parts))
+            field = bytearray(parts[k])
+            for _ in range(rng.randint(1, 3)):
+                if field:
+                    field[rng.randrange(len(field))] = rng.choice(b" \t\x0b\x0c")
+            parts[k] = bytes(field)
+            buf = bytearray(b",".join(parts))
         else:                                                 # random garbage
             buf = bytearray(rng.randrange(256) for _ in range(rng.randint(0, 60)))
     return bytes(buf)

@@ -33,7 +33,8 @@ WL = RADIOMETER_WAVELENGTHS_NM
 #: colorimetric block below (the drivers check that the two agree)
 SPECTRUM = (1.0 + (WL - 380.0) / 400.0) * 100.0 / (683.0 * float(np.sum(
     (1.0 + (WL - 380.0) / 400.0) * ybar_1nm())))
-COLOUR_LINE = b"6.4182e-1,1.0000e2,1.0984e2,1.0000e2,3.5595e1,0.4475,0.4074,0.2559,0.5243,2856,+0.0012\n"
+#: (x, y = 0.3595, 0.3525: the chromaticity of that ramp, which the drivers check too)
+COLOUR_LINE = b"6.4182e-1,1.0000e2,1.0984e2,1.0000e2,3.5595e1,0.3595,0.3525,0.2559,0.5243,2856,+0.0012\n"
 
 
 def spectral_lines(values: np.ndarray) -> list[bytes]:
@@ -41,11 +42,20 @@ def spectral_lines(values: np.ndarray) -> list[bytes]:
             for i in range(0, 401, 28)]
 
 
-def measure_script(t: str = "1.50", spectrum: np.ndarray = SPECTRUM) -> list[Exchange]:
-    return ([Exchange(b"MES,1\n", [(2.0, f"OK,{t}\n".encode()), (5.0, b"OK\n")]),
-             Exchange(b"BDR,1,0,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE),
-             Exchange(b"BDR,0,0,0\n", b"OK\n")]
-            + [Exchange(b"&\n", line) for line in spectral_lines(spectrum)])
+def transfer_script(spectrum: np.ndarray = SPECTRUM, colour_line: bytes = COLOUR_LINE,
+                    observer: int = 0) -> list[Exchange]:
+    """The data transfer: every block is read twice (the drivers keep only blocks that two
+    reads agree on): colorimetry twice, then the spectrum twice."""
+    colour = [Exchange(f"BDR,1,{observer},0\n".encode(), b"OK\n"), Exchange(b"&\n", colour_line)]
+    lines = ([Exchange(f"BDR,0,{observer},0\n".encode(), b"OK\n")]
+             + [Exchange(b"&\n", line) for line in spectral_lines(spectrum)])
+    return colour + colour + lines + lines
+
+
+def measure_script(t: str = "1.50", spectrum: np.ndarray = SPECTRUM,
+                   colour_line: bytes = COLOUR_LINE) -> list[Exchange]:
+    return ([Exchange(b"MES,1\n", [(2.0, f"OK,{t}\n".encode()), (5.0, b"OK\n")])]
+            + transfer_script(spectrum, colour_line))
 
 
 def scripted(script: list[Exchange], **options) -> tuple[CS1000A, ScriptedPort]:
@@ -81,15 +91,14 @@ def test_measure_frames_and_parsing():
     np.testing.assert_array_equal(r.wavelength_nm, WL)
     c = r.colorimetry
     assert (c.Le_W_sr_m2, c.Lv_cd_m2, c.X, c.Z) == (0.64182, 100.0, 109.84, 35.595)
-    assert (c.x, c.y, c.u_prime, c.v_prime, c.cct_K, c.duv) == (0.4475, 0.4074, 0.2559, 0.5243,
+    assert (c.x, c.y, c.u_prime, c.v_prime, c.cct_K, c.duv) == (0.3595, 0.3525, 0.2559, 0.5243,
                                                                  2856.0, 0.0012)
     assert d.port.clock.now_s() >= 5.0                  # waited for the final OK
 
 
 def test_undefined_cct_is_nan():
     line = COLOUR_LINE.replace(b"2856,+0.0012", b"-9999,-9.9999")
-    script = measure_script()
-    script[2] = Exchange(b"&\n", line)
+    script = measure_script(colour_line=line)
     d, _port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *script])
     c = d.measure().colorimetry
     assert np.isnan(c.cct_K) and np.isnan(c.duv)
@@ -108,11 +117,11 @@ def test_long_dark_measurement_waits_for_the_announced_time():
 def test_observer_10_and_binary_frames():
     blocks = [struct.pack(f"<{n}f", *SPECTRUM[i:i + n])
               for i, n in zip(range(0, 401, 60), (60,) * 6 + (41,), strict=True)]
+    colour = [Exchange(b"BDR,1,1,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE)]
+    spectrum = [Exchange(b"BDR,0,1,1\n", b"OK\n")] + [Exchange(b"&\n", b) for b in blocks]
     script = ([Exchange(b"RMT,1\n", b"OK\n"),
-               Exchange(b"MES,1\n", [(1.0, b"OK,0.10\n"), (1.2, b"OK\n")]),
-               Exchange(b"BDR,1,1,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE),
-               Exchange(b"BDR,0,1,1\n", b"OK\n")]
-              + [Exchange(b"&\n", b) for b in blocks])
+               Exchange(b"MES,1\n", [(1.0, b"OK,0.10\n"), (1.2, b"OK\n")])]
+              + colour * 2 + spectrum * 2)
     d, port = scripted(script, observer_deg=10, data_format="binary")
     r = d.measure()
     port.assert_done()
@@ -182,24 +191,29 @@ def test_busy_is_retried_then_succeeds():
 
 
 def test_silence_is_a_bounded_timeout():
-    d, _port = scripted([Exchange(b"RMT,1\n", b"")] * 3)
+    """No reply within the timeout and the late window, and none to the sync query (STR)
+    either: a typed timeout, without further attempts."""
+    d, port = scripted([Exchange(b"RMT,1\n", b""), Exchange(b"STR\n", b"")])
     with pytest.raises(InstrumentTimeout):
         d.set_remote(True)
     assert d.clock.now_s() < 60.0
+    port.assert_done()
 
 
 def test_short_spectral_block_is_rejected_never_partial():
-    """A block with 27 values instead of 28: the whole transfer (colorimetry and spectrum) is
-    repeated; persistently → error."""
+    """A block with 27 values instead of 28 never agrees with anything: the spectrum is read
+    in passes (all blocks twice, then up to the block in doubt) and after six a
+    ProtocolError names it."""
     bad = spectral_lines(SPECTRUM)
     bad[3] = bad[3].rsplit(b",", 1)[0] + b"\n"
-    transfer = ([Exchange(b"BDR,1,0,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE),
-                 Exchange(b"BDR,0,0,0\n", b"OK\n")] + [Exchange(b"&\n", x) for x in bad[:4]])
-    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *measure_script()[:1],
-                        *(transfer[:2] + transfer[2:] * 3) * 3])
-    with pytest.raises(ProtocolError) as e:
+    select = Exchange(b"BDR,0,0,0\n", b"OK\n")
+    whole = [select] + [Exchange(b"&\n", x) for x in bad]
+    upto_bad = [select] + [Exchange(b"&\n", x) for x in bad[:4]]
+    colour = [Exchange(b"BDR,1,0,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE)]
+    d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *measure_script()[:1], *colour * 2,
+                        *whole * 2, *upto_bad * 4])
+    with pytest.raises(ProtocolError, match="block 4 agree"):
         d.measure()
-    assert b"," in e.value.raw
     port.assert_done()
 
 

@@ -31,7 +31,8 @@ WL = RADIOMETER_WAVELENGTHS_NM
 #: colorimetric block below (the drivers check that the two agree)
 SPECTRUM = (1.0 + (WL - 380.0) / 400.0) * 100.0 / (683.0 * float(np.sum(
     (1.0 + (WL - 380.0) / 400.0) * ybar_1nm())))
-COLOUR_24 = ("6.4182e-1,100.000,1.0984e2,1.0000e2,3.5595e1,0.4475,0.4074,0.2559,0.5243,2856,"
+#: (x, y = 0.3595, 0.3525: the chromaticity of that ramp, which the drivers check too)
+COLOUR_24 = ("6.4182e-1,100.000,1.0984e2,1.0000e2,3.5595e1,0.3595,0.3525,0.2559,0.5243,2856,"
              "+0.0012,-9.9e9,-9.9e9,1.1721e2,1.0547e2,3.7138e1,0.4511,0.4059,0.2589,0.5242,2789,"
              "-0.0010,-9.9e9,-9.9e9")
 CONDITIONS = b"OK00,0,0,001000000,0,0,0,0,00\n"
@@ -49,16 +50,26 @@ def remote_script(delim: bytes = b"\n") -> list[Exchange]:
                                                                    b"OK00" + delim)]
 
 
-def measure_script(hexfmt: bool = False, delim: bytes = b"\n", ttt: int = 2) -> list[Exchange]:
+def transfer_script(hexfmt: bool = False, delim: bytes = b"\n") -> list[Exchange]:
+    """One read of the buffer: spectral blocks 1–4, colorimetry, conditions."""
     f = b"1" if hexfmt else b"0"
     colour = COLOUR_24 if not hexfmt else ",".join(
         fmt_hex(float(x)) for x in COLOUR_24.split(","))
-    return ([Exchange(b"MEAS,1" + delim, [(3.0, f"OK00,{ttt:03d}".encode() + delim),
-                                          (3.0 + ttt, b"OK00" + delim)])]
-            + [Exchange(b"MEDR,1," + f + b"," + str(b).encode() + delim,
-                        block_reply(lo, hi, hexfmt, delim)) for b, lo, hi in BLOCKS]
+    return ([Exchange(b"MEDR,1," + f + b"," + str(b).encode() + delim,
+                      block_reply(lo, hi, hexfmt, delim)) for b, lo, hi in BLOCKS]
             + [Exchange(b"MEDR,2," + f + b",00" + delim, f"OK00,{colour}".encode() + delim),
                Exchange(b"MEDR,0,0,1" + delim, CONDITIONS.replace(b"\n", delim))])
+
+
+def measure_script(hexfmt: bool = False, delim: bytes = b"\n", ttt: int = 2) -> list[Exchange]:
+    """MEAS,1 and its two replies, then the buffer read twice (the drivers keep only blocks
+    that two reads agree on)."""
+    return ([Exchange(b"MEAS,1" + delim, [(3.0, f"OK00,{ttt:03d}".encode() + delim),
+                                          (3.0 + ttt, b"OK00" + delim)])]
+            + transfer_script(hexfmt, delim) * 2)
+
+
+IDDR = Exchange(b"IDDR\n", b"OK00,CS-2000A ,2,2000123\n")
 
 
 def scripted(script: list[Exchange], **options) -> tuple[CS2000A, ScriptedPort]:
@@ -180,10 +191,12 @@ def test_unknown_reply_is_protocol_error_with_raw():
 
 
 def test_wrong_value_count_is_rejected():
+    """Block 1 with 99 values, every time: each pass ends there, the line is checked with
+    IDDR (the sync query), and after six passes it is a ProtocolError naming the block."""
     script = measure_script()
-    script[1] = Exchange(b"MEDR,1,0,1\n", block_reply(0, 99))
-    d, port = scripted([*remote_script(), *script[:2], *[script[1]] * 2])
-    with pytest.raises(ProtocolError):
+    bad = Exchange(b"MEDR,1,0,1\n", block_reply(0, 99))
+    d, port = scripted([*remote_script(), script[0], *[bad, IDDR] * 6])
+    with pytest.raises(ProtocolError, match="block 1 agree"):
         d.measure()
     port.assert_done()
 
@@ -378,10 +391,13 @@ def test_fuzz_every_call_with_arbitrary_replies(replies, fmt):
 
 
 def test_silence_is_bounded():
-    d, _ = scripted([Exchange(b"RMTS,2\n", b"")] * 3)
+    """No reply to RMTS,2 within the timeout and the late window, none to the sync query:
+    a typed timeout at once."""
+    d, port = scripted([Exchange(b"RMTS,2\n", b""), Exchange(b"IDDR\n", b"")])
     with pytest.raises(InstrumentTimeout):
         d.set_remote(True)
     assert d.clock.now_s() < 60
+    port.assert_done()
 
 
 @settings(max_examples=80, deadline=None)

@@ -24,7 +24,7 @@ import pytest
 from fuzz import ReplyPort, mutate
 
 from normbox_lab.core.clock import VirtualClock
-from normbox_lab.core.errors import ConfigError, NormboxError
+from normbox_lab.core.errors import ConfigError, NormboxError, ProtocolError
 from normbox_lab.drivers.cs1000 import CS1000A
 from normbox_lab.drivers.cs2000 import CS2000A
 from normbox_lab.drivers.rotator_apt import AptRotationStage
@@ -70,10 +70,10 @@ def cs1000_ascii(rng: random.Random) -> None:
     which = rng.randrange(4)
     if which == 0:
         d.port.replies = [mutate(rng, CS1000_COLOUR)]
-        d._data_line(11)
+        d._data_values(d.exchange(b"&"), 11)
     elif which == 1:
         d.port.replies = [mutate(rng, CS1000_LINE)]
-        d._data_line(28)
+        d._data_values(d.exchange(b"&"), 28)
     elif which == 2:
         d.port.replies = [mutate(rng, b"OK,1.50\n") + mutate(rng, b"OK\n")]
         d._run_measurement()
@@ -90,7 +90,7 @@ def cs1000_binary(rng: random.Random) -> None:
     k = rng.randrange(7)
     blocks[k] = mutate(rng, blocks[k])
     d.port.replies = [b"OK\n", *blocks]
-    d._read_spectrum()
+    d._binary_pass(0, [6], lambda i, values, raw: None)
 
 
 def _cs2000(rng: random.Random, fmt: str) -> None:
@@ -100,11 +100,12 @@ def _cs2000(rng: random.Random, fmt: str) -> None:
     d._button_off = True
     which = rng.randrange(6)
     if which == 0:
+        cmd = f"MEDR,1,{int(fmt == 'hex')},1"
         d.port.replies = [mutate(rng, CS2000_HEX if fmt == "hex" else CS2000_BLOCK)]
-        d._data(f"MEDR,1,{int(fmt == 'hex')},1", 100)
+        d._values(cmd, d.exchange(cmd.encode()), 100)
     elif which == 1:
         d.port.replies = [mutate(rng, CS2000_COLOUR)]
-        d._data("MEDR,2,0,00", 24)
+        d._values("MEDR,2,0,00", d.exchange(b"MEDR,2,0,00"), 24)
     elif which == 2:
         d.port.replies = [mutate(rng, CS2000_COND)]
         d.measurement_conditions_once()
@@ -314,6 +315,28 @@ def test_fuzz_parser_100k(name):
     counts = run_fuzz(PARSERS[name], SLOW_N, seed=2)
     print(f"fuzz {name}: {SLOW_N} inputs, untyped 0, outcomes {dict(counts)}")
     assert sum(counts.values()) == SLOW_N
+
+
+def test_mutator_makes_hex_fields_with_blanks_that_keep_their_length():
+    """The CS-2000A case a looser check let through: ``12 34 56`` is 8 characters, but
+    bytes.fromhex skips the blanks and gives 3 bytes.  The mutator makes such fields, and the
+    hex parser answers each with a ProtocolError."""
+    def fromhex_is_fooled(field: bytes) -> bool:
+        try:
+            return len(field) == 8 and len(bytes.fromhex(field.decode("latin-1"))) != 4
+        except ValueError:
+            return False
+
+    rng = random.Random(3)
+    sneaky = 0
+    for _ in range(3000):
+        reply = mutate(rng, CS2000_HEX)
+        if any(fromhex_is_fooled(f) for f in reply.rstrip(b"\n").split(b",")[1:]):
+            sneaky += 1
+            d = CS2000A(*_port_and_clock(), data_format="hex", attempts=1)
+            with pytest.raises(ProtocolError):
+                d._values("MEDR,1,1,1", reply.rstrip(b"\n"), 100)
+    assert sneaky >= 20
 
 
 def test_mutator_is_seeded():
