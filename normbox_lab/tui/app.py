@@ -18,10 +18,12 @@ from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.css.query import NoMatches
 from textual.message import Message
+from textual.widget import Widget
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.core.clock import Clock, RealClock
-from normbox_lab.tui.controller import Session
+from normbox_lab.core.types import BrdfReading, SpectralReading
+from normbox_lab.tui.controller import Session, fault_text
 from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
     ImagesPane,
@@ -110,6 +112,15 @@ class NormboxConsole(App):
         self.progress = RunProgress(self.clock)
         self.events_seen: list[str] = []
         self.toasts_shown: list[str] = []
+        self.lab_error = ""                   # why the lab could not be assembled
+        self.dry: Any = None                  # the latest dry run
+        self._paint_tries = 0                 # refreshes waited for the footer's keys
+        self._status_text = ""                # the top line's lab part
+        self._abort_armed_until = 0.0         # console clock s until which a second a aborts
+        self._live_dirty = False              # the Instruments tab needs redrawing
+        self._pending_resume: int | None = None   # a run to resume once the lab is ready
+        self.first_paint_footer_keys = 0
+        self.first_paint_cpu_s = 0.0
 
     # --- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -145,9 +156,8 @@ class NormboxConsole(App):
     def _first_paint(self) -> None:
         # the complete first screen includes the footer's keys, which Textual fills in a
         # refresh after the first: the first paint is the first frame that has them
-        tries = getattr(self, "_paint_tries", 0)
-        if not self.query_one(Footer).children and tries < 50:
-            self._paint_tries = tries + 1
+        if not self.query_one(Footer).children and self._paint_tries < 50:
+            self._paint_tries += 1
             self.call_after_refresh(self._first_paint)
             return
         self.first_paint_wall_s = time.time()
@@ -189,7 +199,7 @@ class NormboxConsole(App):
         self.lab_ready = True
         s = self.session
         kind = "simulated" if s.config.simulated else "real"
-        scale = getattr(s.lab.clock, "time_scale", None)
+        scale = self._lab_time_scale()
         clock = "real clock" if scale is None else f"virtual clock ×{scale:g}"
         self._set_status(f"{kind} lab · world {s.world_kind} · {clock} · "
                          f"store {s.store_path.name} · {s.config.name}")
@@ -219,7 +229,7 @@ class NormboxConsole(App):
 
         if text is not None:
             self._status_text = text
-        line = Text(getattr(self, "_status_text", ""))
+        line = Text(self._status_text)
         if self.waiting_prompt is not None and self.prompt_screen is None:
             line = Text.assemble(("prompt waiting: w ", "bold reverse"), " ", line)
         self.query_one("#status", Static).update(line)
@@ -306,7 +316,7 @@ class NormboxConsole(App):
 
     def _ready_for_run(self) -> bool:
         if not self.lab_ready:
-            error = getattr(self, "lab_error", "")
+            error = self.lab_error
             self.notify(f"the lab could not be assembled: {error}" if error
                         else "the lab is still loading", severity="warning", markup=False)
             return False
@@ -384,8 +394,7 @@ class NormboxConsole(App):
         """a asks for confirmation (a again within 5 s) before it aborts the run."""
         if not self.session.busy:
             return
-        armed = getattr(self, "_abort_armed_until", 0.0)
-        if self.clock.now_s() <= armed:
+        if self.clock.now_s() <= self._abort_armed_until:
             self._abort_armed_until = 0.0
             self.session.abort()
             self._log("[red]abort requested[/]")
@@ -432,6 +441,8 @@ class NormboxConsole(App):
         self.notify("EMERGENCY STOP: axes halted, lamps off"
                     + (" — run paused, r resumes" if self.session.busy else ""),
                     severity="error", markup=False)
+        if not self.session.busy:
+            self._poll(announce=False)        # the table: the real angle where it halted
 
     def action_poll(self) -> None:
         if self.lab_ready:
@@ -493,12 +504,13 @@ class NormboxConsole(App):
             self._update_run_info()
         elif k == "reading-stored":
             r = d.get("reading")
-            values, title = getattr(r, "radiance_W_sr_m2_nm", None), RADIANCE_TITLE
-            if values is None:
-                values, title = getattr(r, "brdf_per_sr", None), BRDF_TITLE
-            if values is not None:
-                self.pane(SpectrumPane).add_reading(ev.key, r.wavelength_nm, values,
-                                                    getattr(r, "colorimetry", None), title)
+            if isinstance(r, SpectralReading):
+                self.pane(SpectrumPane).add_reading(ev.key, r.wavelength_nm,
+                                                    r.radiance_W_sr_m2_nm, r.colorimetry,
+                                                    RADIANCE_TITLE)
+            elif isinstance(r, BrdfReading):
+                self.pane(SpectrumPane).add_reading(ev.key, r.wavelength_nm, r.brdf_per_sr,
+                                                    None, BRDF_TITLE)
             self._runs_dirty = True
             self._live_dirty = True
         elif k == "prompt":
@@ -508,7 +520,7 @@ class NormboxConsole(App):
             self._set_status()
             self._log("", f"{ev.key}: answered {d.get('answer')}")
         elif k in ("warning", "fault", "suspended", "unsuspended"):
-            msg = d.get("message") or d.get("error") or d.get("role") or ""
+            msg = fault_text(d) or str(d.get("role", ""))
             self._log(f"[yellow]{k}[/] ", f"{ev.key} {msg}")
         elif k == "paused":
             self._set_run_status("paused")
@@ -545,7 +557,7 @@ class NormboxConsole(App):
         from normbox_lab.tui.views import repeatability_summary
 
         engine, store = self.session.engine, self.session.store
-        run_id = getattr(engine, "run_id", None)
+        run_id = engine.run_id if engine is not None else None
         if run_id is None or store is None:
             return
         if not str(store.get_run(run_id).protocol).endswith("repeatability"):
@@ -580,7 +592,11 @@ class NormboxConsole(App):
 
     def _lab_time_scale(self) -> float | None:
         """None on a real clock; the virtual clock's time scale in a simulated lab."""
-        return getattr(getattr(self.session.lab, "clock", None), "time_scale", None)
+        from normbox_lab.core.clock import VirtualClock
+
+        lab = self.session.lab
+        return lab.clock.time_scale if lab is not None and isinstance(
+            lab.clock, VirtualClock) else None
 
     def remaining_text(self) -> str:
         return self.progress.remaining_text(self._lab_time_scale())
@@ -610,7 +626,7 @@ class NormboxConsole(App):
                 self.prompt_screen = None
             if choice == HIDDEN:               # stepped aside: it keeps waiting
                 self._update_run_info()
-                tab = getattr(screen, "look_tab", None)
+                tab = screen.look_tab
                 if tab is not None:
                     self.call_after_refresh(self.action_tab, tab)
                 return
@@ -636,13 +652,13 @@ class NormboxConsole(App):
         if not self.panes_built:
             return
         self.pane(SpectrumPane).redraw_if_dirty()
-        if getattr(self, "_live_dirty", False):
+        if self._live_dirty:
             self._live_dirty = False
             self._show_live()
         if self._runs_dirty and self.session.store is not None:
             self._runs_dirty = False
             self._refresh_runs()
-        pending = getattr(self, "_pending_resume", None)
+        pending = self._pending_resume
         if pending is not None and self.lab_ready:
             self._pending_resume = None
             self.resume_run(pending)
@@ -708,7 +724,7 @@ class NormboxConsole(App):
             self.pane(SpectrumPane).dirty = self.latest is not None
 
     def _in_pane(self, widget: Any, pane_id: str) -> bool:
-        return any(getattr(node, "id", None) == pane_id for node in widget.ancestors)
+        return any(node.id == pane_id for node in widget.ancestors if isinstance(node, Widget))
 
     def _refresh_results(self) -> None:
         if self.session.store is not None:

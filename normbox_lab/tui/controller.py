@@ -22,10 +22,26 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from normbox_lab.core.errors import NormboxError, OperatorAbort
+from normbox_lab.core.types import BrdfReading, SpectralReading
 
 log = logging.getLogger("normbox_lab.tui")
 
 UNFINISHED = ("created", "running", "paused", "interrupted", "aborted", "failed")
+
+
+def fault_text(data: Mapping[str, Any]) -> str:
+    """A fault event in words: "ProtocolError: garbled reply …", never a dict or a repr —
+    the engine's event carries the exception's repr ("InstrumentTimeout('…')")."""
+    import re
+
+    error = str(data.get("message") or data.get("error") or "")
+    kind = ""
+    match = re.fullmatch(r"(\w+)\((['\"])(.*)\2\)", error, flags=re.S)
+    if match:
+        kind, error = match.group(1), match.group(3).replace("\\'", "'")
+    role = str(data.get("role", ""))
+    error = error.removeprefix(f"{role}: ") if role else error
+    return f"{error} ({kind})" if kind else error
 
 
 class _Quit(KeyboardInterrupt):
@@ -106,6 +122,8 @@ class LiveState:
     #: role → what the run last did with it ("30.00°", "on, stable", "measured a30/p07"):
     #: the Instruments table's state column while a run owns the instruments
     run_state: dict[str, str] = field(default_factory=dict)
+    #: the roles the current run's plan uses (the others are not "in use by the run")
+    roles_used: tuple[str, ...] = ()
 
 
 class Session:
@@ -130,6 +148,10 @@ class Session:
         self.live = LiveState()
         #: role → wall time (s) of the last answer to the health poll
         self.last_seen: dict[str, float] = {}
+        self.last_rows: list[dict[str, Any]] = []     # the latest health poll
+        self.stopped = threading.Event()               # an emergency stop (ends a manual wait)
+        self._step_index: tuple[Any, dict[str, Any]] | None = None
+        self._prompt: Any = None                       # the latest operator prompt asked
         self._lock = threading.Lock()
 
     # --- setup (call from a worker thread: the world may take seconds) -------------------------
@@ -296,16 +318,28 @@ class Session:
                 self.operator.cancel("emergency-stop")
             self._mark_stopped()
             return []
+        from normbox_lab.core.capabilities import Movable
+
         failed = []
+        self.stopped.set()
         lab = self.lab
+        others = []
         for role in (lab.roles() if lab is not None else []):
             try:
                 inst = lab.instrument(role)
+                if not isinstance(inst, (Movable, Switchable)):
+                    others.append((role, inst))
+                    continue
                 halt(role, inst)
                 if isinstance(inst, Switchable):
                     inst.set_output(False)
             except (NormboxError, OSError) as exc:
                 failed.append(f"{role}: {exc}")
+        # axes and lamps first and at once; an instrument busy with a manual reading (its
+        # port held for seconds) is told to abort from a thread of its own
+        if others:
+            threading.Thread(target=lambda: [halt(r, i) for r, i in others],
+                             name="normbox-estop", daemon=True).start()
         return failed
 
     def _mark_stopped(self) -> None:
@@ -324,11 +358,22 @@ class Session:
                 live.run_state[role] = "halted (emergency stop)"
 
     # --- manual control (Instruments tab) ------------------------------------------------------
-    #: what each manual action needs of the instrument, and how the console names it
+    #: what each manual action needs of the instrument, and how the console names it; LAMP:
+    #: the lab's light source (the first role whose driver is `Settling`: `Lab.light_sources`)
+    LAMP = "<the lab's light source>"
     MANUAL: ClassVar[dict[str, tuple[str, str]]] = {
         "home": ("rotator", "home"), "goto": ("rotator", "go to"), "jog": ("rotator", "jog"),
-        "lamp-on": ("sphere", "lamp on"), "lamp-off": ("sphere", "lamp off"),
-        "lamp-level": ("sphere", "lamp level"), "measure": ("radiometer", "single reading")}
+        "lamp-on": (LAMP, "lamp on"), "lamp-off": (LAMP, "lamp off"),
+        "lamp-level": (LAMP, "lamp level"), "measure": ("radiometer", "single reading")}
+
+    def lamp_role(self) -> str | None:
+        """The role of the lab's (first) light source; None before the lab is built or when
+        it has none."""
+        lab = self.lab
+        if lab is None:
+            return None
+        lamps = lab.light_sources()
+        return lamps[0] if lamps else None
 
     def manual(self, action: str, value: float | None = None) -> tuple[str, Any]:
         """One manual action on an idle lab, through the instrument's capabilities: `home`,
@@ -340,6 +385,7 @@ class Session:
             Homeable,
             LampLevel,
             Movable,
+            Settling,
             SpectrumReadable,
             Switchable,
         )
@@ -352,6 +398,8 @@ class Session:
             raise NotReady(f"{name} refused: the run owns the instruments until it ends "
                            "(a paused run too: it waits to go on)", instrument=role)
         lab = self.ensure_lab()
+        if role == self.LAMP:
+            role = self.lamp_role() or "light source"
         if role not in lab.roles():
             raise NotReady(f"{name}: this lab has no {role}", instrument=role)
         inst = lab.instrument(role)
@@ -372,8 +420,19 @@ class Session:
             target = float(value or 0.0)
             if action == "jog":
                 target += float(inst.position_deg())
-            inst.move_to(target, wait=True)
+            self.stopped.clear()
+            inst.move_to(target, wait=False)
+            deadline = lab.clock.now_s() + 1.5 * float(inst.estimate_move_time_s(
+                float(inst.position_deg()), target)) + 5.0
+            while inst.is_moving() and not self.stopped.is_set():
+                if lab.clock.now_s() > deadline:
+                    raise NotReady(f"{name}: the motion did not end in time", instrument=role)
+                lab.clock.sleep(0.05)
             live.angle_deg = float(inst.position_deg())
+            if self.stopped.is_set():
+                live.run_state[role] = f"halted at {live.angle_deg:.2f}° (emergency stop)"
+                return (f"{name} {target:g}° stopped by the emergency stop: {role} halted at "
+                        f"{live.angle_deg:.2f}°"), None
             return f"{role} at {live.angle_deg:.2f}°", None
         if action in ("lamp-on", "lamp-off"):
             inst.set_output(action == "lamp-on")
@@ -382,13 +441,15 @@ class Session:
         if action == "lamp-level":
             inst.set_level_percent(float(value if value is not None else 100.0))
             return f"{role} level {float(value or 100.0):g} %", None
+        lamp = self.lamp_role()
+        unstable = ""
+        if lamp is not None and isinstance(lab.instrument(lamp), Settling) \
+                and not lab.instrument(lamp).is_stable():
+            unstable = f" — the {lamp} is not stable: the reading is not representative"
         reading = inst.measure()
-        colo = getattr(reading, "colorimetry", None)
         live.last_key = "manual"
-        if colo is not None:
-            live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
-            live.last_xy = (float(colo.x), float(colo.y))
-        return "single reading taken (not stored)", reading
+        self._take_colorimetry(reading)
+        return "single reading taken (not stored)" + unstable, reading
 
     def quit(self) -> None:
         """Leave safely: the current reading finishes and is committed, the segment ends
@@ -420,45 +481,65 @@ class Session:
     def _on_event(self, ev: Any) -> None:
         """Engine thread: keep the live state current, then hand the event to the UI."""
         live = self.live
-        if ev.kind == "run-started":
+        kind, data = ev.kind, ev.data
+        if kind == "run-started":
             live.run_state.clear()
-        if ev.kind == "step-finished":
+            live.roles_used = tuple(self.engine.plan.roles) if self.engine is not None else ()
+        if kind == "step-started":
+            step = self._step(ev.key)
+            if step is not None and step.kind == "wait-stable":
+                live.lamp, live.lamp_stable = "warming up", False
+                live.run_state[step.role] = "on, warming up (the run waits)"
+            elif step is not None and step.kind == "move":
+                live.run_state[step.role] = f"moving to {float(step.params['angle_deg']):g}°"
+        elif kind == "step-finished":
             step = self._step(ev.key)
             if step is not None and step.kind == "move":
                 live.angle_deg = float(step.params["angle_deg"])
                 live.run_state[step.role] = f"{live.angle_deg:.2f}° (homed)"
             elif step is not None and step.kind == "wait-stable":
                 live.lamp, live.lamp_stable = "stable", True
-                live.run_state[step.role or "sphere"] = "on, stable"
-        elif ev.kind in ("suspended", "unsuspended"):
-            live.lamp_stable = ev.kind == "unsuspended"
+                live.run_state[step.role] = "on, stable"
+        elif kind in ("suspended", "unsuspended"):
+            live.lamp_stable = kind == "unsuspended"
             live.lamp = "stable" if live.lamp_stable else "unstable"
-            live.run_state[str(ev.data.get("role") or "sphere")] = (
+            live.run_state[str(data.get("role", ""))] = (
                 "on, stable" if live.lamp_stable else "on, NOT stable (run waits)")
-        elif ev.kind == "answer" and ev.data.get("answer") == "ok":
-            w = getattr(self.lab, "world", None)
-            live.patch = getattr(w, "patch", live.patch)
-        elif ev.kind == "reading-stored":
-            r = ev.data.get("reading")
+        elif kind == "fault":
+            role = str(data.get("role", ""))
+            live.run_state[role] = f"ERROR: {fault_text(data)}"
+            if role == self.lamp_role():
+                live.lamp, live.lamp_stable = "error", False
+        elif kind == "prompt":
+            self._prompt = data.get("prompt")
+        elif kind == "answer" and data.get("answer") == "ok":
+            req = self._prompt
+            if req is not None and req.key == ev.key and req.data.get("action") == "place_patch":
+                live.patch = int(req.data["patch"])
+        elif kind == "reading-stored":
+            r = data.get("reading")
             live.last_key = ev.key
             step = self._step(ev.key)
             if step is not None:
                 live.run_state[step.role] = f"measured {ev.key}"
-            colo = getattr(r, "colorimetry", None)
-            if colo is not None:
-                live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
-                live.last_xy = (float(colo.x), float(colo.y))
-            meta = getattr(r, "metadata", None) or {}
-            temp = meta.get("tec_temperature_c", meta.get("temperature_c"))   # QE Pro TEC
-            if temp is not None:
-                live.temperature_c = float(temp)
+            self._take_colorimetry(r)
+            if isinstance(r, BrdfReading):
+                temp = r.metadata.get("tec_temperature_c")          # QE Pro TEC
+                if temp is not None:
+                    live.temperature_c = float(temp)
         self.post(ev)
 
+    def _take_colorimetry(self, reading: Any) -> None:
+        if isinstance(reading, SpectralReading) and reading.colorimetry is not None:
+            colo = reading.colorimetry
+            self.live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
+            self.live.last_xy = (float(colo.x), float(colo.y))
+
     def _step(self, key: str) -> Any:
-        plan = getattr(self.engine, "plan", None)
-        if plan is None:
+        if self.engine is None:
             return None
-        index = getattr(self, "_step_index", None)
+        plan = self.engine.plan
+        index = self._step_index
         if index is None or index[0] is not plan:
             index = (plan, {s.key: s for s in plan.steps})
             self._step_index = index
@@ -481,7 +562,7 @@ class Session:
                                    "identity": "", "state": "", "ok": None,
                                    "last_seen": self.last_seen.get(role)}
             if self.busy:
-                row["state"] = "in use by the run"
+                row["state"] = self.live.run_state.get(role, "in use by the run")
                 rows.append(row)
                 continue
             try:
@@ -505,10 +586,15 @@ class Session:
     def instrument_rows(self) -> list[dict[str, Any]]:
         """The Instruments table: the last poll's rows, and while a run owns the instruments
         (no polling then) each state as the run's events last left it."""
-        rows = [dict(r) for r in getattr(self, "last_rows", [])]
+        rows = [dict(r) for r in self.last_rows]
         if self.busy:
+            used = self.live.roles_used
             for r in rows:
-                r["state"] = self.live.run_state.get(r["role"], "in use by the run")
+                if r["role"] in self.live.run_state:
+                    r["state"] = self.live.run_state[r["role"]]
+                elif r["role"] in used or (r["role"] == "gonio" and "gonio" in used):
+                    r["state"] = "in use by the run"
+                # roles the run does not use keep what the last poll found
         return rows
 
     def _state_of(self, role: str, inst: Any) -> str:
@@ -520,6 +606,8 @@ class Session:
             TemperatureReadable,
         )
 
+        from normbox_lab.core.clock import VirtualClock
+
         live = self.live
         if isinstance(inst, Movable):
             pos = float(inst.position_deg())
@@ -528,6 +616,12 @@ class Session:
             homed = not isinstance(inst, Homeable) or inst.is_homed()
             return f"{pos:.2f}°" + ("" if homed else " unhomed")
         if isinstance(inst, Switchable) and isinstance(inst, Settling):
+            clock = self.lab.clock if self.lab is not None else None
+            if isinstance(clock, VirtualClock) and clock.time_scale == 0 \
+                    and inst.state() != "off" and not inst.is_stable():
+                # at time scale 0 lab time moves only when someone waits: nobody waits for
+                # an idle lamp, so it would say "settling" for ever — its warm-up is instant
+                clock.sleep(float(inst.estimate_settle_time_s()))
             live.lamp, live.lamp_stable = str(inst.state()), bool(inst.is_stable())
             return live.lamp
         if isinstance(inst, TemperatureReadable):

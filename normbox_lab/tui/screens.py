@@ -44,6 +44,7 @@ class PromptScreen(ModalScreen[str]):
     def __init__(self, request: Any) -> None:
         super().__init__(classes="fault" if request.kind == "fault" else "")
         self.request = request
+        self.look_tab: str | None = None       # the tab to show when it steps aside
 
     def compose(self) -> ComposeResult:
         req = self.request

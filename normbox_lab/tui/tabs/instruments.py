@@ -114,7 +114,8 @@ class InstrumentsPane(TabPane):
 
         angle = "?" if live.angle_deg is None else f"{live.angle_deg:.1f}°"
         lamp = live.lamp
-        if live.lamp_stable is not None and live.lamp != "stable":
+        if live.lamp_stable is not None and live.lamp not in ("stable", "unstable",
+                                                              "warming up", "error"):
             lamp += " (stable)" if live.lamp_stable else " (not stable)"
         temp = "-" if live.temperature_c is None else f"{live.temperature_c:.1f} °C"
         last = "-"
@@ -170,8 +171,10 @@ class InstrumentsPane(TabPane):
         from normbox_lab.tui.views import chromaticity_text, luminance_text
 
         app: Any = self.app
-        if reading is not None:
-            colo = getattr(reading, "colorimetry", None)
+        from normbox_lab.core.types import SpectralReading
+
+        if isinstance(reading, SpectralReading):
+            colo = reading.colorimetry
             if colo is not None:
                 text += f": Lv {luminance_text(colo.Lv_cd_m2)} cd/m² · {chromaticity_text(colo)}"
             app.query_one(SpectrumPane).add_reading("manual", reading.wavelength_nm,

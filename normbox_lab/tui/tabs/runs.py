@@ -21,6 +21,7 @@ class RunsPane(TabPane):
     def __init__(self) -> None:
         super().__init__("4 Runs", id="runs")
         self._readings_shown: tuple[int, int] | None = None
+        self.shown_run_id: int | None = None
 
     def build(self) -> None:
         self.mount_all([
@@ -126,7 +127,7 @@ class RunsPane(TabPane):
         from normbox_lab.tui.screens import SpectrumScreen
         from normbox_lab.tui.views import geometry_text, luminance_text
 
-        run_id = getattr(self, "shown_run_id", None)
+        run_id = self.shown_run_id
         if run_id is None or event.row_key.value is None:
             return
         key = str(event.row_key.value)
