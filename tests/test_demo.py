@@ -55,7 +55,8 @@ def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):
     assert main(["image", "figure1", "--store", str(result.store), "--size", "32x24", "--spp",
                  "4", "--no-exr", "-o", str(out_dir)]) == 0
     printed = capsys.readouterr().out
-    assert "ΔE00 per pixel over the box" in printed and "illuminant xy: W&W" in printed
+    assert "ΔE00 over the box (block means, as the report)" in printed \
+        and "illuminant xy: W&W" in printed
     assert (out_dir / "figure1-p07-45deg-delta-e00.png").exists()
     with Store(result.store) as store:
         figs = store.artifacts("image-figure", run_ref=result.runs["reference-sweep"])

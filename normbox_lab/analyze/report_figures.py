@@ -134,31 +134,55 @@ def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: s
     fig = new_figure(12.0, 7.0)
     gs = fig.add_gridspec(2, 2, height_ratios=[1.0, 1.0])
     ax = fig.add_subplot(gs[0, :])
+    values, label = scaled_for_axis(values, label)
+    radiance, radiance_label = scaled_for_axis(c.radiance_mean,
+                                               f"mean reference radiance [{RADIANCE_UNIT}]")
     n_p, n_a = values.shape
     cols = angle_colours(n_a)
     width = 0.84 / n_a
     x = np.arange(n_p)
     for a in range(n_a):
         ax.bar(x + (a - (n_a - 1) / 2) * width, values[:, a], width, color=cols[a])
-    ax.set_xticks(x, [str(n) for n in c.patch_names])
+    # the patch numbers only: 24 names side by side run into one unreadable strip
+    ax.set_xticks(x, [str(n).split()[0] for n in c.patch_names])
     ax.set_xlim(-0.6, n_p - 0.4)
-    ax.set_xlabel("ColorChecker patch")
+    ax.set_xlabel("ColorChecker patch (number)")
     ax.set_ylabel(label)
     ax.grid(axis="x", visible=False)
     _angle_colourbar(fig, ax, c.angle_deg)
     for k, (rng, key) in enumerate(((SMALL_ANGLES_DEG, key_small), (LARGE_ANGLES_DEG, key_large))):
         sel = (c.angle_deg >= rng[0] - 1e-9) & (c.angle_deg <= rng[1] + 1e-9)
         axs = fig.add_subplot(gs[1, k])
-        xs = c.radiance_mean[:, sel]
+        xs = radiance[:, sel]
         ys = values[:, sel]
         for j, a in enumerate(np.flatnonzero(sel)):
             axs.scatter(xs[:, j], ys[:, j], s=14, color=cols[a], edgecolor="none")
         r = c.correlations.get(key, float("nan"))
         axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°: Pearson r = {r:.2f}")
-        axs.set_xlabel(f"mean reference radiance [{RADIANCE_UNIT}]")
+        axs.set_xlabel(radiance_label)
         axs.set_ylabel(label)
         axs.xaxis.set_major_locator(MaxNLocator(nbins=5, min_n_ticks=3))
     return fig
+
+
+#: the printable width of an A4 page with the report's 14 mm margins, inches
+A4_TEXT_WIDTH_IN = (210.0 - 2 * 14.0) / 25.4
+_SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
+
+
+def scaled_for_axis(values: np.ndarray, label: str) -> tuple[np.ndarray, str]:
+    """Values in units of 10ⁿ when they are below 10⁻² or from 10⁴ on, the power written into
+    the axis label ("RMSE [10⁻⁵ W·sr⁻¹·m⁻²·nm⁻¹]") instead of matplotlib's "1e-5" offset text."""
+    v = np.asarray(values, dtype=float)
+    top = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0
+    if top == 0.0 or 1e-2 <= top < 1e4:
+        return v, label
+    n = int(np.floor(np.log10(top)))
+    power = f"10{str(n).translate(_SUPERSCRIPT)}"
+    if "[" in label and label.endswith("]"):
+        head, unit = label[:-1].split("[", 1)
+        return v / 10.0 ** n, f"{head}[{power} {unit}]"
+    return v / 10.0 ** n, f"{label} [{power}]"
 
 
 @styled
@@ -172,31 +196,37 @@ def fig_deltae(c: ComparisonResult, adapted: np.ndarray | None = None) -> Any:
     maps = [("paper convention (D65 white)", c.delta_e00)]
     if adapted is not None:
         maps.append(("adapted to the measured white (CAT02)", adapted))
-    fig = new_figure(6.0 * len(maps), 8.0)
-    axes = fig.subplots(1, len(maps), squeeze=False)[0]
+    # one map per row at the printable width of an A4 page (182 mm): printed, the figure
+    # keeps its size and its numbers their point size (side by side they shrank to ~4 px)
+    fig = new_figure(A4_TEXT_WIDTH_IN, 0.36 * len(c.patch_names) + 1.6 if len(maps) == 1
+                     else (0.36 * len(c.patch_names) + 1.2) * len(maps))
+    axes = fig.subplots(len(maps), 1, squeeze=False)[:, 0]
     cmap = ListedColormap(RATING_COLOURS)
     top = max(10.0, float(np.nanmax([np.nanmax(m) for _, m in maps])) + 1.0)
     bounds = [0.0] + [b for b, _ in RATING_SCALE[:-1]] + [top]
     norm = BoundaryNorm(bounds, cmap.N)
     im = None
     for ax, (title, de) in zip(axes, maps, strict=True):
-        im = ax.imshow(de, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
+        # coloured by the value as printed in the cell (a "1.0" is below the JND)
+        shown = np.round(de, 1)
+        im = ax.imshow(shown, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
         for p in range(de.shape[0]):
             for a in range(de.shape[1]):
-                v = de[p, a]
+                v = shown[p, a]
                 if not np.isfinite(v):
                     continue
                 ax.text(a, p, f"{v:.1f}", ha="center", va="center",
-                        fontsize=FONT_PT["annotation"] - 1,
+                        fontsize=FONT_PT["annotation"],
                         color=RATING_TEXT[int(rating_index(v))])
         ax.set_xticks(range(c.angle_deg.size), [f"{v:g}" for v in c.angle_deg])
         ax.set_yticks(range(len(c.patch_names)), c.patch_names)
         ax.set_xlabel("sample angle [°]")
         ax.set_title(title)
         ax.grid(False)
-    axes[0].set_ylabel("ColorChecker patch")
+    for ax in axes:
+        ax.set_ylabel("ColorChecker patch")
     cb = fig.colorbar(im, ax=axes, ticks=[(bounds[k] + bounds[k + 1]) / 2 for k in range(4)],
-                      fraction=0.04, pad=0.02)
+                      fraction=0.05, pad=0.02, shrink=0.6)
     cb.ax.set_yticklabels([f"{lab}\n(ΔE00 {rating_class_range(k)})"
                            for k, (_, lab) in enumerate(RATING_SCALE)])
     return fig
