@@ -150,6 +150,14 @@ def _small(data: Any) -> dict[str, Any]:
     return out
 
 
+def _faults_fired() -> int:
+    """How many faults the emulators of this process have injected so far."""
+    from normbox_lab.sim import core
+
+    return sum(len(getattr(getattr(e, "faults", None), "log", ()))
+               for e in list(core.CONTEXT.instances.values()))
+
+
 def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[str, Any]) -> None:
     from normbox_lab.acquire import runner
 
@@ -161,7 +169,8 @@ def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[st
 
     def run(self, *args, **kwargs):
         def on_event(ev) -> None:
-            entry = {"ev": ev.kind, "key": ev.key, "t": ev.time_s, "d": _small(ev.data)}
+            entry = {"ev": ev.kind, "key": ev.key, "t": ev.time_s, "d": _small(ev.data),
+                     "f": _faults_fired()}
             if ev.kind == "run-started":
                 entry["estimates"] = {k: float(v) for k, v in
                                       dict(getattr(self, "_estimates", {}) or {}).items()}
