@@ -104,3 +104,94 @@ def test_a_huge_lab_time_is_one_short_word():
     assert format_duration(1e308) == "1.16e+303 days"
     assert format_duration(10 ** 400) == "∞"
     assert format_duration(3725) == "1:02:05" and format_duration(-4) == "0:00"
+
+
+# --- untyped failures become one typed line; state that agrees with the data ---------------------
+
+def _store_with_a_run(path, **kw):
+    import numpy as np
+
+    from normbox_lab.acquire.store import Store
+
+    with Store(path) as s:
+        run = s.create_run("reference-sweep", planned=1, **kw)
+        s.add_reading(run.id, "a30/p01", "spectral",
+                      {"wavelength_nm": np.arange(380.0, 781.0),
+                       "radiance_W_sr_m2_nm": np.ones(401)})
+    return run
+
+
+def _one_error_line(capsys) -> str:
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
+    return err
+
+
+@pytest.mark.parametrize("ref", ["99999999999999999999999", "١", "-5"])
+def test_export_and_qa_of_an_impossible_run_id_are_one_typed_line(tmp_path, capsys, ref):
+    """`export 99999999999999999999999` raised OverflowError; a run id of Arabic-Indic digits
+    ("١") selected run 1 (str.isdigit)."""
+    store = tmp_path / "s.sqlite"
+    _store_with_a_run(store)
+    out = tmp_path / "o.json"
+    assert main(["export", ref, "--format", "json", "-o", str(out), "--store", str(store)]) == 1
+    assert "no run matches" in _one_error_line(capsys) and not out.exists()
+    assert main(["qa", ref, "--store", str(store)]) == 1
+    assert "no run matches" in _one_error_line(capsys)
+
+
+def test_netcdf_export_onto_a_full_disk_is_a_typed_error_and_leaves_no_file(tmp_path, capsys,
+                                                                             monkeypatch):
+    import xarray
+
+    store = tmp_path / "s.sqlite"
+    _store_with_a_run(store)
+
+    def full_disk(self, path, *a, **k):
+        with open(path, "wb") as fh:           # what HDF5 manages before the disk is full
+            fh.write(b"\x89HDF\r\n\x1a\n" + b"\0" * 512)
+        raise RuntimeError("NetCDF: HDF error")
+
+    monkeypatch.setattr(xarray.Dataset, "to_netcdf", full_disk)
+    out = tmp_path / "run.nc"
+    assert main(["export", "1", "--format", "netcdf", "-o", str(out), "--store", str(store)]) == 1
+    err = _one_error_line(capsys)
+    assert "HDF error" in err and "disk full" in err, err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["s.sqlite"]
+
+
+def test_runs_shows_a_run_whose_process_died_as_interrupted(tmp_path, capsys):
+    """A run whose process died (e.g. during the lamp warm-up) stays stored as `running`;
+    `runs` and `qa` show it interrupted: "running" means a live owner holds the run lock."""
+    from normbox_lab.acquire.store import Store
+
+    store = tmp_path / "s.sqlite"
+    run = _store_with_a_run(store, status="running")
+    assert main(["runs", "--store", str(store)]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert " interrupted " in line and "running" not in line, line
+    with Store(store) as s:
+        lock = s.lock_run(run.id)             # a live owner: this process
+        try:
+            assert main(["runs", "--store", str(store)]) == 0
+            assert " running " in capsys.readouterr().out
+            assert main(["qa", "1", "--store", str(store)]) == 0
+            assert ": running" in capsys.readouterr().out
+        finally:
+            lock.release()
+
+
+def test_report_gives_no_verdict_on_error_flagged_data_unless_accepted(tmp_path, capsys):
+    from normbox_lab.acquire.store import Store
+
+    store = tmp_path / "s.sqlite"
+    run = _store_with_a_run(store, status="done")
+    with Store(store) as s:
+        s.add_flag(run_id=run.id, artifact_id=None, key="a30/p01", gate="lamp-drift",
+                   severity="error", value=-1.2, limit=0.5, message="lamp monitor low")
+    assert main(["report", "1", "--store", str(store)]) == 1
+    err = _one_error_line(capsys)
+    assert "report: 1 error flag(s)" in err and "--accept-flagged" in err
+    # accepted, it goes on (and stops later here: this store holds no comparison)
+    main(["report", "1", "--accept-flagged", "--store", str(store)])
+    assert "error flag" not in capsys.readouterr().err

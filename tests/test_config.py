@@ -119,8 +119,9 @@ def test_format_config_round_trips_the_dataclasses():
                       instruments={**base.instruments, "radiometer": radiometer},
                       render={**base.render, "quality": "quick", "cache_dir": "C:\\cache"})
     back = parse_config(format_config(changed))
+    assert base.quality.lamp_reference_cd_m2 == 2000.0     # the template's lamp reference
     for f in ("name", "simulated", "time_scale", "seed", "instruments", "geometry",
-              "protocols", "render"):
+              "protocols", "render", "quality"):
         assert getattr(back, f) == getattr(changed, f), f
 
 

@@ -390,3 +390,29 @@ def test_a_lamp_under_any_role_name_is_waited_for_and_named_in_the_fault(store):
     suspended = [d["role"] for _, k, d in store.events(res.run_id) if k == "suspended"]
     assert len(suspended) >= 2 and set(suspended) == {"panel_light"}
 
+
+
+def test_a_skipped_reading_taken_again_on_resume_loses_its_skip_error(store):
+    """A reading skipped at a fault and measured on resume is data like any other: its
+    `skipped` error (and the faults of the attempt that was skipped) go, `qa` exits 0 for it
+    and the run is `done`, not "completed with flags"."""
+    from normbox_lab.analyze import qa
+    from normbox_lab.core.errors import ImplausibleData
+
+    lab = FakeLab(fault_answers=["skip"])
+    lab.radiometer.faults[3] = [ImplausibleData("garbled", instrument="radiometer"),
+                                timeout(), timeout()]
+    res = make(lab, store, SMALL).run()
+    assert res.skipped == ("a30/p03",)
+    before = {(f.key, f.gate, f.severity) for f in qa.flags(store, res.run_id)}
+    assert before == {("a30/p03", "skipped", "error"),
+                      ("a30/p03", "instrument-error:implausible-data", "error")}
+    res2 = make(FakeLab(), store, SMALL).run(resume=res.run_id)
+    assert res2.status == "done" and res2.done == 12
+    assert qa.flags(store, res.run_id) == []
+    assert qa.run_status(store, res.run_id) == "done"
+    # a flag recorded while a reading is taken stays with it
+    lab3 = FakeLab()
+    lab3.radiometer.faults[2] = [ImplausibleData("garbled", instrument="radiometer")]
+    res3 = make(lab3, store, SMALL).run()
+    assert [(f.key, f.severity) for f in qa.flags(store, res3.run_id)] == [("a30/p02", "error")]

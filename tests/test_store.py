@@ -1,4 +1,5 @@
 import sqlite3
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -204,9 +205,12 @@ def test_a_damaged_store_is_a_store_error_in_every_command(tmp_path, capsys):
     for off in range(4096 * 3, len(data), 4096 * 2):          # wreck every other page
         data[off + 8: off + 200] = b"\xa5" * 192
     path.write_bytes(bytes(data))
-    rc = main(["runs", "--store", str(path)])         # may not touch a damaged page
-    err = capsys.readouterr().err
-    assert "Traceback" not in err and (rc == 0 or "damaged" in err), err
+    for command in (["runs"], ["qa", "1"]):         # never exit 0 showing "done 0/40"
+        rc = main([*command, "--store", str(path)])
+        out, err = capsys.readouterr()
+        assert rc != 0 and "Traceback" not in err and "damaged" in err and out == "", (
+            command, out, err)
+        assert len(err.strip().splitlines()) == 1, err
     for fmt in ("json", "csv"):
         out = tmp_path / f"o.{fmt}"
         rc = main(["export", "1", "--format", fmt, "-o", str(out), "--store", str(path)])
@@ -226,3 +230,106 @@ def test_export_to_an_unwritable_path_is_a_clear_error(tmp_path, capsys):
         rc = main(["export", "1", "--format", "json", "-o", str(target), "--store", str(path)])
         err = capsys.readouterr().err
         assert rc != 0 and "Traceback" not in err and "cannot write" in err, err
+
+
+# --- refused means unchanged, side files included; read-only commands never write ----------------
+
+def _digests(folder: Path, stem: str) -> dict[str, str]:
+    import hashlib
+
+    return {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(folder.glob(stem + "*"))}
+
+
+def _with_hot_side_file(folder: Path, name: str, mode: str, setup: list[str]) -> Path:
+    """A file whose writer died mid-way: copies of the file and its -wal/-shm (WAL) or
+    -journal (rollback) taken while the writer still had them."""
+    import shutil
+
+    live = folder / "live" / name
+    live.parent.mkdir()
+    db = sqlite3.connect(live, isolation_level=None)
+    db.execute(f"PRAGMA journal_mode={mode}")
+    if mode == "WAL":
+        db.execute("PRAGMA wal_autocheckpoint=0")
+        for stmt in setup:
+            db.execute(stmt)
+    else:                                    # a transaction under way: the journal is hot
+        db.execute("PRAGMA cache_size=1")
+        for stmt in setup[:-1]:
+            db.execute(stmt)
+        db.execute("BEGIN")
+        db.execute(setup[-1])
+        db.execute("INSERT INTO t VALUES (randomblob(300000))")   # spills pages: journal hot
+    for p in live.parent.glob(name + "*"):
+        shutil.copy(p, folder / p.name)
+    db.close()
+    return folder / name
+
+
+@pytest.mark.parametrize("mode", ["WAL", "DELETE"])
+@pytest.mark.parametrize("kind", ["newer", "foreign"])
+def test_a_refused_file_with_a_hot_journal_keeps_its_bytes_and_side_files(tmp_path, mode, kind):
+    setup = (["CREATE TABLE t (x)", f"PRAGMA user_version={SCHEMA_VERSION + 3}",
+              "INSERT INTO t VALUES (1)"] if kind == "newer" else
+             ["CREATE TABLE t (x)", "PRAGMA application_id=1234", "INSERT INTO t VALUES (1)"])
+    path = _with_hot_side_file(tmp_path, "f.sqlite", mode, setup)
+    before = _digests(tmp_path, "f.sqlite")
+    side = "f.sqlite-wal" if mode == "WAL" else "f.sqlite-journal"
+    assert side in before, before
+    for read_only in (False, True):
+        with pytest.raises(StoreError, match="newer|not a normbox-lab store"):
+            Store(path, read_only=read_only)
+        after = _digests(tmp_path, "f.sqlite")
+        after.pop("f.sqlite-shm", None), before.pop("f.sqlite-shm", None)   # SQLite's index
+        assert after == before, (read_only, sorted(after))
+
+
+def test_read_only_opens_never_write(tmp_path, capsys):
+    from normbox_lab.cli import main
+
+    empty = tmp_path / "empty.sqlite"
+    empty.write_bytes(b"")
+    assert main(["runs", "--store", str(empty)]) == 0
+    assert "no runs" in capsys.readouterr().out
+    assert empty.read_bytes() == b"" and sorted(p.name for p in tmp_path.iterdir()) == [
+        "empty.sqlite"]
+    path = tmp_path / "s.sqlite"
+    with Store(path) as s:
+        s.create_run("x", planned=2)
+    before = _digests(tmp_path, "s.sqlite")
+    with Store(path, read_only=True) as s:
+        assert [r.protocol for r in s.runs()] == ["x"]
+        with pytest.raises(StoreError):
+            s.create_run("y")
+    assert main(["qa", "1", "--store", str(path)]) == 0
+    assert _digests(tmp_path, "s.sqlite") == before
+
+
+def test_a_run_id_is_ascii_digits_or_a_uuid_prefix(tmp_path):
+    """`str.isdigit()` is true for "١" (Arabic-Indic one) and int() reads it as 1; an id
+    beyond SQLite's integers raised OverflowError."""
+    with Store(tmp_path / "s.sqlite") as s:
+        s.create_run("x")
+        assert s.get_run("1").protocol == "x"
+        for ref in ("١", "١١١١", "²", "99999999999999999999999", "-1"):
+            with pytest.raises(StoreError, match="no run"):
+                s.get_run(ref)
+
+
+def test_running_means_a_live_process_holds_the_run_lock(tmp_path):
+    with Store(tmp_path / "s.sqlite") as s:
+        dead = s.create_run("x", status="running")     # its process died (no lock)
+        alive = s.create_run("y", status="running")
+        lock = s.lock_run(alive.id)
+        try:
+            assert s.shown_status(s.get_run(dead.id)) == "interrupted"
+            assert s.shown_status(s.get_run(alive.id)) == "running"
+            assert s.run_owned(alive.id) and not s.run_owned(dead.id)
+        finally:
+            lock.release()
+        assert s.shown_status(s.get_run(alive.id)) == "interrupted"
+        # a lock file left by a killed owner holds nothing
+        stale = lock.path
+        stale.write_text("12345")
+        assert s.shown_status(s.get_run(alive.id)) == "interrupted"

@@ -395,6 +395,8 @@ threshold_percent = 1.0
                         # docs/quality.md); e.g.
 # fit_outlier_factor = 2.5
 # tec_tolerance_c = 0.5
+lamp_reference_cd_m2 = 2000.0   # the sphere's monitor (MEAS:LUM?) at its calibration, level 100 %
+                                # (simulated sphere: 2000); a drift is judged against it
 """
 
 
@@ -434,6 +436,11 @@ def format_config(config: LabConfig) -> str:
     lines += _toml_table("render", config.render)
     for name, values in config.protocols.items():
         lines += _toml_table(f"protocols.{name}", values)
+    default = QualityLimits()
+    limits = {f.name: getattr(config.quality, f.name) for f in fields(config.quality)
+              if getattr(config.quality, f.name) != getattr(default, f.name)}
+    if limits:
+        lines += _toml_table("quality", limits)
     return "\n".join(lines)
 
 

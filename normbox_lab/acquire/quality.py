@@ -15,19 +15,28 @@ gate                   severity  condition
 =====================  ========  =============================================================
 brdf-nonfinite         error     a BRDF value is NaN or infinite
 brdf-negative          error     min BRDF < −`brdf_negative_per_sr` (unblocked geometries)
-saturation             warning   peak raw counts > `saturation_fraction` × full scale
+saturation             error     peak raw counts > `saturation_fraction` × full scale
+                                 (nonlinear beyond the stored correction: may be wrong)
 noise-floor            warning   peak dark-corrected counts < `noise_floor_counts`
 dark-drift             warning   |dark current change| between consecutive darks >
                                  `dark_drift_counts_s` + 3σ of the change (frame noise)
 tec-off-setpoint       error     |TEC − set point| > `tec_tolerance_c` during a reading
-lamp-drift             warning   sphere monitor (its own MEAS:LUM?) changed by more than
-                                 `lamp_drift_percent` since the run's first reading
+lamp-drift             error     lamp monitor (the light source's own, e.g. MEAS:LUM?) off
+                                 the reference by more than `lamp_drift_percent`: the lab's
+                                 `lamp_reference_cd_m2` when configured, else the run's
+                                 first reading (docs/quality.md: why flag, not correct)
+lamp-unstable          error     the lamp's output noise, from monitor samples taken just
+                                 before and after each reading (rms of their relative
+                                 difference / √2 over the last `LAMP_WINDOW` readings),
+                                 above `lamp_flicker_percent`
 repeatability-cv       warning   CV of the luminance of a repeatability run >
                                  `repeatability_cv_percent`
 radiometer-range       error     Lv outside `radiometer_min_luminance_cd_m2` …
                                  `radiometer_max_luminance_cd_m2`
 instrument-error       warning   the instrument answered with an error code (e.g. CS-1000A
                                  ER10 over range); the reading was retried or skipped
+instrument-error:      error     data corrupted on the wire were refused (re-read); the
+  implausible-data               value stored at that key may be wrong
 =====================  ========  =============================================================
 """
 
@@ -53,6 +62,10 @@ LIMIT_SOURCES: dict[str, str] = {
                        "wait's tolerance)",
     "lamp_drift_percent": "Image Engineering LE7: regulated output; 0.5 % is a quarter of the "
                           "CS-1000A's ±2 % radiometric accuracy",
+    "lamp_flicker_percent": "half the drift limit: an output noise of 0.25 % rms leaves a "
+                            "reading within ±0.5 % (2σ) of the lamp's mean",
+    "lamp_reference_cd_m2": "the lamp monitor's reading at the lamp's calibration (0: none; "
+                            "the run's first reading is then the reference)",
     "repeatability_cv_percent": "half the repeatability protocol's 1 % change threshold",
     "radiometer_min_luminance_cd_m2": "CS-1000A specified luminance range, lower end "
                                       "(Konica Minolta catalogue, 1° acceptance; assumed)",
@@ -79,6 +92,8 @@ class QualityLimits:
     dark_drift_counts_s: float = 100.0
     tec_tolerance_c: float = 0.5
     lamp_drift_percent: float = 0.5
+    lamp_flicker_percent: float = 0.25
+    lamp_reference_cd_m2: float = 0.0
     repeatability_cv_percent: float = 0.5
     radiometer_min_luminance_cd_m2: float = 0.01
     radiometer_max_luminance_cd_m2: float = 80_000.0
@@ -102,13 +117,13 @@ def parse_limits(table: Any, err: Callable[[str, str | None, str], Exception]) -
             raise err("quality", key, f"unknown limit; known: {', '.join(sorted(known))}")
         if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v):
             raise err("quality", key, f"must be a finite number, got {v!r}")
-        if key == "brdf_negative_per_sr" and v < 0:
+        if key in ("brdf_negative_per_sr", "lamp_reference_cd_m2") and v < 0:
             raise err("quality", key, f"must be ≥ 0, got {v}")
         elif key == "saturation_fraction" and not 0 < v <= 1:
             raise err("quality", key, f"must be in (0, 1], got {v}")
         elif key == "fit_outlier_factor" and v <= 1:
             raise err("quality", key, f"must be > 1, got {v}")
-        elif key != "brdf_negative_per_sr" and v <= 0:
+        elif key not in ("brdf_negative_per_sr", "lamp_reference_cd_m2") and v <= 0:
             raise err("quality", key, f"must be > 0, got {v}")
         values[key] = float(v)
     limits = QualityLimits(**values)
@@ -184,7 +199,7 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
     if full and peak is not None:
         frac = float(peak) / float(full)
         if frac > limits.saturation_fraction:
-            out.append(FlagSpec(key, "saturation", "warning", frac, limits.saturation_fraction,
+            out.append(FlagSpec(key, "saturation", "error", frac, limits.saturation_fraction,
                                 f"peak {float(peak):.0f} counts = {100 * frac:.1f} % of full "
                                 f"scale (limit {100 * limits.saturation_fraction:.0f} %)"))
     signal = metadata.get("peak_signal_counts")
@@ -235,6 +250,19 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
     return out
 
 
+#: readings over which the lamp's output noise is estimated (`lamp-unstable`)
+LAMP_WINDOW = 5
+
+
+def _lamp_step(metadata: Mapping[str, Any]) -> float | None:
+    """The relative change of the lamp monitor across one reading (after / before − 1)."""
+    before, after = metadata.get("lamp_monitor_before_cd_m2"), metadata.get("lamp_monitor_cd_m2")
+    if before is None or after is None or not float(before) > 0 or not math.isfinite(
+            float(after)):
+        return None
+    return float(after) / float(before) - 1.0
+
+
 class RunGates:
     """The gates of one run as the engine commits readings (also replayable from the store)."""
 
@@ -243,11 +271,15 @@ class RunGates:
         self.run_id = run_id
         self.limits = limits or QualityLimits()
         self.lamp_first: tuple[str, float] | None = None
+        self.lamp_steps: list[float] = []          # the last LAMP_WINDOW monitor steps
         self.found: list[FlagSpec] = []
         for r in store.readings(run_id):
             mon = r.metadata.get("lamp_monitor_cd_m2")
             if mon is not None and self.lamp_first is None:
                 self.lamp_first = (r.key, float(mon))
+            step = _lamp_step(r.metadata)
+            if step is not None:
+                self.lamp_steps = [*self.lamp_steps, step][-LAMP_WINDOW:]
 
     def _record(self, specs: list[FlagSpec]) -> list[FlagSpec]:
         for f in specs:
@@ -264,23 +296,60 @@ class RunGates:
             specs = brdf_flags(key, metadata, arrays, self.limits)
         else:
             specs = spectral_flags(key, metadata, arrays, self.limits)
-        mon = metadata.get("lamp_monitor_cd_m2")
-        if mon is not None:
-            if self.lamp_first is None:
-                self.lamp_first = (key, float(mon))
-            elif self.lamp_first[1] > 0:
-                change = 100.0 * (float(mon) / self.lamp_first[1] - 1.0)
-                if abs(change) > self.limits.lamp_drift_percent:
-                    specs.append(FlagSpec(key, "lamp-drift", "warning", change,
-                                          self.limits.lamp_drift_percent,
-                                          f"lamp monitor {float(mon):.4g} cd/m², "
-                                          f"{change:+.2f} % from {self.lamp_first[0]} "
-                                          f"(limit ±{self.limits.lamp_drift_percent:g} %)"))
+        specs += self._lamp(key, metadata)
         return self._record(specs)
+
+    def _lamp(self, key: str, metadata: Mapping[str, Any]) -> list[FlagSpec]:
+        """`lamp-drift` and `lamp-unstable` (see the module table): values that may be wrong,
+        so errors.  A reading is not corrected by the monitor: the monitor samples the panel
+        at one instant, the radiometer integrates over seconds, so under flicker a ratio would
+        add the monitor's own noise to the reading (docs/quality.md)."""
+        out: list[FlagSpec] = []
+        mon = metadata.get("lamp_monitor_cd_m2")
+        if mon is None:
+            return out
+        mon = float(mon)
+        if self.lamp_first is None:
+            self.lamp_first = (key, mon)
+        ref_cd_m2, ref_name = ((self.limits.lamp_reference_cd_m2, "the lamp reference")
+                               if self.limits.lamp_reference_cd_m2 > 0
+                               else (self.lamp_first[1], self.lamp_first[0]))
+        if ref_cd_m2 > 0 and math.isfinite(mon):
+            change = 100.0 * (mon / ref_cd_m2 - 1.0)
+            if abs(change) > self.limits.lamp_drift_percent:
+                out.append(FlagSpec(key, "lamp-drift", "error", change,
+                                    self.limits.lamp_drift_percent,
+                                    f"lamp monitor {mon:.4g} cd/m², {change:+.2f} % from "
+                                    f"{ref_name} {ref_cd_m2:.4g} cd/m² (limit "
+                                    f"±{self.limits.lamp_drift_percent:g} %)"))
+        step = _lamp_step(metadata)
+        if step is not None:
+            self.lamp_steps = [*self.lamp_steps, step][-LAMP_WINDOW:]
+            noise = 100.0 * math.sqrt(sum(d * d for d in self.lamp_steps)
+                                      / len(self.lamp_steps) / 2.0)
+            if noise > self.limits.lamp_flicker_percent:
+                out.append(FlagSpec(key, "lamp-unstable", "error", noise,
+                                    self.limits.lamp_flicker_percent,
+                                    f"lamp output noise {noise:.2f} % rms (monitor before and "
+                                    f"after the last {len(self.lamp_steps)} readings; limit "
+                                    f"{self.limits.lamp_flicker_percent:g} %)"))
+        return out
+
+    def attempt(self, key: str) -> int:
+        """A reading is about to be taken: the mark `superseded` needs (the newest flag id)."""
+        return int(self.store.last_flag_id())
+
+    def superseded(self, key: str, mark: int) -> None:
+        """Reading `key` was committed: the flags of earlier attempts at it (a skip in an
+        earlier segment, the faults that led to it) no longer describe stored data."""
+        self.store.delete_reading_flags(self.run_id, key, up_to_id=mark)
 
     def device_error(self, key: str, role: str, code: str, message: str) -> list[FlagSpec]:
         """An instrument error code met while taking `key` (retried or skipped)."""
-        return self._record([FlagSpec(key, f"instrument-error:{code}", "warning", None, None,
+        # corrupted data refused on the wire: what was stored at this key may be wrong (an
+        # error); an instrument's own error code (it refused to measure) is a warning
+        severity = "error" if code == "implausible-data" else "warning"
+        return self._record([FlagSpec(key, f"instrument-error:{code}", severity, None, None,
                                       f"{role} reported {code}: {message}")])
 
     def skipped(self, key: str, role: str, message: str) -> list[FlagSpec]:
@@ -306,5 +375,5 @@ class RunGates:
         return self._record(specs)
 
 
-__all__ = ["LIMIT_SOURCES", "FlagSpec", "QualityLimits", "RunGates", "brdf_flags",
+__all__ = ["LAMP_WINDOW", "LIMIT_SOURCES", "FlagSpec", "QualityLimits", "RunGates", "brdf_flags",
            "limits_from_text", "parse_limits", "spectral_flags"]

@@ -512,11 +512,12 @@ class Engine:
         step = self.plan.steps[i]
         kind = KINDS[step.kind]
         t_start = self.clock.now_s()
+        mark = self._gates.attempt(step.key) if self._gates is not None else 0
         suspensions = 0
+        role = step.role                      # the lamp that last dropped out, once one has
         while True:
             for j in self.plan.pending_state_steps(i, self._known):
                 self._run_state_step(j, for_key=step.key)
-        role = step.role                      # the lamp that last dropped out, once one has
             if suspensions >= self.max_suspensions:
                 # the lamp keeps dropping out: a persistent fault, the operator decides
                 exc = NotReady(f"unstable during {suspensions} attempts at {step.key}",
@@ -533,6 +534,7 @@ class Engine:
                 role, suspensions = unstable, suspensions + 1
                 continue                      # suspended and back: re-establish, then measure
             self._emit("step-started", step.key, kind=step.kind, label=step.describe())
+            before = self._lamp_monitors(step)
             reading = self.with_retry(step.key, step.role,
                                       lambda: kind.execute(step, self, step.key))
             if self._abort.is_set():
@@ -546,13 +548,15 @@ class Engine:
         meta["segment"] = self.segment
         if step.requires:
             meta["requires"] = dict(step.requires)
-        for lamp_role in (r for r, v in step.requires.items() if v == "stable"):
-            lamp = self.instrument(lamp_role)
-            if isinstance(lamp, LampMonitor):     # the lamp's own monitor, for the drift gate
-                meta["lamp_monitor_cd_m2"] = float(self.with_retry(step.key, lamp_role,
-                                                                   lamp.luminance_cd_m2))
+        # the lamp's own monitor just before and after the reading (the lamp gates)
+        for lamp_role, after in self._lamp_monitors(step).items():
+            meta["lamp_monitor_cd_m2"] = after
+            if lamp_role in before:
+                meta["lamp_monitor_before_cd_m2"] = before[lamp_role]
         record = kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
+        if mark and self._gates is not None:
+            self._gates.superseded(step.key, mark)     # a skip of an earlier segment is undone
         self._quality_gates(step.key, record)
         took = self.clock.now_s() - t_start
         est = self._estimates.get(step.key, 0.0)
@@ -573,6 +577,15 @@ class Engine:
                 self._emit("warning", step.key, message=message, flag=True)
         self._emit("progress", step.key, done=len(self._committed), planned=self.plan.planned,
                    eta_s=remaining * self._ratio, remaining_estimate_s=remaining)
+
+    def _lamp_monitors(self, step: Step) -> dict[str, float]:
+        """The monitor of each lamp the step requires stable that has one (`LampMonitor`)."""
+        out: dict[str, float] = {}
+        for role in (r for r, v in step.requires.items() if v == "stable"):
+            lamp = self.instrument(role)
+            if isinstance(lamp, LampMonitor):
+                out[role] = float(self.with_retry(step.key, role, lamp.luminance_cd_m2))
+        return out
 
     def _quality_gates(self, key: str, record: ReadingRecord) -> None:
         """The acquisition quality gates on the reading just committed (flags are stored):

@@ -22,6 +22,18 @@ a store written before the id existed is recognised by its tables and adopted.  
 SQLite file is refused without being touched (no tables added, no WAL conversion), and so is a
 store with a newer schema.  A damaged file surfaces as `StoreError` from every method, never
 as a raw sqlite3 traceback.
+
+Refused means unchanged, side files included: SQLite recovers a hot rollback journal or WAL
+when a file is opened for writing (and checkpoints and deletes the WAL when the connection
+closes), so a file is checked before SQLite may do that — its 100-byte header is read with
+plain file I/O, then it is opened ``immutable=1`` (no journal or WAL is looked at), then
+read-only (``mode=ro``: the WAL's pages are read, nothing is recovered or checkpointed) — and
+only a file that passes all three is opened for writing.  Pages SQLite cannot read (a
+``PRAGMA quick_check`` that is not "ok") are a `StoreError` at open, not empty tables.
+
+``Store(path, read_only=True)`` (``runs``, ``qa``, ``export``) never writes: the file is
+opened ``mode=ro``, a missing or empty file is an empty store in memory, and an older schema
+is migrated in memory.
 """
 
 from __future__ import annotations
@@ -283,6 +295,31 @@ class RunLock:
                 return self
             fh.close()
 
+    @staticmethod
+    def held(store_path: Path, run_uuid: str) -> bool:
+        """Whether a live process holds the lock of `run_uuid` — asked without taking it and
+        without creating or writing any file (a shared, non-blocking probe of the sidecar)."""
+        path = store_path.with_name(f"{store_path.name}.{run_uuid}.lock")
+        if path.name.startswith(":memory:"):
+            return True
+        try:
+            import fcntl
+        except ImportError:                      # pragma: no cover - not on POSIX
+            return True
+        try:
+            fh = open(path, encoding="utf-8")  # noqa: SIM115 - closed below
+        except FileNotFoundError:
+            return False
+        except OSError:
+            return True
+        try:
+            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return True
+        finally:
+            fh.close()                         # (closing drops the probe's shared lock)
+        return False
+
     def release(self) -> None:
         if self._fh is not None:
             try:
@@ -326,6 +363,91 @@ def _typed_store_errors(cls: type) -> type:
     return cls
 
 
+_SQLITE_MAGIC = b"SQLite format 3\x00"
+#: largest integer SQLite stores (a run id beyond it names no run)
+_SQLITE_MAX_INT = 2**63 - 1
+
+
+def _uri(path: Path, **query: str) -> str:
+    from urllib.parse import quote
+
+    q = "&".join(f"{k}={v}" for k, v in query.items())
+    return f"file:{quote(str(path.resolve()))}?{q}"
+
+
+def _read_only_uri(path: Path) -> str:
+    """A read-only URI: ``mode=ro`` where a WAL is beside the file (its pages are read, nothing
+    is recovered into the file or checkpointed; SQLite may rebuild the ``-shm`` index), else
+    ``immutable=1`` (no side file is created)."""
+    if path.with_name(path.name + "-wal").exists():
+        return _uri(path, mode="ro")
+    return _uri(path, immutable="1")
+
+
+def _refusal(path: Path, app_id: int, version: int, tables: set[str]) -> str:
+    """Why a file is not a store this program may open ("" when it is)."""
+    if app_id not in (0, APPLICATION_ID):
+        return (f"{path}: not a normbox-lab store (SQLite application id {app_id:#010x}); "
+                "refusing to touch it (the file was not changed)")
+    if app_id == 0 and tables and not (_CORE_TABLES <= tables and version >= 1):
+        return (f"{path}: not a normbox-lab store (an SQLite file with tables "
+                f"{', '.join(sorted(tables)[:6])}); refusing to touch it (the file was not "
+                "changed)")
+    if version > SCHEMA_VERSION:
+        return (f"{path}: schema version {version} is newer than this normbox-lab "
+                f"({SCHEMA_VERSION}); upgrade normbox-lab (the file was not changed)")
+    return ""
+
+
+def _describe(db: sqlite3.Connection) -> tuple[int, int, set[str]]:
+    app_id = int(db.execute("PRAGMA application_id").fetchone()[0])
+    version = int(db.execute("PRAGMA user_version").fetchone()[0])
+    tables = {r[0] for r in db.execute(
+        "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
+    return app_id, version, tables
+
+
+def preflight(path: Path) -> bool:
+    """Check a store file before SQLite may recover (and so change) it: the header by plain
+    file I/O, then an ``immutable=1`` open.  Returns False when there is no file or it is
+    empty (a new store), True for a file that may be opened; raises `StoreError` otherwise."""
+    try:
+        st = path.stat()
+    except FileNotFoundError:
+        return False
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot read ({exc})") from None
+    import stat
+
+    if not stat.S_ISREG(st.st_mode):
+        raise StoreError(f"{path}: not a file")
+    if st.st_size == 0:
+        return False
+    try:
+        with open(path, "rb") as fh:
+            header = fh.read(100)
+    except OSError as exc:
+        raise StoreError(f"{path}: cannot read ({exc})") from None
+    if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
+        raise StoreError(f"{path}: not a normbox-lab store (not an SQLite file); refusing to "
+                         "touch it (the file was not changed)")
+    why = _refusal(path, int.from_bytes(header[68:72], "big"),
+                   int.from_bytes(header[60:64], "big"), set())
+    if why:
+        raise StoreError(why)
+    try:
+        db = sqlite3.connect(_uri(path, immutable="1"), uri=True)
+        try:
+            why = _refusal(path, *_describe(db))
+        finally:
+            db.close()
+    except sqlite3.Error as exc:
+        raise _damaged(path, exc) from None
+    if why:
+        raise StoreError(why)
+    return True
+
+
 class _Transaction:
     """``with store._tx() as db:`` — the store's lock held, BEGIN IMMEDIATE … COMMIT, or
     ROLLBACK when the block raises."""
@@ -357,23 +479,41 @@ class _Transaction:
 class Store:
     """The SQLite store.  Safe to share between threads (one connection behind a lock)."""
 
-    def __init__(self, path: str | Path = DEFAULT_STORE, *, clock_wall_s=None) -> None:
+    def __init__(self, path: str | Path = DEFAULT_STORE, *, clock_wall_s=None,
+                 read_only: bool = False) -> None:
         import time
 
         self.path = Path(path)
+        self.read_only = bool(read_only)
         self._wall_s = clock_wall_s or time.time
         self._lock = threading.RLock()
+        memory = str(path) == ":memory:"
+        exists = False if memory else preflight(self.path)
+        if exists:
+            self._check_read_only()            # recognised with the WAL, nothing recovered
         try:
-            self._db = sqlite3.connect(str(self.path), isolation_level=None,
-                                       check_same_thread=False, timeout=30.0)
+            if self.read_only and not exists:  # nothing there: an empty store, in memory
+                self._db = sqlite3.connect(":memory:", isolation_level=None,
+                                           check_same_thread=False)
+            elif self.read_only:
+                self._db = sqlite3.connect(_read_only_uri(self.path), uri=True,
+                                           isolation_level=None, check_same_thread=False,
+                                           timeout=30.0)
+            else:
+                self._db = sqlite3.connect(str(self.path), isolation_level=None,
+                                           check_same_thread=False, timeout=30.0)
         except sqlite3.Error as exc:
             raise StoreError(f"{self.path}: cannot open ({exc})") from exc
         try:
             self._recognise()                  # reads only: nothing is written to a refusal
-            self._db.execute("PRAGMA journal_mode=WAL")
-            self._db.execute("PRAGMA synchronous=FULL")
+            if self.read_only and exists:
+                self._in_memory_if_older()
+            elif not self.read_only:
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("PRAGMA synchronous=FULL")
             self._db.execute("PRAGMA foreign_keys=ON")
-            self._migrate()
+            if not (self.read_only and exists):
+                self._migrate()
         except sqlite3.Error as exc:
             self._db.close()
             raise StoreError(f"{self.path}: not a normbox-lab store, or unreadable ({exc})") from exc
@@ -381,25 +521,50 @@ class Store:
             self._db.close()
             raise
 
+    def _check_read_only(self) -> None:
+        """Recognise the file and check its pages through a read-only connection (it reads a
+        WAL's pages; it recovers nothing, checkpoints nothing): a refusal changes nothing."""
+        try:
+            db = sqlite3.connect(_read_only_uri(self.path), uri=True, timeout=30.0)
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
+        try:
+            why = _refusal(self.path, *_describe(db))
+            if why:
+                raise StoreError(why)
+            rows = [line for r in db.execute("PRAGMA quick_check").fetchall()
+                    for line in str(r[0]).splitlines() if line.strip()]
+            if rows != ["ok"]:
+                first = rows[0].lstrip("* ")[:120]
+                raise StoreError(f"{self.path}: the store is damaged ({len(rows)} problem(s), "
+                                 f"first: {first}); restore a copy (`sqlite3 FILE 'PRAGMA "
+                                 "integrity_check'` lists them)")
+        except sqlite3.Error as exc:
+            msg = str(exc)
+            if "readonly" in msg or "read-only" in msg:
+                return       # a hot rollback journal: recognised by its header, recovered on open
+            raise _damaged(self.path, exc) from exc
+        finally:
+            db.close()
+
+    def _in_memory_if_older(self) -> None:
+        """A read-only store of an older schema: copied into memory and migrated there."""
+        version = int(self._db.execute("PRAGMA user_version").fetchone()[0])
+        if version >= SCHEMA_VERSION:
+            return
+        mem = sqlite3.connect(":memory:", isolation_level=None, check_same_thread=False)
+        self._db.backup(mem)
+        self._db.close()
+        self._db = mem
+        self._migrate()
+
     # --- lifecycle -------------------------------------------------------------------------
     def _recognise(self) -> None:
         """Refuse a file that is not a normbox-lab store, or one with a newer schema, before
         anything is written to it."""
-        db = self._db
-        app_id = int(db.execute("PRAGMA application_id").fetchone()[0])
-        version = int(db.execute("PRAGMA user_version").fetchone()[0])
-        tables = {r[0] for r in db.execute(
-            "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
-        if app_id not in (0, APPLICATION_ID):
-            raise StoreError(f"{self.path}: not a normbox-lab store (SQLite application id "
-                             f"{app_id:#010x}); refusing to touch it")
-        if app_id == 0 and tables and not (_CORE_TABLES <= tables and version >= 1):
-            raise StoreError(f"{self.path}: not a normbox-lab store (an SQLite file with "
-                             f"tables {', '.join(sorted(tables)[:6])}); refusing to touch it")
-        if version > SCHEMA_VERSION:
-            raise StoreError(f"{self.path}: schema version {version} is newer than this "
-                             f"normbox-lab ({SCHEMA_VERSION}); upgrade normbox-lab (the file "
-                             "was not changed)")
+        why = _refusal(self.path, *_describe(self._db))
+        if why:
+            raise StoreError(why)
 
     def _migrate(self) -> None:
         with self._lock:
@@ -435,6 +600,18 @@ class Store:
         """Take the run's execution lock (`RunLock`) or raise `StoreError` at once when
         another process holds it.  Call `release()` (or use it as a context manager)."""
         return RunLock(self.path, self.get_run(run_ref).uuid).acquire()
+
+    def run_owned(self, run_ref: int | str) -> bool:
+        """Whether a live process holds the run's execution lock (`RunLock.held`)."""
+        return RunLock.held(self.path, self.get_run(run_ref).uuid)
+
+    def shown_status(self, run: RunRecord) -> str:
+        """The status as people are shown it: a run stored as ``running`` whose execution lock
+        no live process holds (its process died: a kill, a closed terminal, a crash during the
+        lamp warm-up) is ``interrupted`` — resumable, never "running"."""
+        if run.status == "running" and not RunLock.held(self.path, run.uuid):
+            return "interrupted"
+        return run.status
 
     def quick_check(self) -> list[str]:
         """SQLite's quick check: [] when the file is sound, else its complaints."""
@@ -539,9 +716,13 @@ class Store:
         run, it is refused as ambiguous (give more of the uuid)."""
         rows: list[tuple] = []
         with self._lock:
-            if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isdigit()):
-                rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
-                                         (int(run_ref),)).fetchall()
+            # ASCII digits only: str.isdigit() is true for "١" (Arabic-Indic one), and int()
+            # reads it as 1; an id beyond SQLite's integers names no run
+            if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isascii()
+                                            and run_ref.isdigit()):
+                if 0 <= int(run_ref) <= _SQLITE_MAX_INT:
+                    rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
+                                             (int(run_ref),)).fetchall()
             prefix = run_ref.lower() if isinstance(run_ref, str) else ""
             if len(prefix) >= 4 and all(c in "0123456789abcdef-" for c in prefix):
                 # (uuids are hex and dashes: nothing else can match, and no LIKE wildcard
@@ -724,6 +905,24 @@ class Store:
                  None if value is None else float(value),
                  None if limit is None else float(limit), message, self._wall_s()))
         return int(cur.lastrowid)
+
+    def last_flag_id(self) -> int:
+        """The id of the newest flag (0 when there is none): flags recorded later have larger
+        ids (a re-recorded flag is replaced by a new row)."""
+        with self._lock:
+            return int(self._db.execute("SELECT COALESCE(MAX(id), 0) FROM flags").fetchone()[0])
+
+    def delete_reading_flags(self, run_id: int, key: str, *, up_to_id: int) -> int:
+        """Remove the flags of reading `key` recorded up to flag id `up_to_id` (those of
+        earlier attempts at a reading taken again); returns how many went."""
+        where = ("FROM flags WHERE run_id=? AND artifact_id=0 AND key=? AND id<=?",
+                 (int(run_id), key, int(up_to_id)))
+        with self._lock:               # (no write transaction for the usual reading: none)
+            if self._db.execute("SELECT 1 " + where[0] + " LIMIT 1", where[1]).fetchone() is None:
+                return 0
+        with self._tx() as db:
+            cur = db.execute("DELETE " + where[0], where[1])
+        return int(cur.rowcount)
 
     def flag_rows(self, *, run_id: int | None = None,
                   artifact_id: int | None = None) -> list[dict[str, Any]]:

@@ -121,7 +121,7 @@ def run_status(store: Any, run: int | str) -> str:
     rec = store.get_run(run)
     if rec.status == "done" and store.flag_rows(run_id=rec.id):
         return "completed with flags"
-    return rec.status
+    return store.shown_status(rec)     # "running" only while a live process owns the run
 
 
 def record(store: Any, gate: str, severity: str, message: str, *,
@@ -251,7 +251,7 @@ def recheck_run(store: Any, run: int | str, limits: QualityLimits | None = None)
 
     rec = store.get_run(run)
     gates = RunGates(store, rec.id, limits or limits_for(store, rec.id))
-    gates.lamp_first = None
+    gates.lamp_first, gates.lamp_steps = None, []
     for r in store.readings(rec.id):
         gates.reading(r.key, r.kind, r.metadata, r.arrays)
     gates.finish(rec.protocol)

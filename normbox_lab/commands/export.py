@@ -28,7 +28,7 @@ def _export(args: argparse.Namespace) -> int:
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")
-    with Store(args.store) as store:
+    with Store(args.store, read_only=True) as store:
         out = export_run(store, args.run, args.format, args.output)
     print(f"wrote {out}")
     return 0

@@ -54,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     r.add_argument("run", metavar="REFERENCE_RUN_ID")
     r.add_argument("-o", "--output", metavar="PATH", help="default: report-run-ID.html")
     r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
+    _accept_flagged(r)
     add_store_argument(r)
     r.set_defaults(handler=_report)
 
@@ -150,7 +151,15 @@ def _compare(args: argparse.Namespace) -> int:
 def _report(args: argparse.Namespace) -> int:
     from normbox_lab.analyze.pipeline import report_run
 
+    from normbox_lab.analyze import qa
+
     with _open(args) as store:
-        out = report_run(store, args.run, args.output, args.brdf_run)
+        # a verdict is given only on data without error flags, unless they are accepted
+        accepted = [f for run in (args.run, args.brdf_run) if run is not None
+                    for f in qa.require_clean(store, run=run, accept_flagged=args.accept_flagged,
+                                              step="report")]
+        notes = [f"The verdict rests on data with {len(accepted)} accepted error flag(s) "
+                 "(--accept-flagged; see `normbox-lab qa`)."] if accepted else []
+        out = report_run(store, args.run, args.output, args.brdf_run, notes=notes)
     print(f"report: {out}")
     return 0

@@ -33,7 +33,7 @@ def _qa(args: argparse.Namespace) -> int:
 
     if not Path(args.store).exists():
         raise StoreError(f"no store at {args.store}")
-    with Store(args.store) as store:
+    with Store(args.store, read_only=not args.recheck) as store:   # only --recheck writes
         rec = store.get_run(args.run)           # an unknown run: StoreError naming it
         if args.recheck:
             qa.recheck_run(store, rec.id)

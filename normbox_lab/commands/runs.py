@@ -16,11 +16,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_runs)
 
 
-def format_run_line(run, flags=None) -> str:
+def format_run_line(run, flags=None, status: str | None = None) -> str:
     """One run; `flags` (a `qa.QaSummary`) adds its flag count, and a done run with flags
-    reads "completed with flags"."""
+    reads "completed with flags"; `status` is the one to show (`Store.shown_status`)."""
     when = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(run.updated_s))
-    status = run.status
+    status = status or run.status
     tail = ""
     if flags is not None and flags.flags:
         status = "completed with flags" if run.status == "done" else status
@@ -37,7 +37,7 @@ def _runs(args: argparse.Namespace) -> int:
     if not Path(args.store).exists():
         print(f"no store at {args.store} (nothing measured yet)")
         return 0
-    with Store(args.store) as store:
+    with Store(args.store, read_only=True) as store:     # a listing never writes
         runs = store.runs()
         if not runs:
             print("no runs")
@@ -45,5 +45,5 @@ def _runs(args: argparse.Namespace) -> int:
 
         counts = summaries_by_run(store)
         for run in runs:
-            print(format_run_line(run, counts.get(run.id)))
+            print(format_run_line(run, counts.get(run.id), store.shown_status(run)))
     return 0
