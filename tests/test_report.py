@@ -117,7 +117,7 @@ def test_summary_comes_first_with_the_headline_numbers(comparison_report):
     p, a = np.unravel_index(np.nanargmax(c.delta_e00), c.delta_e00.shape)
     worst = re.search(r'id="tab-worst">.*?</table>', summary, re.DOTALL).group(0)
     assert re.search(rf"<th>{c.patch_names[p]}</th><td>{c.angle_deg[a]:g}°</td>"
-                     rf'<td class="r\d">{re.escape(fmt_number(c.delta_e00[p, a]))}</td>', worst)
+                     rf'<td class="r\d num">{re.escape(fmt_number(c.delta_e00[p, a]))}</td>', worst)
     counts = c.rating_counts()
     assert f"{counts['below JND']}" in summary
     assert "tab-nrmse-angle" in tabs and "tab-worst" in tabs

@@ -161,6 +161,8 @@ class _Doc:
             out.append("<tr>")
             for j, v in enumerate(row):
                 cls = cell_class(i, j, v) if cell_class else ""
+                if j > 0 and isinstance(v, float | np.floating):
+                    cls = f"{cls} num".strip()       # a number never breaks ("2.02×10⁻⁵")
                 attr = f' class="{cls}"' if cls else ""
                 tag = "th" if j == 0 else "td"
                 out.append(f"<{tag}{attr}>{_esc(_fmt(v))}</{tag}>")
@@ -216,7 +218,8 @@ figure{margin:1rem 0} figure img{max-width:100%;height:auto;display:block}
 figcaption,.caption{font-size:.9rem;color:var(--muted);max-width:none}
 .scroll{overflow-x:auto}
 table{border-collapse:collapse;font-size:.8rem;font-variant-numeric:tabular-nums}
-td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right;white-space:nowrap}
+td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right}
+td.num{white-space:nowrap}
 thead th{background:#eeeeee;text-align:center} tbody th{text-align:left;background:#f7f7f7;
 font-weight:600}
 .r0{background:RC0;color:RT0} .r1{background:RC1;color:RT1} .r2{background:RC2;color:RT2}
@@ -370,13 +373,17 @@ def _renderers_section(doc: _Doc, d: ReportData, c: ComparisonResult | None) -> 
             rows.append([r.renderer, r.version, float(r.delta_e00_mean),
                          float(r.delta_e00_max), *map(float, nr[:len(angles)]),
                          " / ".join(str(n) for n in r.rating_counts)])
-        doc.table("tab-renderers", "Every renderer against the measurement (one row each)",
-                  ["renderer", "version", "ΔE00 mean", "ΔE00 max",
-                   *[f"NRMSE {a} [%]" for a in angles],
-                   "ratings (" + " / ".join(lab for _, lab in RATING_SCALE) + ")"],
+        doc.table("tab-renderers", "Every renderer against the measurement (one row each): "
+                  "ΔE00, NRMSE [%] per sample angle, ratings",
+                  ["renderer", "version", "ΔE00 mean", "ΔE00 max", *angles,
+                   "ratings " + " / ".join(rating_class_range(k)
+                                           for k in range(len(RATING_SCALE)))],
                   rows, caption="The same reference run, the same comparison (paper "
-                  "convention ΔE00, NRMSE = RMSE / mean reference radiance) for our "
-                  "prediction and each imported renderer (normbox-lab import prediction).")
+                  "convention ΔE00, NRMSE = RMSE / mean reference radiance, in percent per "
+                  "sample angle; ratings: configurations per class, " + ", ".join(
+                      f"{rating_class_range(k)} {lab}" for k, (_, lab) in
+                      enumerate(RATING_SCALE)) + ") for our prediction and each imported "
+                  "renderer (normbox-lab import prediction).")
     if d.paper:
         doc.table("tab-paper", "The paper's published figures beside this run",
                   ["observation", "paper (published)", "this run"],
