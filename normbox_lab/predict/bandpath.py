@@ -383,7 +383,7 @@ class BandPathTracer:
         dr = self.dr
         cos_l = ray.d.z                                   # the light faces −z
         hit_em = hit.valid & (hit.slot == c.em_slot) & (cos_l > 0)
-        pdf_em = dr.square(hit.t) / (c.em_area * dr.fmax(cos_l, 1e-12))
+        pdf_em = 1.0 / dr.fmax(self._rect_view(c, ray.o).solid_angle, 1e-30)
         w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
                       / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
         return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
@@ -414,24 +414,67 @@ class BandPathTracer:
             deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
             delta=delta)
 
+    def _rect_view(self, c: SimpleNamespace, o: Any) -> SimpleNamespace:
+        """The emitter as a spherical rectangle seen from o (below its plane; Ureña, Fajardo
+        and King, "An area-preserving parametrization for spherical rectangles", 2013, in the
+        form of pbrt-v4's SampleSphericalRectangle): the rectangle in o's frame (x, y along
+        the world's, z pointing away from the emitter's plane), its edge normals' z and inner
+        angles, and its solid angle (0 where o is not below the plane)."""
+        dr, m = self.dr, self.m
+        x0 = c.em_x0 - o.x
+        y0 = c.em_y0 - o.y
+        z0 = dr.minimum(o.z - c.em_z, 0.0)             # ≤ 0: the flipped frame's z
+        x1, y1 = x0 + c.em_sx, y0 + c.em_sy
+        v00, v01 = m.Vector3f(x0, y0, z0), m.Vector3f(x0, y1, z0)
+        v10, v11 = m.Vector3f(x1, y0, z0), m.Vector3f(x1, y1, z0)
+        n0 = dr.normalize(dr.cross(v00, v10))
+        n1 = dr.normalize(dr.cross(v10, v11))
+        n2 = dr.normalize(dr.cross(v11, v01))
+        n3 = dr.normalize(dr.cross(v01, v00))
+
+        def angle(a: Any, b: Any) -> Any:               # the angle between unit vectors
+            return dr.select(dr.dot(a, b) < 0, dr.pi - 2.0 * dr.safe_asin(dr.norm(a + b) / 2.0),
+                             2.0 * dr.safe_asin(dr.norm(b - a) / 2.0))
+
+        g0, g1, g2, g3 = angle(-n0, n1), angle(-n1, n2), angle(-n2, n3), angle(-n3, n0)
+        sa = g0 + g1 + g2 + g3 - 2.0 * dr.pi
+        sa = dr.select((z0 < 0) & dr.isfinite(sa), dr.fmax(sa, 0.0), 0.0)
+        return SimpleNamespace(x0=x0, y0=y0, x1=x1, y1=y1, z0=z0, b0=n0.z, b1=n2.z, g0=g0,
+                               g1=g1, g2=g2, g3=g3, solid_angle=sa)
+
     def _light_sample(self, c: SimpleNamespace, frame: Any, o: Any, rng: Any,
                       active: Any) -> tuple[Any, Any, Any, Any]:
-        """A uniform point of the emitter seen from o with a shadow ray: (local wo, emitter
-        factor / pdf (solid angle), pdf, mask of unoccluded front-facing samples)."""
+        """A point of the emitter uniform in the solid angle it subtends at o (spherical
+        rectangle sampling: no 1/r² weight near the panel, e.g. on the aperture's sides), with
+        a shadow ray: (local wo, emitter factor / pdf (solid angle), pdf, mask of unoccluded
+        front-facing samples)."""
         dr, m = self.dr, self.m
-        lx = c.em_x0 + rng.next_float32() * c.em_sx
-        ly = c.em_y0 + rng.next_float32() * c.em_sy
+        u0, u1 = rng.next_float32(), rng.next_float32()
+        q = self._rect_view(c, o)
+        sa = q.solid_angle
+        au = u0 * (q.g0 + q.g1 - 2.0 * dr.pi) + (u0 - 1.0) * (q.g2 + q.g3)
+        fu = (dr.cos(au) * q.b0 - q.b1) / dr.sin(au)
+        cu = dr.copysign(dr.rsqrt(fu * fu + q.b0 * q.b0), fu)
+        cu = dr.clip(cu, -0.99999994, 0.99999994)
+        xu = dr.clip(-(cu * q.z0) * dr.rsqrt(dr.fmax(1.0 - cu * cu, 1e-30)), q.x0, q.x1)
+        dd = dr.sqrt(xu * xu + q.z0 * q.z0)
+        h0 = q.y0 * dr.rsqrt(dd * dd + q.y0 * q.y0)
+        h1 = q.y1 * dr.rsqrt(dd * dd + q.y1 * q.y1)
+        hv = h0 + u1 * (h1 - h0)
+        yv = dr.select(hv * hv < 1.0 - 1e-4, hv * dd * dr.rsqrt(dr.fmax(1.0 - hv * hv, 1e-30)),
+                       q.y1)
+        yv = dr.clip(yv, q.y0, q.y1)
+        lx, ly = o.x + xu, o.y + yv
         to_l = m.Vector3f(lx, ly, c.em_z) - o
-        dist2 = dr.squared_norm(to_l)
-        dist = dr.sqrt(dist2)
-        dl = to_l / dist
-        cos_e = dl.z
+        dist = dr.norm(to_l)
+        dl = to_l / dr.fmax(dist, 1e-30)
         shadow = m.Ray3f(o, dl)
         shadow.maxt = dist * (1.0 - 1e-4)
-        ok = active & (cos_e > 0)
+        ok = active & (dl.z > 0) & (sa > 1e-7) & dr.isfinite(lx) & dr.isfinite(ly)
         ok = ok & ~self.scene.ray_test(shadow, ok)
-        pdf_l = dist2 / (c.em_area * dr.fmax(cos_e, 1e-12))
-        return frame.to_local(dl), self._em_factor(c, lx, ly) / dr.fmax(pdf_l, 1e-30), pdf_l, ok
+        pdf_l = 1.0 / dr.fmax(sa, 1e-30)
+        em_w = dr.select(ok, self._em_factor(c, lx, ly) * sa, 0.0)
+        return frame.to_local(dl), em_w, pdf_l, ok
 
     def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
              active: Any) -> tuple[Any, Any, Any]:
@@ -447,7 +490,8 @@ class BandPathTracer:
     def _path_loop(self, tab: Mapping[str, Any], c: SimpleNamespace, lookup: Any, delta: Any,
                    ray: Any, active: Any, depth: Any, prev_pdf: Any, rng: Any, *,
                    probe_scale: Any = None, split_first: bool = False,
-                   patches: SimpleNamespace | None = None) -> SimpleNamespace:
+                   patches: SimpleNamespace | None = None,
+                   first_draws: Sequence[Any] | None = None) -> SimpleNamespace:
         """Trace from `ray` (path vertex number `depth`, previous BSDF pdf `prev_pdf`, 0 for a
         camera ray) with throughput 1 until every path has ended.  Returns `acc` (per band,
         Σ throughput · emitter factor; the lamp spectrum is the caller's), and:
@@ -459,7 +503,10 @@ class BandPathTracer:
           with weight P, and uses p*'s material there and at every later patch hit; everything
           it finds afterwards goes to `late` (per band) for patch p* alone.  Unbiased for every
           patch: E[P · 1{p* = p} · X_p] = E[X_p].
-        `probe_scale` multiplies the Russian-roulette probe (the throughput before `ray`)."""
+        `probe_scale` multiplies the Russian-roulette probe (the throughput before `ray`).
+        `first_draws` (`FIRST_BOUNCE_DRAWS`: the patch pick when `patches`, the light sample, the
+        direction): uniform numbers that replace the generator's in the first bounce (the
+        caller's quasi-random ones); the generator advances the same either way."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         pp = patches
@@ -468,6 +515,8 @@ class BandPathTracer:
         def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
                    acc: Any, e1: Any, late: Any, pstar: Any) -> tuple[Any, ...]:
             thr, acc, late = list(thr), list(acc), list(late)
+            src = rng if first_draws is None else _FirstBounce(
+                rng, depth == start_depth, first_draws[0 if pp is not None else 1:])
             hit = self._intersect(c, ray, active)
             e = self._emission(c, hit, ray, prev_pdf)
             if split_first:
@@ -481,7 +530,7 @@ class BandPathTracer:
                     late[b] = dr.fma(thr[b], e * in_late, late[b])
                     acc[b] = dr.fma(thr[b], e * (1.0 - in_late), acc[b])
                 on_patch = hit.surf & (slot == pp.slot)
-                u = rng.next_float32()
+                u = src.next_float32()
                 pick = on_patch & (pstar == none)
                 pstar = dr.select(pick, dr.minimum(m.UInt32(u * pp.count_f), pp.last), pstar)
                 sel_w = dr.select(pick, pp.count_f, 1.0)
@@ -494,7 +543,7 @@ class BandPathTracer:
             active = hit.surf & (depth + 1 < c.max_depth)
             frame, wi, o = self._frame(hit, ray)
             vx = self._vertex(tab, lookup, delta, slot, wi, active)
-            wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+            wl, wt, ok = self._nee(c, vx, frame, o, src, active)
             fac = self._band_factors(vx, wl, wt * sel_w, ok)
             if pp is not None:
                 for b in range(n_b):
@@ -503,7 +552,9 @@ class BandPathTracer:
             else:
                 for b in range(n_b):
                     acc[b] = dr.fma(thr[b], fac[b], acc[b])
-            wo, bpdf, active = self._sample(vx, rng, active)
+            wo, bpdf, active = self._sample(vx, src, active)
+            if first_draws is not None and src.values:
+                raise AssertionError("first_draws does not match the first bounce's draws")
             fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30) * sel_w, active)
             for b in range(n_b):
                 thr[b] = thr[b] * fac[b]
@@ -521,6 +572,7 @@ class BandPathTracer:
             return (depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1,
                     late, pstar)
 
+        start_depth = m.UInt32(depth)
         state = (m.UInt32(depth), m.Bool(active), ray, m.Float(prev_pdf), rng,
                  [m.Float(1.0) for _ in range(n_b)],      # per-band throughput
                  [m.Float(0.0) for _ in range(n_b)],      # per-band Σ throughput · emitter
@@ -665,6 +717,25 @@ class BandPathTracer:
             need = int(np.ceil(done * (rel / target_rel_se) ** 2 * 1.05))
             goal = min(int(max_paths), max(need, done + 1024))
         return BandEstimate(self.grid.centres_nm, mean, se, done, time.perf_counter() - t0)
+
+
+#: how many uniform numbers `_path_loop`'s first bounce draws with `patches` (the patch pick,
+#: the light sample 2, the direction 3); without `patches` the first is not drawn
+FIRST_BOUNCE_DRAWS = 6
+
+
+class _FirstBounce:
+    """A generator stand-in for one bounce: `next_float32()` gives the next of `values` where
+    `use` (the first bounce), the generator's number elsewhere; the generator always advances."""
+
+    def __init__(self, rng: Any, use: Any, values: Sequence[Any]) -> None:
+        import drjit as dr
+
+        self.rng, self.use, self.values, self.dr = rng, use, list(values), dr
+
+    def next_float32(self) -> Any:
+        u = self.rng.next_float32()
+        return self.dr.select(self.use, self.values.pop(0), u) if self.values else u
 
 
 def _chunk_seed(seed: int, chunk_no: int) -> int:

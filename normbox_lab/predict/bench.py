@@ -8,19 +8,28 @@ with).  Bands: 81 triangular 5 nm hats, 380–780 nm.
 - Fast: `fastrender.predict_spectra` renders all configurations to the target (largest relative
   standard error over the bands ≤ `target`, 0.2 % by default), all patches per path
   (`patchset`: one set of paths per angle serves every patch), in process or with
-  `--executor dask`; its wall time for all of them is the headline figure.  A configuration's
-  time is its angle's time divided by the number of patches.
+  `--executor dask`; its wall time for all of them is the headline figure.
 - Baseline, in the same run: stock Mitsuba `llvm_ad_spectral` (4 hero wavelengths per path,
   `specfilm` with the same 81 hats, the project's `normbox` BSDF; `render.render_view`,
-  uncached) on a few configurations (default 3: patch 19 at 30°, 13 at 60°, 24 at 90°) at a
-  fixed sample count, its standard error from 16 independent batches.
-- Equal noise: Monte-Carlo variance falls as 1/N and time grows as N, so each renderer's time
-  is normalised to the target, t · (ε / target)², with ε the RMS over the bands of the relative
-  standard error (the same statistic for both).  The ratio is Σ stock / Σ fast over the
-  measured baseline configurations; the stock time for all 312 is that ratio times the fast
-  sweep's time (an extrapolation, printed as such).
+  uncached) on a few configurations (default 3: patch 19 at 30°, 13 at 60°, 24 at 90°), each at
+  three sample counts (default 64, 256, 1024 spp × 100 px × 16 batches).  Its time is fitted as
+  t = a + b·N over the three, and only the slope b counts (the per-call overhead a is left to
+  stock's credit); its noise per path is that of the largest sample count, ε²·N.
+- Equal noise: each renderer's time is scaled to the target, t · (ε / target)², with ε the RMS
+  over the bands of the relative standard error (the same statistic for both).  Stock at the
+  target: b · N · (ε_N / target)².  Fast, amortised: the baseline configuration's angle
+  rendered for all the sweep's patches at once (`FastNormbox.render_patches`, timed on its
+  own), scaled by the *limiting* patch of that angle (the largest ε of them: every patch gets
+  the paths it needs) and divided by the number of patches.  Fast, per configuration: the
+  configuration rendered alone (`render_patches` with one patch), scaled by its own ε.
+- Agreement: z = (fast alone − stock) / combined SE per band; its mean and RMS (not the
+  spread around its own mean: errors common to all bands would hide there).
+- Three repeats (seeds seed, seed+1, seed+2; `--repeats`), each with its own fast sweep and
+  stock renders: the ratios' median and range.
 
-Last line: ``ratio: R`` (stock / fast time at equal noise).
+Every time is taken twice: wall clock and this process's CPU time (all its threads); with other
+processes on the machine the CPU-time ratio is the steadier one.  Last line: ``ratio: R``
+(median over the repeats of the amortised stock / fast CPU-time ratio at equal noise).
 """
 
 from __future__ import annotations
@@ -30,13 +39,14 @@ import os
 import sys
 import time
 from collections.abc import Sequence
-from typing import TextIO
+from typing import Any, TextIO
 
 import numpy as np
 
 ANGLES_DEG = tuple(float(a) for a in range(30, 91, 5))
 PATCHES = tuple(range(1, 25))
 BASELINE = ((19, 30.0), (13, 60.0), (24, 90.0))
+BASELINE_SPP = (64, 256, 1024)
 
 
 def band_rms_rel_se(radiance: np.ndarray, std_error: np.ndarray) -> float:
@@ -45,6 +55,19 @@ def band_rms_rel_se(radiance: np.ndarray, std_error: np.ndarray) -> float:
     sig = np.abs(rad) > 1e-6 * max(float(np.max(np.abs(rad))), 1e-300)
     rel = np.asarray(std_error)[sig] / np.abs(rad[sig])
     return float(np.sqrt(np.mean(rel * rel))) if rel.size else 0.0
+
+
+def linear_fit(n: Sequence[float], t: Sequence[float]) -> tuple[float, float]:
+    """Least-squares (a, b) of t = a + b·n."""
+    b, a = np.polyfit(np.asarray(n, dtype=np.float64), np.asarray(t, dtype=np.float64), 1)
+    return float(a), float(b)
+
+
+def spread(values: Sequence[float], fmt: str = "{:.0f}") -> str:
+    """'median (min–max)' of a few repeats."""
+    v = np.asarray(values, dtype=np.float64)
+    return (f"{fmt.format(float(np.median(v)))} ({fmt.format(float(v.min()))}–"
+            f"{fmt.format(float(v.max()))})")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -57,9 +80,11 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--address", default=None,
                    help="an existing dask cluster's scheduler, e.g. tcp://scheduler:8786")
     p.add_argument("--quick", action="store_true",
-                   help="4 patches × 3 angles and a small baseline (a smoke run)")
-    p.add_argument("--baseline-spp", type=int, default=64,
-                   help="stock samples per pixel per batch (10×10 px, 16 batches)")
+                   help="4 patches × 3 angles, one repeat and a small baseline (a smoke run)")
+    p.add_argument("--baseline-spp", default=",".join(map(str, BASELINE_SPP)),
+                   help="stock samples per pixel per batch, ≥ 3 square numbers (10×10 px, "
+                        "16 batches; default 64,256,1024)")
+    p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     return p
 
@@ -69,15 +94,16 @@ def run_bench_predict(out: TextIO = sys.stdout,
                       argv: Sequence[str] | None = None, target_rel_se: float | None = None,
                       executor: str | None = None, workers: int | None = None,
                       baseline: Sequence[tuple[int, float]] | None = None,
-                      baseline_spp: int | None = None, quick: bool | None = None,
-                      seed: int | None = None) -> int:
+                      baseline_spp: Sequence[int] | None = None, quick: bool | None = None,
+                      repeats: int | None = None, seed: int | None = None) -> int:
     """Run the benchmark; `configs`: (patch number, angle) pairs (default all 312)."""
     a = _parser().parse_args(list(argv) if argv is not None else [])
     target = float(target_rel_se if target_rel_se is not None else a.target)
     kind = executor or a.executor
     n_workers = int(workers or a.workers)
     quick = bool(a.quick if quick is None else quick)
-    spp = int(baseline_spp or a.baseline_spp)
+    spps = [int(s) for s in (baseline_spp or str(a.baseline_spp).split(","))]
+    n_rep = int(repeats if repeats is not None else (1 if quick else a.repeats))
     seed = int(a.seed if seed is None else seed)
     if configs is None:
         configs = ([(p, ang) for ang in (30.0, 60.0, 90.0) for p in (1, 13, 19, 24)] if quick
@@ -85,7 +111,9 @@ def run_bench_predict(out: TextIO = sys.stdout,
     if baseline is None:
         baseline = BASELINE
     if quick:
-        spp = min(spp, 16)
+        spps = [16, 36, 64]
+    if len(spps) < 3:
+        raise ValueError("the stock baseline needs at least three sample counts")
 
     from normbox_lab.predict import materials as mats
     from normbox_lab.predict.executors import make_executor
@@ -101,120 +129,154 @@ def run_bench_predict(out: TextIO = sys.stdout,
     patch_numbers = sorted({p for p, _ in configs} | {p for p, _ in baseline})
     patch_mat = {p: mats.truth_patch(p, "model") for p in patch_numbers}
     angles = sorted({float(x) for _, x in configs})
-    emit(f"bench predict: {len(configs)} configurations ({len({p for p, _ in configs})} patches"
+    by_patch = {p: sorted(x for q, x in configs if q == p) for p in {q for q, _ in configs}}
+    if any(v != angles for v in by_patch.values()):
+        raise ValueError("bench predict renders full patch × angle grids")
+    sweep = [patch_mat[p] for p in sorted(by_patch)]
+    emit(f"bench predict: {len(configs)} configurations ({len(by_patch)} patches"
          f" × {len(angles)} angles), fit-family materials, 81 bands (5 nm hats, 380–780 nm),"
-         f" target {100 * target:.2f} % relative standard error in the worst band")
-    emit(f"machine: {os.cpu_count()} CPUs; fast variant "
-         f"{jit_variant('mono')}, executor {kind}" + (f" ({n_workers} workers)" if kind != "inprocess"
-                                                  else ""))
+         f" target {100 * target:.2f} % relative standard error in the worst band, "
+         f"{n_rep} repeat(s)")
+    emit(f"machine: {os.cpu_count()} CPUs; fast variant {jit_variant('mono')}, executor {kind}"
+         + (f" ({n_workers} workers)" if kind != "inprocess" else "")
+         + f"; load average (1 min) at start {os.getloadavg()[0]:.2f}")
 
-    # -- warm-up (kernel compilation, not timed in the figures) -------------------------------
+    # -- warm-up (kernel compilation, the scene of this process; not timed) -------------------
     t0 = time.perf_counter()
-    FastNormbox().render_view(patch=patch_mat[patch_numbers[0]], wall=wall, angle_deg=angles[0],
-                              lamp=lamp, n_paths=1024)
-    warm_fast = time.perf_counter() - t0
+    box = FastNormbox()
+    box.render_patches(patches=sweep[:2], wall=wall, angle_deg=angles[0], lamp=lamp,
+                       n_paths=4096)
+    if kind == "inprocess":
+        predict_spectra(sweep[:2], angles[:1], wall=wall, lamp=lamp, n_paths=4096)
+    emit(f"fast warm-up {time.perf_counter() - t0:.1f} s")
 
-    # -- fast sweep -------------------------------------------------------------------------
+    # -- fast sweeps --------------------------------------------------------------------------
+    sweeps = []
     ex = make_executor(kind, workers=n_workers, address=a.address)
     try:
-        by_patch = {p: [x for q, x in configs if q == p] for p in {q for q, _ in configs}}
-        # predict_spectra renders full patch × angle grids; the bench asks for exact pairs
-        full = all(sorted(v) == angles for v in by_patch.values())
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        if full:
-            res = predict_spectra([patch_mat[p] for p in sorted(by_patch)], angles, wall=wall,
-                                  lamp=lamp, target_rel_se=target, seed=seed, executor=ex)
-            sets = [res]
-        else:
-            sets = [predict_spectra([patch_mat[p]], sorted(v), wall=wall, lamp=lamp,
-                                    target_rel_se=target, seed=seed, executor=ex)
-                    for p, v in sorted(by_patch.items())]
-        fast_wall = time.perf_counter() - t0
-        fast_cpu = time.process_time() - c0
+        for r in range(n_rep):
+            t0 = time.perf_counter()
+            c0 = time.process_time()
+            res = predict_spectra(sweep, angles, wall=wall, lamp=lamp, target_rel_se=target,
+                                  seed=seed + r, executor=ex)
+            sweeps.append((res, time.perf_counter() - t0, time.process_time() - c0,
+                           os.getloadavg()[0]))
     finally:
         ex.close()
-    fast = {}
-    for s in sets:
-        for i, name in enumerate(s.patch_names):
-            for j, ang in enumerate(s.angles_deg):
-                fast[(name, float(ang))] = (s.radiance[i, j], s.std_error[i, j],
-                                            int(s.n_paths[i, j]), float(s.render_time_s[i, j]))
-    worst = np.array([np.max(v[1][v[0] > 0] / v[0][v[0] > 0]) for v in fast.values()])
-    rms = np.array([band_rms_rel_se(v[0], v[1]) for v in fast.values()])
-    paths = np.array([v[2] for v in fast.values()])
-    emit(f"fast: {len(fast)} configurations in {fast_wall:.1f} s wall "
-         f"({fast_wall / len(fast):.3f} s per configuration; warm-up {warm_fast:.1f} s)"
-         + (f"; {fast_cpu:.1f} CPU·s in this process" if kind == "inprocess" else ""))
-    emit(f"load average (1 min) now {os.getloadavg()[0]:.2f} — other processes share the CPUs")
-    emit(f"fast: paths per configuration median {int(np.median(paths))}, "
-         f"min {paths.min()}, max {paths.max()}")
-    emit(f"fast: achieved relative SE per band — worst band: median {100 * np.median(worst):.3f}"
-         f" %, max {100 * worst.max():.3f} %; band RMS: median {100 * np.median(rms):.3f} %")
-    for ang in angles:
-        sel = [v for (n, x), v in fast.items() if x == ang]
-        emit(f"  {ang:4.0f}°: {np.mean([v[3] for v in sel]):.3f} s/config, "
-             f"{int(np.median([v[2] for v in sel]))} paths, worst-band SE "
-             f"{100 * np.median([np.max(v[1] / np.maximum(v[0], 1e-300)) for v in sel]):.3f} %")
+    for r, (res, wall_s, cpu_s, load) in enumerate(sweeps):
+        emit(f"fast sweep {r + 1}: {res.radiance.shape[0] * res.radiance.shape[1]} "
+             f"configurations in {wall_s:.2f} s wall"
+             + (f", {cpu_s:.2f} CPU·s" if kind == "inprocess" else "")
+             + f" (load {load:.2f})")
+    res0 = sweeps[0][0]
+    worst = np.max(res0.std_error / np.maximum(res0.radiance, 1e-300), axis=2)
+    emit(f"fast: worst-band relative SE median {100 * np.median(worst):.3f} %, max "
+         f"{100 * worst.max():.3f} %")
+    # per angle: paths, time, and the limiting patch (largest band-RMS relative SE)
+    for j, ang in enumerate(res0.angles_deg):
+        eps = [band_rms_rel_se(res0.radiance[i, j], res0.std_error[i, j])
+               for i in range(len(res0.patch_names))]
+        emit(f"  {ang:4.0f}°: {int(res0.n_paths[0, j]):7d} paths, "
+             f"{np.sum(res0.render_time_s[:, j]):.3f} s for the angle, limiting patch "
+             f"{res0.patch_names[int(np.argmax(eps))]} (band-RMS SE {100 * max(eps):.3f} %)")
 
-    # -- baseline: stock Mitsuba, same scene and materials ---------------------------------
+    # -- baseline: stock Mitsuba, same scene and materials -----------------------------------
     variant = ensure_variant()
-    q = Quality("bench", spp=spp, batches=16)
     t0 = time.perf_counter()
-    # warm-up with the same spp: the sample count is part of Mitsuba's compiled kernel
-    render_view(patch=patch_mat[baseline[0][0]], wall=wall, angle_deg=baseline[0][1], lamp=lamp,
-                quality=Quality("warm", spp=spp, batches=1), cache=False)
-    warm_stock = time.perf_counter() - t0
-    emit(f"baseline: stock Mitsuba {variant} (hero wavelengths, specfilm), "
-         f"{q.batches} batches × {q.spp} spp × 100 px = {q.batches * q.spp * 100} paths per "
-         f"configuration (warm-up {warm_stock:.1f} s)")
-    sum_stock = sum_fast = 0.0
-    cpu_stock = cpu_fast = 0.0
-    for p, ang in baseline:
-        name = patch_mat[p].name
-        t0 = time.perf_counter()
-        c0 = time.process_time()
-        r = render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp, quality=q,
-                        cache=False, seed=seed + 1)
-        t_stock = time.perf_counter() - t0
-        c_stock = time.process_time() - c0
-        e_stock = band_rms_rel_se(r.radiance, r.std_error)
-        stock_at = t_stock * (e_stock / target) ** 2
-        fr = fast.get((name, float(ang)))
-        if fr is None:
-            box = FastNormbox()
-            t1 = time.perf_counter()
-            rv = box.render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp,
-                                 target_rel_se=target, seed=seed)
-            fr = (rv.radiance, rv.std_error, rv.info["n_paths"], time.perf_counter() - t1)
-        # its angle again as the sweep renders it (all the sweep's patches per path, or this
-        # configuration alone when it is not in the sweep), for the CPU time per configuration
-        mates = sorted({q for q, x in configs if x == float(ang)} | {p})
-        box_c = FastNormbox()
-        box_c.render_view(patch=patch_mat[p], wall=wall, angle_deg=ang, lamp=lamp, n_paths=1024)
-        c1 = time.process_time()
-        together = box_c.render_patches(patches=[patch_mat[q] for q in mates], wall=wall,
-                                        angle_deg=ang, lamp=lamp, target_rel_se=target,
-                                        seed=seed)
-        c_fast = (time.process_time() - c1) / len(mates)
-        rc = together[mates.index(p)]
-        e_fast = band_rms_rel_se(fr[0], fr[1])
-        cpu_stock += c_stock * (e_stock / target) ** 2
-        cpu_fast += c_fast * (band_rms_rel_se(rc.radiance, rc.std_error) / target) ** 2
-        fast_at = fr[3] * (e_fast / target) ** 2
-        sum_stock += stock_at
-        sum_fast += fast_at
-        z = (fr[0] - r.radiance) / np.maximum(np.hypot(fr[1], r.std_error), 1e-300)
-        emit(f"  {name}@{ang:g}: stock {t_stock:.2f} s at band-RMS SE {100 * e_stock:.3f} % → "
-             f"{stock_at:.1f} s at {100 * target:.2f} %; fast {fr[3]:.3f} s at "
-             f"{100 * e_fast:.3f} % → {fast_at:.3f} s; ratio {stock_at / fast_at:.1f}; "
-             f"agreement |z| median {np.median(np.abs(z)):.2f}, max {np.max(np.abs(z)):.2f}")
-    ratio = sum_stock / sum_fast
-    emit(f"stock for all {len(fast)} configurations at equal noise (extrapolated with the ratio):"
-         f" ≈ {ratio * fast_wall:.0f} s; fast measured: {fast_wall:.1f} s")
-    emit(f"CPU-time ratio on the same configurations (less sensitive to other load): "
-         f"{cpu_stock / cpu_fast:.1f}")
-    emit(f"ratio: {ratio:.1f}")
+    for spp in spps:     # the sample count is part of Mitsuba's compiled kernel: warm each
+        render_view(patch=patch_mat[baseline[0][0]], wall=wall, angle_deg=baseline[0][1],
+                    lamp=lamp, quality=Quality("warm", spp=spp, batches=1), cache=False)
+    emit(f"baseline: stock Mitsuba {variant} (hero wavelengths, specfilm), 16 batches × "
+         f"{'/'.join(map(str, spps))} spp × 100 px; t = a + b·N fitted per configuration and "
+         f"repeat, b used (warm-up {time.perf_counter() - t0:.1f} s)")
+    clocks = ("wall", "CPU")
+    amortised = {k: [] for k in clocks}
+    per_config = {k: [] for k in clocks}
+    zs = []
+    rows = {(p, ang): [] for p, ang in baseline}
+
+    def timed(fn: Any, **kw: Any) -> tuple[Any, dict[str, float]]:
+        t0, c0 = time.perf_counter(), time.process_time()
+        out = fn(**kw)
+        return out, {"wall": time.perf_counter() - t0, "CPU": time.process_time() - c0}
+
+    for r in range(n_rep):
+        sums = {k: [0.0, 0.0] for k in clocks}
+        alone_ratios: dict[str, list[float]] = {k: [] for k in clocks}
+        for p, ang in baseline:
+            name = patch_mat[p].name
+            times, eps = [], []
+            for spp in spps:
+                st, t = timed(render_view, patch=patch_mat[p], wall=wall, angle_deg=ang,
+                              lamp=lamp, quality=Quality("bench", spp=spp, batches=16),
+                              cache=False, seed=1000 * (seed + r) + spp)
+                times.append(t)
+                eps.append(band_rms_rel_se(st.radiance, st.std_error))
+            n = [16 * 100 * s for s in spps]
+            box.render_patches(patches=sweep[:1], wall=wall, angle_deg=ang, lamp=lamp,
+                               n_paths=4096)          # the scene at this angle (not timed)
+            together, t_ang = timed(box.render_patches, patches=sweep, wall=wall,
+                                    angle_deg=ang, lamp=lamp, target_rel_se=target,
+                                    seed=seed + r)
+            e_lim = max(band_rms_rel_se(x.radiance, x.std_error) for x in together)
+            alone, t_alone = timed(box.render_patches, patches=[patch_mat[p]], wall=wall,
+                                   angle_deg=ang, lamp=lamp, target_rel_se=target,
+                                   seed=seed + r)
+            alone = alone[0]
+            e_alone = band_rms_rel_se(alone.radiance, alone.std_error)
+            z = (alone.radiance - st.radiance) / np.maximum(
+                np.hypot(alone.std_error, st.std_error), 1e-300)
+            zs.append(z)
+            row = {}
+            for k in clocks:
+                a_s, b_s = linear_fit(n, [t[k] for t in times])
+                if b_s <= 0.0:        # overhead-bound (tiny sample counts): no slope to fit
+                    a_s, b_s = 0.0, times[-1][k] / n[-1]
+                stock_at = b_s * n[-1] * (eps[-1] / target) ** 2
+                share_at = t_ang[k] * (e_lim / target) ** 2 / len(sweep)
+                alone_at = t_alone[k] * (e_alone / target) ** 2
+                sums[k][0] += stock_at
+                sums[k][1] += share_at
+                alone_ratios[k].append(stock_at / alone_at)
+                row[k] = (a_s, b_s, stock_at, share_at, alone_at)
+            rows[(p, ang)].append(row)
+            w, c = row["wall"], row["CPU"]
+            emit(f"  repeat {r + 1} {name}@{ang:g}: stock wall t = {w[0]:.2f} s + "
+                 f"{1e6 * w[1]:.3f} µs·N ({', '.join(f'{t[clocks[0]]:.2f}' for t in times)} s; "
+                 f"band-RMS SE {', '.join(f'{100 * e:.3f}' for e in eps)} %) → {w[2]:.2f} s "
+                 f"wall / {c[2]:.2f} CPU·s at {100 * target:.2f} %; fast amortised "
+                 f"{1e3 * w[3]:.2f} / {1e3 * c[3]:.2f} ms, alone {1e3 * w[4]:.1f} / "
+                 f"{1e3 * c[4]:.1f} ms (wall / CPU); ratios wall {w[2] / w[3]:.0f}× / "
+                 f"{w[2] / w[4]:.0f}×, CPU {c[2] / c[3]:.0f}× / {c[2] / c[4]:.0f}× (amortised /"
+                 f" alone); z vs stock mean {np.mean(z):+.2f}, RMS {np.sqrt(np.mean(z * z)):.2f}")
+        for k in clocks:
+            amortised[k].append(sums[k][0] / sums[k][1])
+            per_config[k].append(float(np.median(alone_ratios[k])))
+    emit("per baseline configuration over the repeats, wall-time and CPU-time ratios: "
+         "amortised / per configuration")
+    for (p, ang), rr in rows.items():
+        emit(f"  {patch_mat[p].name}@{ang:g}: wall "
+             f"{spread([x['wall'][2] / x['wall'][3] for x in rr])}× / "
+             f"{spread([x['wall'][2] / x['wall'][4] for x in rr])}×; CPU "
+             f"{spread([x['CPU'][2] / x['CPU'][3] for x in rr])}× / "
+             f"{spread([x['CPU'][2] / x['CPU'][4] for x in rr])}×")
+    zz = np.concatenate(zs)
+    emit(f"agreement, fast alone vs stock over {len(zs)} renders × {zs[0].size} bands: z mean "
+         f"{np.mean(zz):+.3f}, RMS {np.sqrt(np.mean(zz * zz)):.3f}, |z| > 3: "
+         f"{int(np.sum(np.abs(zz) > 3))}")
+    walls = [w for _, w, _, _ in sweeps]
+    cpus = [c for _, _, c, _ in sweeps]
+    emit(f"fast, all {len(configs)} configurations: {spread(walls, '{:.2f}')} s wall, "
+         f"{spread(cpus, '{:.2f}')} CPU·s; stock at equal noise ≈ "
+         f"{np.median(amortised['wall']) * np.median(walls):.0f} s wall (the amortised ratio "
+         f"× the sweep)")
+    for k in clocks:
+        emit(f"{k}-time ratios: per configuration (rendered alone) "
+             f"{spread(per_config[k])}×; amortised (all patches per path, limiting patch per "
+             f"angle) {spread(amortised[k])}×")
+    emit(f"load average (1 min) at the end {os.getloadavg()[0]:.2f}: with other processes on "
+         f"the CPUs the CPU-time ratio is the steadier figure")
+    emit(f"ratio: {np.median(amortised['CPU']):.1f}")
     return 0
 
 

@@ -40,6 +40,7 @@ them `FastNormbox` renders each configuration on its own (`BandPathTracer.render
 
 from __future__ import annotations
 
+import functools
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
@@ -50,6 +51,7 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from normbox_lab.predict.bandpath import (
+    FIRST_BOUNCE_DRAWS,
     BandEstimate,
     BandPathTracer,
     _chunk_seed,
@@ -61,6 +63,11 @@ from normbox_lab.predict.bandpath import (
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
 SUB_BATCH = 1024
+#: random numbers of the first vertex taken from a randomised quasi-Monte-Carlo net (the
+#: radiometer ray 2, the light sample 2, the mixture's patch 1, the direction 3), then those of
+#: the continuation's first bounce (`bandpath.FIRST_BOUNCE_DRAWS`)
+FIRST_VERTEX_DRAWS = 8
+QMC_DIMS = FIRST_VERTEX_DRAWS + FIRST_BOUNCE_DRAWS
 #: the fewest sub-batches of a render (so that their spread is an error estimate at all)
 MIN_SUB_BATCHES = 4
 _NONE = 0xFFFFFFFF
@@ -103,10 +110,35 @@ class WavelengthStrata:
         return self.probability / self.counts
 
 
+@functools.lru_cache(maxsize=4)
+def sobol_net(points: int, dims: int) -> np.ndarray:
+    """(points, dims) uint32: an Owen-scrambled Sobol' net (fixed seed: the same net in every
+    process); each sub-batch XORs it with its own random digital shift."""
+    from scipy.stats import qmc
+
+    m = round(float(np.log2(points)))
+    if 1 << m != points:
+        raise ValueError(f"a Sobol' net needs a power of two points, not {points}")
+    u = qmc.Sobol(d=dims, scramble=True, seed=0x5EED).random_base2(m)
+    return np.minimum(np.floor(u * 4294967296.0), 4294967295.0).astype(np.uint32)
+
+
+class _Draws:
+    """`next_float32()` from prepared arrays, in order (the kernel's QMC dimensions)."""
+
+    def __init__(self, values: Sequence[Any]) -> None:
+        self.values = list(values)
+
+    def next_float32(self) -> Any:
+        return self.values.pop(0)
+
+
 class PatchSetTracer(BandPathTracer):
     """`BandPathTracer` (radiometer view) with `render_patches`: every patch per path."""
 
     patch_slot_name = "patch"
+    #: the first vertex's and first bounce's random numbers from a randomised Sobol' net
+    qmc = True
 
     # ---- per-patch tables --------------------------------------------------------------
     def _patch_tables(self, patches: Sequence[Any]) -> SimpleNamespace:
@@ -154,18 +186,37 @@ class PatchSetTracer(BandPathTracer):
         x = dr.sqrt(a * a + rng.next_float32() * (2.0 * a + 1.0)) - a
         frac = dr.clip(dr.select(upper, 1.0 - x, x), 0.0, 1.0)
         delta = kf + frac - step
-        ray = self._radiometer_ray(rng)
+        # the first vertex's random numbers: a scrambled Sobol' net per sub-batch, digitally
+        # shifted by the sub-batch's own random vector (randomised QMC: every lane uniform,
+        # sub-batches independent, so their spread is still the standard error)
+        if self.qmc:
+            net = m.UInt32(sobol_net(sub, QMC_DIMS).ravel())
+            shift = np.random.default_rng(int(seed)).integers(
+                0, 1 << 32, size=(n // sub, QMC_DIMS), dtype=np.uint32)
+            shifts = m.UInt32(shift.ravel())
+            lane = (idx % dr.opaque(m.UInt32, sub)) * QMC_DIMS
+            block = (idx // dr.opaque(m.UInt32, sub)) * QMC_DIMS
+            draws = _Draws([m.Float((dr.gather(m.UInt32, net, lane + d)
+                                     ^ dr.gather(m.UInt32, shifts, block + d)) >> 8)
+                            * (1.0 / 16777216.0) for d in range(QMC_DIMS)])
+        else:
+            draws = _Draws([rng.next_float32() for _ in range(QMC_DIMS)])
+        later = draws.values[FIRST_VERTEX_DRAWS:]
+        draws.values = draws.values[:FIRST_VERTEX_DRAWS]
+        ray = self._radiometer_ray(draws)
         hit = self._intersect(c, ray, m.Bool(True))
         first = hit.surf & (hit.slot == self.slot_names.index(self.patch_slot_name))
         frame, wi, o = self._frame(hit, ray)
         # light sample and the defensive mixture's BSDF sample at the patch vertex
-        wl, em_w, pdf_l, ok = self._light_sample(c, frame, o, rng, first)
-        q = dr.minimum(m.UInt32(rng.next_float32() * f(n_p)), dr.opaque(m.UInt32, n_p - 1))
+        wl, em_w, pdf_l, ok = self._light_sample(c, frame, o, draws, first)
+        q = dr.minimum(m.UInt32(draws.next_float32() * f(n_p)), dr.opaque(m.UInt32, n_p - 1))
         alphas = [f(v) for v in pt.alpha]
         p_specs = [f(v) for v in pt.p_spec]
         alpha_q = dr.gather(m.Float, m.Float(pt.alpha + [pt.alpha[-1]]), q)
         pspec_q = dr.gather(m.Float, m.Float(pt.p_spec + [pt.p_spec[-1]]), q)
-        wo = self._sample_direction(wi, alpha_q, pspec_q, rng)
+        wo = self._sample_direction(wi, alpha_q, pspec_q, draws)
+        if draws.values:
+            raise AssertionError("QMC_DIMS does not match the first vertex's draws")
 
         def per_patch(w: Any) -> tuple[Any, list[Any], list[Any], Any]:
             """(mixture pdf of w, GGX·F factor per patch, backscatter factor per patch,
@@ -210,7 +261,7 @@ class PatchSetTracer(BandPathTracer):
             base=dr.opaque(m.UInt32, len(self.slot_names)), count_f=f(n_p),
             last=dr.opaque(m.UInt32, n_p - 1))
         res = self._path_loop(tab, c, lookup, delta, start, active, depth, prev_pdf, rng,
-                              patches=patches)
+                              patches=patches, first_draws=later)
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         post = [res.acc[b] * le[b] for b in range(n_b)]
         late = [res.late[b] * le[b] for b in range(n_b)]
@@ -288,7 +339,7 @@ class PatchSetTracer(BandPathTracer):
                        emitter_wavelength_nm: Any, emitter_radiance: Any, *,
                        n_paths: int | None = None, target_rel_se: float | None = None,
                        seed: int = 0, max_paths: int = 1 << 23,
-                       pilot_paths: int = 1 << 16) -> list[BandEstimate]:
+                       pilot_paths: int = 1 << 14) -> list[BandEstimate]:
         """The radiometer spectrum of each patch in `patches` (materials of the fit family,
         no λ-dependent η), the other slots from `materials`, from one set of paths.
 
