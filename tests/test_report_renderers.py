@@ -12,8 +12,9 @@ from normbox_lab.analyze.report_renderers import RendererRow, RenderingError
 
 
 def test_one_number_format():
-    assert [fmt_number(v) for v in (1, 1.6, 2.02e-5, 0.0747, 1.0004, 0.99949, 123456.0)] == [
-        "1.00", "1.60", "2.02×10⁻⁵", "0.0747", "1.00", "0.999", "1.23×10⁵"]
+    assert [fmt_number(v) for v in (1, 1.6, 2.02e-5, 0.0747, 1.0004, 0.99949, 123456.0, 0.18,
+                                    0.9996)] == [
+        "1.00", "1.60", "2.02×10⁻⁵", "0.0747", "1.00", "0.999", "1.23×10⁵", "0.180", "1.00"]
     assert fmt_number(float("nan")) == "—"
 
 

@@ -101,11 +101,10 @@ def fmt_number(v: float, digits: int = SIGNIFICANT_DIGITS) -> str:
         return "∞" if v > 0 else "−∞"
     if v == 0.0:
         return "0"
-    if 1e-3 <= abs(v) < 1e5:
-        text = np.format_float_positional(v, precision=digits, unique=False,
-                                          fractional=False, trim="k")
-        return text[:-1] if text.endswith(".") else text
     mantissa, exponent = f"{v:.{digits - 1}e}".split("e")
+    e = int(exponent)                  # of the rounded value: 0.9996 → 1.00e+00
+    if -3 <= e < 5:
+        return f"{float(f'{mantissa}e{e}'):.{max(digits - 1 - e, 0)}f}"
     return f"{mantissa}×10{str(int(exponent)).translate(_SUPERSCRIPT)}"
 
 
