@@ -237,12 +237,14 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
 # --- report --------------------------------------------------------------------------------------
 
 def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
-               brdf_run: int | str | None = None, notes: Iterable[str] = ()) -> Path:
-    """The HTML report of a reference run (`analyze.report_store` gathers its data)."""
+               brdf_run: int | str | None = None, notes: Iterable[str] = (),
+               renderer: str | None = None) -> Path:
+    """The HTML report of a reference run (`analyze.report_store` gathers its data);
+    `renderer`: built on an imported renderer's comparison instead of ours."""
     from normbox_lab.analyze.report import write_report
     from normbox_lab.analyze.report_store import report_data_from_store
 
-    rd = report_data_from_store(store, ref_run, brdf_run, notes)
+    rd = report_data_from_store(store, ref_run, brdf_run, notes, renderer=renderer)
     out = Path(path) if path else Path(f"report-run-{store.get_run(ref_run).id}.html")
     return write_report(out, rd)
 

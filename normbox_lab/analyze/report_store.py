@@ -110,14 +110,16 @@ def prediction_methods(store: Any, run_id: int) -> dict[str, str]:
 
 
 def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str | None = None,
-                           notes: Iterable[str] = ()) -> ReportData:
-    """Everything the report of reference run `ref_run` shows, from the store."""
+                           notes: Iterable[str] = (), renderer: str | None = None) -> ReportData:
+    """Everything the report of reference run `ref_run` shows, from the store; `renderer`:
+    the comparison of an imported renderer's prediction instead of ours."""
+    from normbox_lab.predict.renderers import artifact_name
 
     run_id = store.get_run(ref_run).id
     comparison = ComparisonResult.from_artifact(
-        store.latest_artifact("comparison", f"ref-run-{run_id}"))
+        store.latest_artifact("comparison", artifact_name(run_id, renderer)))
     em = None
-    found = store.artifacts("error-model", f"ref-run-{run_id}")
+    found = store.artifacts("error-model", artifact_name(run_id, renderer))
     if found:
         em = ErrorModelResult(**{k: np.asarray(v) for k, v in found[-1].arrays.items()})
     fits = latest_fits(store)
@@ -157,7 +159,8 @@ def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str |
         or "sim://" in store.get_run(run_id).lab_config,
         renderers=rows, rendering_errors=errors, paper=paper,
         comparison=comparison, fits=fits, brdf_data=data, error_model=em,
-        title=f"Normbox validation report — reference run {run_id}",
+        title=f"Normbox validation report — reference run {run_id}"
+        + (f", renderer {renderer}" if renderer else ""),
         polar_materials=[m for m in ("p08", "p18", "wall") if m in fits] or None,
         patch_fit_names=patch_fit_names, notes=list(notes), images=images,
         runs=campaign_runs(store, run_ids), instruments=instruments,
