@@ -1,15 +1,17 @@
 """Ocean Optics / Ocean Insight QE Pro spectrometer through python-seabreeze.
 
 References: Ocean Insight, *QE Pro Installation and Operation Manual*; python-seabreeze
-documentation (MIT) — [QEPRO] in docs/references.md.  The cseabreeze backend is the
-default (it has the QE Pro's TEC and nonlinearity features); pyseabreeze is the fallback (no TEC,
-no nonlinearity correction for the QE Pro — the driver then reports them as unavailable).
-seabreeze is imported only when a real device is opened, never at module import.
+documentation (MIT) — [QEPRO] and [OBP] in docs/references.md.  The cseabreeze backend is the
+default on hardware (it has the QE Pro's TEC, nonlinearity and lamp features); pyseabreeze (pure
+Python on pyusb) is the fallback and the backend the simulated lab uses (its QE Pro sits on an
+emulated pyusb bus, so this module's seabreeze path is the one that runs in CI).  seabreeze is
+imported only when a device is opened, never at module import.
 
     open("usb:") / open("usb:QEP01234") / open("QEP01234")    a real QE Pro (seabreeze)
-    open("sim") / open("sim://qepro?seed=1&faults=disconnect@3")  the simulated one, through
-                                          the backend a simulated lab registers with
-                                          `normbox_lab.core.transport`
+    open("QEP01234", backend="pyseabreeze", pyusb_backend="libusb1")   the pure-Python backend
+    open("sim") / open("sim://qepro?seed=1&faults=disconnect@3")  the simulated one: the scheme
+                                          registered with `normbox_lab.core.transport` says
+                                          which seabreeze and pyusb backends reach it
 
 Device facts used: 1044 pixels, integration time 8 ms … 1600 s (`integration_time_micros`),
 18-bit counts (max 262143), electrically dark pixels (dark correction = subtract their mean),
@@ -17,15 +19,27 @@ stored nonlinearity coefficients (``counts / polyval(c, counts)``), TEC set poin
 (``features['thermo_electric'][0]``, default −10 °C), lamp-enable line
 (``features['strobe_lamp'][0].enable_lamp``) used by the gonioreflectometer as the shutter.
 
+The pyseabreeze gap: pyseabreeze's QEPRO has only the ``spectrometer`` and
+``raw_usb_bus_access`` features — no ``thermo_electric``, ``nonlinearity_coefficients`` or
+``strobe_lamp``.  When a feature is missing but raw USB access is there, this driver sends the
+QE Pro's own OBP messages through ``raw_usb_bus_access`` (`ObpRawAccess`: TEC 0x00420004 /
+0x00420010 / 0x00420011, nonlinearity 0x00181100 / 0x00181101, lamp enable 0x00110410), so the
+TEC, the nonlinearity correction and the gonio's lamp shutter work with either backend.  With
+neither (another device, or a backend without raw access) TEC calls raise `NotReady`, the
+nonlinearity correction is skipped (``status()["nonlinearity_correction"]`` says so) and the
+lamp line raises `NotReady`.
+
 A saturated spectrum (any raw pixel at the maximum) raises `DeviceError("SATURATED")` from
-`intensities_counts`; `acquire` returns it flagged instead.  A USB drop (seabreeze error)
-closes the handle, reopens the device by serial number (until `reconnect_timeout_s`) and
-retries the call once; if it stays away, `InstrumentError`.
+`intensities_counts`; `acquire` returns it flagged instead.  A USB drop (seabreeze or pyusb
+error) closes the handle, reopens the device by serial number until `reconnect_timeout_s`
+(`core.transport.recover_link`) and retries the call once; if it stays away, `InstrumentError`.
+Every failure of the backend, of opening or of a bad ``sim://`` option is an `InstrumentError`.
 """
 
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
@@ -50,6 +64,145 @@ class Acquisition:
     tec_temperature_c: float
 
 
+def _seabreeze(backend: str, pyusb_backend: str | None,
+               network_discovery: bool = True) -> tuple[Any, tuple[type, ...]]:
+    """seabreeze's `Spectrometer` on `backend`, and the exceptions a USB failure raises there
+    (pyseabreeze lets pyusb's `USBError` through unwrapped).
+
+    pyseabreeze's device listing also looks for network spectrometers (a UDP multicast that
+    waits 1 s of wall time, every listing).  With `network_discovery` False (the simulated
+    lab's QE Pro is on the emulated USB bus) that wait is cut to 1 ms through the API keyword
+    pyseabreeze reads (``multicast_timeout``), which seabreeze's `use` does not pass on."""
+    import warnings
+
+    import seabreeze
+    import seabreeze.backends
+
+    kwargs = {"pyusb_backend": pyusb_backend} if backend == "pyseabreeze" and pyusb_backend \
+        else {}
+    with warnings.catch_warnings():
+        # seabreeze warns when use() comes after a first device; the choice is the same one
+        warnings.simplefilter("ignore")
+        seabreeze.use(backend, **kwargs)
+    if backend == "pyseabreeze" and not network_discovery:
+        seabreeze.backends.BackendConfig.api_kwargs["multicast_timeout"] = 0.001
+    seabreeze.backends.get_backend()             # ImportError here if the backend is missing
+    from seabreeze.spectrometers import SeaBreezeError, Spectrometer, list_devices
+
+    api = getattr(list_devices, "_api", None)    # seabreeze keeps the first API object
+    if api is not None and getattr(api, "_kwargs", None) != \
+            seabreeze.backends.BackendConfig.api_kwargs:
+        del list_devices._api                    # made again with these keywords
+
+    errors: tuple[type, ...] = (SeaBreezeError,)
+    if backend == "pyseabreeze":
+        import usb.core
+        from seabreeze.pyseabreeze.transport import USBTransportDeviceInUse, USBTransportError
+
+        # pyseabreeze on a handle closed after a drop: RuntimeError("device not opened"), or
+        # ReferenceError from a feature whose protocol object is gone
+        errors += (usb.core.USBError, USBTransportError, USBTransportDeviceInUse, RuntimeError,
+                   ReferenceError)
+    return Spectrometer, errors
+
+
+class ObpRawAccess:
+    """The QE Pro's Ocean Binary Protocol messages through seabreeze's ``raw_usb_bus_access``
+    feature (its `raw_usb_write` / `raw_usb_read`), for what a backend does not wrap.
+
+    Frame (little-endian): 44-byte header ``<H 0xC0C1><H 0x1100><H flags><H error><L type>
+    <L regarding><6s><B checksum type 0><B immediate length><16s immediate><L bytes
+    remaining>``, payload when > 16 bytes, ``<16s checksum><L 0xC2C3C4C5>``; replies carry flag
+    0x0001, a refusal flag 0x0008 with its error number."""
+
+    HEADER = struct.Struct("<HHHHLL6sBB16sL")
+    REQUEST_ACK, NACK = 0x0004, 0x0008
+
+    def __init__(self, raw: Callable[[], Any], *, instrument_id: str = "spectrometer") -> None:
+        self._raw = raw
+        self.instrument_id = instrument_id
+
+    def _frame(self, message_type: int, data: bytes, flags: int) -> bytes:
+        imm, payload = (data, b"") if len(data) <= 16 else (b"", data)
+        head = self.HEADER.pack(0xC0C1, 0x1100, flags, 0, message_type, 0, bytes(6), 0,
+                                len(imm), imm.ljust(16, b"\0"), len(payload) + 20)
+        return head + payload + bytes(16) + struct.pack("<L", 0xC2C3C4C5)
+
+    def _exchange(self, message_type: int, data: bytes, flags: int) -> bytes:
+        raw = self._raw()
+        raw.raw_usb_write(self._frame(message_type, data, flags), "primary_out")
+        reply = bytes(raw.raw_usb_read("primary_in", 64))
+        if len(reply) < 44:
+            raise ProtocolError(f"OBP reply to 0x{message_type:08X}: {len(reply)} bytes",
+                                instrument=self.instrument_id)
+        (start, _v, rflags, error, rtype, _r, _res, _ck, imm_len, imm,
+         remaining) = self.HEADER.unpack_from(reply)
+        while len(reply) < 44 + remaining:
+            more = bytes(raw.raw_usb_read("primary_in", 44 + remaining - len(reply)))
+            if not more:
+                break
+            reply += more
+        if start != 0xC0C1 or rtype != message_type or len(reply) != 44 + remaining \
+                or imm_len > 16:
+            raise ProtocolError(f"OBP reply to 0x{message_type:08X} does not match "
+                                f"(type 0x{rtype:08X}, {len(reply)} bytes)",
+                                instrument=self.instrument_id)
+        if rflags & self.NACK:
+            raise DeviceError(f"OBP{error}", f"QE Pro refused 0x{message_type:08X} "
+                              f"(OBP error {error})", instrument=self.instrument_id)
+        return imm[:imm_len] if imm_len else reply[44:-20]
+
+    def query(self, message_type: int, data: bytes = b"") -> bytes:
+        return self._exchange(message_type, data, 0)
+
+    def command(self, message_type: int, data: bytes = b"") -> None:
+        """A set command, with the ACK requested (so a refusal is seen)."""
+        self._exchange(message_type, data, self.REQUEST_ACK)
+
+
+class _ObpTec:
+    """seabreeze's thermo_electric feature, over OBP (0x00420004 / 0x00420010 / 0x00420011)."""
+
+    def __init__(self, obp: ObpRawAccess) -> None:
+        self.obp = obp
+
+    def read_temperature_degrees_celsius(self) -> float:
+        return float(struct.unpack("<f", self.obp.query(0x00420004))[0])
+
+    def set_temperature_setpoint_degrees_celsius(self, temperature: float) -> None:
+        self.obp.command(0x00420011, struct.pack("<f", float(temperature)))
+
+    def enable_tec(self, state: bool) -> None:
+        self.obp.command(0x00420010, struct.pack("<B", bool(state)))
+
+
+class _ObpNonlinearity:
+    """seabreeze's nonlinearity_coefficients feature, over OBP (0x00181100 / 0x00181101);
+    read once (they are stored calibration values)."""
+
+    def __init__(self, obp: ObpRawAccess) -> None:
+        self.obp = obp
+        self._coeffs: list[float] | None = None
+
+    def get_nonlinearity_coefficients(self) -> list[float]:
+        if self._coeffs is None:
+            n = self.obp.query(0x00181100)[0]
+            self._coeffs = [float(struct.unpack("<f", self.obp.query(0x00181101,
+                                                                     bytes([i])))[0])
+                            for i in range(n)]
+        return list(self._coeffs)
+
+
+class _ObpLamp:
+    """seabreeze's strobe_lamp feature, over OBP (0x00110410 SET_LAMP_ENABLE)."""
+
+    def __init__(self, obp: ObpRawAccess) -> None:
+        self.obp = obp
+
+    def enable_lamp(self, state: bool) -> None:
+        self.obp.command(0x00110410, struct.pack("<B", bool(state)))
+
+
 class QEPro:
     model = "QE Pro"
 
@@ -65,6 +218,7 @@ class QEPro:
         self.reconnect_timeout_s = float(reconnect_timeout_s)
         self.simulated = simulated
         self._white_standard: Any = None     # set by the backend that opened the device
+        self._lost: Exception | None = None  # the USB drop a failed recovery left unresolved
         self.integration_time_s = 0.1
         try:
             self._wavelengths = np.asarray(self.spec.wavelengths(), dtype=float)
@@ -81,8 +235,18 @@ class QEPro:
             raise ProtocolError(f"implausible device data: {wl.size} wavelengths (they must "
                                 f"increase), max counts {self.max_counts:g}",
                                 instrument=instrument_id)
-        self.has_tec = "thermo_electric" in self._features() and \
-            bool(self._features()["thermo_electric"])
+        self._filled: dict[str, list[Any]] = {}
+        raw_access = bool(self._native().get("raw_usb_bus_access")) and \
+            "QE" in str(getattr(self.spec, "model", "")).upper()
+        if raw_access:
+            obp = ObpRawAccess(lambda: self._native()["raw_usb_bus_access"][0],
+                               instrument_id=instrument_id)
+            for name, feature in (("thermo_electric", _ObpTec(obp)),
+                                  ("nonlinearity_coefficients", _ObpNonlinearity(obp)),
+                                  ("strobe_lamp", _ObpLamp(obp))):
+                if not self._native().get(name):
+                    self._filled[name] = [feature]
+        self.has_tec = bool(self._features().get("thermo_electric"))
         self.has_nonlinearity = bool(self._features().get("nonlinearity_coefficients"))
         self.set_integration_time_s(self.integration_time_s)
         if tec_setpoint_c is not None and self.has_tec:
@@ -91,43 +255,65 @@ class QEPro:
     # --- opening ------------------------------------------------------------------------------
     @classmethod
     def open(cls, serial_or_url: str, clock: Clock, *, world: Any = None,
-             backend: str = "cseabreeze", **options: Any) -> QEPro:
+             backend: str = "cseabreeze", pyusb_backend: str | None = None,
+             **options: Any) -> QEPro:
+        """Open by serial number (``usb:SERIAL``, ``SERIAL``, ``usb:`` = the first) with
+        seabreeze `backend` (``cseabreeze`` or ``pyseabreeze``; `pyusb_backend` names
+        pyseabreeze's pyusb backend), or a registered scheme (``sim://qepro?…``)."""
         target = str(serial_or_url)
+        instrument_id = options.get("instrument_id", "spectrometer")
         if transport.spectrometer_scheme(target) is not None:
-            # a registered backend (the simulated lab's `sim`): no seabreeze here
-            link = transport.open_spectrometer(target, clock, world=world)
-            inst = cls(link.device, clock, reopen=link.reopen, error_types=link.error_types,
-                       simulated=link.simulated, **options)
+            try:
+                link = transport.open_spectrometer(target, clock, world=world)
+            except ValueError as exc:
+                raise InstrumentError(f"cannot open spectrometer {target!r}: {exc}",
+                                      instrument=instrument_id) from exc
+            inst = cls._open_seabreeze(link.serial_number, clock, backend=link.backend,
+                                       pyusb_backend=link.pyusb_backend,
+                                       simulated=link.simulated, **options)
             inst._white_standard = link.white_standard
             return inst
-        serial = target.removeprefix("usb:")
-        serial = serial or None
+        return cls._open_seabreeze(target.removeprefix("usb:") or None, clock, backend=backend,
+                                   pyusb_backend=pyusb_backend, **options)
+
+    @classmethod
+    def _open_seabreeze(cls, serial: str | None, clock: Clock, *, backend: str,
+                        pyusb_backend: str | None, **options: Any) -> QEPro:
+        instrument_id = options.get("instrument_id", "spectrometer")
         try:
-            import seabreeze
-            seabreeze.use(backend)
-            from seabreeze.spectrometers import SeaBreezeError, Spectrometer
+            Spectrometer, errors = _seabreeze(backend, pyusb_backend,
+                                              network_discovery=not options.get("simulated"))
         except (ImportError, RuntimeError, ValueError) as exc:
             if backend == "pyseabreeze":
-                raise InstrumentError(f"seabreeze unavailable: {exc}") from exc
-            return cls.open(serial_or_url, clock, world=world, backend="pyseabreeze", **options)
+                raise InstrumentError(f"seabreeze unavailable: {exc}",
+                                      instrument=instrument_id) from exc
+            return cls._open_seabreeze(serial, clock, backend="pyseabreeze",
+                                       pyusb_backend=pyusb_backend, **options)
 
         def reopen() -> Any:
             return Spectrometer.from_serial_number(serial)
 
         try:
             spec = reopen()
-        except SeaBreezeError as exc:
+        except errors as exc:
             raise InstrumentError(f"cannot open QE Pro {serial or '(first)'}: {exc}",
-                                  instrument=options.get("instrument_id", "spectrometer")) from exc
-        return cls(spec, clock, reopen=reopen, error_types=(SeaBreezeError,), **options)
+                                  instrument=instrument_id) from exc
+        return cls(spec, clock, reopen=reopen, error_types=errors, **options)
 
     # --- plumbing -----------------------------------------------------------------------------
-    def _features(self) -> dict[str, list[Any]]:
+    def _native(self) -> dict[str, list[Any]]:
         return dict(getattr(self.spec, "features", {}) or {})
 
+    def _features(self) -> dict[str, list[Any]]:
+        """The backend's features, with the gaps filled over raw USB (see the module doc)."""
+        return {**self._native(), **getattr(self, "_filled", {})}
+
     def _call(self, fn: Callable[[], Any]) -> Any:
-        """Run one seabreeze call; on a USB drop reopen the device and try once more."""
+        """Run one seabreeze call; on a USB drop reopen the device and try once more.  After a
+        recovery that failed, the next call starts with the recovery (the old handle is dead)."""
         try:
+            if self._lost is not None and self._reopen is not None:
+                self._reconnect(self._lost)
             return fn()
         except self._errors as first:
             if self._reopen is None:
@@ -141,21 +327,16 @@ class QEPro:
                                       instrument=self.instrument_id) from exc
 
     def _reconnect(self, cause: Exception) -> None:
-        try:
-            self.spec.close()
-        except self._errors:
-            pass
-        deadline = self.clock.now_s() + self.reconnect_timeout_s
-        while True:
-            try:
-                self.spec = self._reopen()  # type: ignore[misc]
-                break
-            except self._errors as exc:
-                if self.clock.now_s() >= deadline:
-                    raise InstrumentError(f"QE Pro gone ({cause}); not back after "
-                                          f"{self.reconnect_timeout_s:g} s: {exc}",
-                                          instrument=self.instrument_id) from exc
-                self.clock.sleep(0.5)
+        self.close()
+        self._lost = cause
+
+        def attempt() -> Any:
+            return self._reopen()  # type: ignore[misc]
+
+        self.spec = transport.recover_link(
+            self.clock, self.reconnect_timeout_s, attempt, retry_on=self._errors,
+            instrument_id=self.instrument_id, what=f"QE Pro gone ({cause})")
+        self._lost = None
         try:
             self.spec.integration_time_micros(round(self.integration_time_s * 1e6))
         except self._errors as exc:
@@ -173,7 +354,7 @@ class QEPro:
         try:
             self.spec.close()
         except self._errors:
-            pass
+            pass                        # a device that dropped off closes as far as it can
 
     def wavelengths_nm(self) -> np.ndarray:
         return self._wavelengths.copy()
@@ -197,8 +378,10 @@ class QEPro:
         if correct_dark or nl:
             counts = counts - offset
         if nl:
-            coeffs = self._features()["nonlinearity_coefficients"][0]
-            c = np.poly1d(list(coeffs.get_nonlinearity_coefficients())[::-1])
+            coeffs = self._call(lambda: list(
+                self._features()["nonlinearity_coefficients"][0]
+                .get_nonlinearity_coefficients()))
+            c = np.poly1d(coeffs[::-1])
             counts = counts / np.polyval(c, counts)
             if not correct_dark:
                 counts = counts + offset

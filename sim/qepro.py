@@ -1,12 +1,51 @@
-"""Ocean Optics / Ocean Insight QE Pro, simulated at the seabreeze API boundary.
+"""Ocean Optics / Ocean Insight QE Pro, emulated on its USB wire (Ocean Binary Protocol).
 
-seabreeze ships no fake device, and `seabreeze.spectrometers.Spectrometer` type-checks its
-backend device, so the simulation replaces the whole object: `SimulatedSpectrometer` has the
-shape of `seabreeze.spectrometers.Spectrometer` (``from_serial_number``,
-``integration_time_micros``, ``integration_time_micros_limits``, ``wavelengths()``,
-``intensities(correct_dark_counts, correct_nonlinearity)``, ``max_intensity``, ``pixels``,
-``serial_number``, ``model``, ``features[...]`` / ``f.<feature>``, ``open``/``close``).
-Nothing here imports seabreeze.
+`QEProUsb` is the instrument's firmware as the host sees it through USB: device descriptor
+VID 0x2457 / PID 0x4004, one vendor-specific interface with bulk endpoints 0x01/0x81 and
+0x02/0x82 (512-byte packets), and Ocean Binary Protocol (OBP) frames on 0x01 → 0x81.  It sits on
+the emulated pyusb bus of `normbox_lab.sim.usb` (`emulated_usb("qepro")`), where unmodified
+python-seabreeze (pyseabreeze backend) lists, opens and reads it.  `SimulatedQEProDevice` is
+the physics behind it (optics, counts, TEC, faults); nothing here imports seabreeze.
+
+OBP frames (written from the protocol facts in [QEPRO] / [OBP] of docs/references.md,
+little-endian): 44-byte header ``<H start 0xC0C1 (bytes C1 C0)><H version 0x1100><H flags>
+<H error><L message type><L regarding><6s reserved><B checksum type><B immediate length>
+<16s immediate data><L bytes remaining>``, then a payload when the data exceed 16 bytes, then
+``<16s checksum><L footer 0xC2C3C4C5>``.  Checksum type 0 = none, 1 = MD5 over everything
+before the checksum; a request with a wrong MD5 is refused (NACK, error 3).  Replies carry the
+response flag 0x0001; a set command answers ACK (0x0002) only when the request asked for one
+(flag 0x0004); an error answers NACK (0x0008) with its error number (2 unknown message type, 3
+bad checksum, 5 payload length, 6 payload data invalid, 8 unknown checksum type, 1 wrong
+protocol version) when the request asked for an ACK or expects data (*assumed*: a refused
+set command without the ACK request gets no reply, so no stale NACK waits in the pipe).
+Bytes before a start marker are dropped (resynchronisation).
+
+Messages (request → reply data):
+
+    0x00000100 GET_SERIAL_NUMBER          → the serial number (ASCII, ≤ 16 bytes)
+    0x00000101 GET_SERIAL_NUMBER_LENGTH   → <B length>
+    0x00000080 / 0x00000090 GET_HARDWARE / FIRMWARE_REVISION → <B> / <H>
+    0x00000E11 GET_ORIGINAL_DEVICE_STRING → "QE-PRO"
+    0x00100928 GET_BUF_SPEC32_META        → 32-byte metadata + 1044 × <L counts> (the
+                                            acquisition runs now, for the integration time, on
+                                            the device clock); metadata ``<L spectrum count>
+                                            <Q time stamp µs><L integration time µs><B trigger
+                                            mode>`` then zeros (*assumed* layout)
+    0x00101100 GET_RAW_SPECTRUM_NOW       → 1044 × <L counts> (no metadata)
+    0x00110000 GET_INTEGRATION_TIME_US    → <L µs>
+    0x00110001 / 0x00110002 min / max     → <L 8000> / <L 1600000000>
+    0x00110010 SET_ITIME_USEC  <L µs>     8 ms … 1600 s, else NACK 6
+    0x00110100 / 0x00110110 GET / SET_TRIG_MODE <B 0 normal, 1 level, 2 synchronisation,
+                                            3 edge>
+    0x00110220 GET_NUMBER_OF_PIXELS       → <L 1044>
+    0x00110400 / 0x00110410 GET / SET_LAMP_ENABLE <B>  (the lamp-enable line; the gonio's
+                                            lamp shutter)
+    0x00180100 / 0x00180101 <B i>  wavelength coefficient count / coefficient i (<f>)
+    0x00181100 / 0x00181101 <B i>  nonlinearity coefficient count / coefficient i (<f>)
+    0x00420000 / 0x00420001 GET_TE_ENABLE / GET_TE_SETPOINT → <B> / <f °C>
+    0x00420004 GET_TE_TEMPERATURE         → <f °C>
+    0x00420010 / 0x00420011 SET_TE_ENABLE <B> / SET_TE_SETPOINT <f °C>
+    0x00100830 CLEAR_BUFFER_ALL / 0x00100000 ABORT_ACQUISITION   accepted
 
 The device (QE Pro facts from [QEPRO] in docs/references.md): 1044 pixels, electrically dark
 pixels 0–3 and 1040–1043, 18-bit counts (max 262143), integration time 8 ms … 1600 s,
@@ -36,19 +75,24 @@ nonlinearity coefficients [1, −0.005/262143] undo the 0.5 % nonlinearity the s
 order towards the set point, τ = 30 s, from 25 °C at power-up.  `intensities()` blocks for the
 integration time on the injected clock.
 
-Faults (`faults=` spec): ``disconnect``: the USB link drops for the parameter's seconds
-(default 3): calls raise `SeaBreezeError`, and ``from_serial_number`` finds no device until it
-is back.  Conditions, counted per acquisition and latched from the one at which they fire
-(``kind@n`` = from the n-th spectrum on; ``kind`` alone = from the first):
-``saturation`` (a light leak holds pixels 500–519 at `parameter` × full scale, default 0.97,
-whatever the integration time), ``tec-drift`` (the detector warms by `parameter` °C, default
-2, while the set point stays), ``dark-drift`` (`parameter` counts/s more dark current, default
-1000), ``lamp-dim`` (the gonio lamp's output × `parameter`, default 1e-4).
+Faults (`faults=` spec), at the USB level: ``disconnect``: the device drops off the bus for the
+parameter's seconds (default 3), counted per spectrum request (``disconnect@3:30`` = the
+third spectrum request is lost and the device is gone for 30 s): transfers on the old handle fail with
+ENODEV, and it is not enumerated until it is back, at a new bus address.  Conditions, counted
+per acquisition and latched from the one at which they fire (``kind@n`` = from the n-th
+spectrum on; ``kind`` alone = from the first): ``saturation`` (a light leak holds pixels
+500–519 at `parameter` × full scale, default 0.97, whatever the integration time),
+``tec-drift`` (the detector warms by `parameter` °C, default 2, while the set point stays),
+``dark-drift`` (`parameter` counts/s more dark current, default 1000), ``lamp-dim`` (the gonio
+lamp's output × `parameter`, default 1e-4).  A bad fault spec is a `ValueError` here; the
+driver reports it as an `InstrumentError`.
 """
 
 from __future__ import annotations
 
+import hashlib
 import math
+import struct
 from collections.abc import Callable
 from typing import Any
 
@@ -76,10 +120,6 @@ CONDITION_FAULTS = {"saturation": 0.97, "tec-drift": 2.0, "dark-drift": 1000.0,
                     "lamp-dim": 1e-4}
 
 
-class SeaBreezeError(Exception):
-    """What seabreeze raises (``seabreeze.spectrometers.SeaBreezeError``), simulated."""
-
-
 def halogen_irradiance(wavelength_nm: np.ndarray, temperature_K: float = 3000.0) -> np.ndarray:
     wl = np.asarray(wavelength_nm, dtype=float)
     c2 = 1.4388e7  # nm·K
@@ -100,66 +140,6 @@ def _angle_source(src: Any, default_key: str) -> Callable[[], float | None]:
         return None if emu is None else float(emu.angle_deg())
 
     return read
-
-
-class _Feature:
-    def __init__(self, dev: SimulatedQEProDevice) -> None:
-        self._dev = dev
-
-
-class ThermoElectricFeature(_Feature):
-    def read_temperature_degrees_celsius(self) -> float:
-        self._dev.check()
-        return self._dev.tec_temperature_c()
-
-    def set_temperature_setpoint_degrees_celsius(self, temperature: float) -> None:
-        self._dev.check()
-        self._dev.set_tec_setpoint(float(temperature))
-
-    def enable_tec(self, state: bool) -> None:
-        self._dev.check()
-        self._dev.set_tec_enabled(bool(state))
-
-
-class StrobeLampFeature(_Feature):
-    def enable_lamp(self, state: bool) -> None:
-        self._dev.check()
-        self._dev.lamp_on = bool(state)
-
-
-class NonlinearityCoefficientsFeature(_Feature):
-    def get_nonlinearity_coefficients(self) -> list[float]:
-        return list(NONLINEARITY_COEFFS)
-
-
-class SpectrometerFeature(_Feature):
-    def get_electric_dark_pixel_indices(self) -> list[int]:
-        return list(DARK_PIXELS)
-
-    def get_wavelengths(self) -> np.ndarray:
-        return self._dev.wavelengths.copy()
-
-    def get_maximum_intensity(self) -> float:
-        return float(MAX_COUNTS)
-
-    def get_integration_time_micros_limits(self) -> tuple[int, int]:
-        return INTEGRATION_LIMITS_US
-
-    def set_integration_time_micros(self, us: int) -> None:
-        self._dev.check()
-        lo, hi = INTEGRATION_LIMITS_US
-        if not lo <= int(us) <= hi:
-            raise SeaBreezeError("[Fix] Specified integration time is out of range.")
-        self._dev.integration_time_us = int(us)
-
-    def get_intensities(self) -> np.ndarray:
-        return self._dev.acquire()
-
-
-class _FeatureAccessor:
-    def __init__(self, features: dict[str, list[Any]]) -> None:
-        for name, items in features.items():
-            setattr(self, name, items[0] if items else None)
 
 
 class SimulatedQEProDevice:
@@ -189,8 +169,10 @@ class SimulatedQEProDevice:
         self.white_in_place = False
         self.white_reflectance = 0.99
         self.integration_time_us = 100_000
-        self.is_open = False
+        self.trigger_mode = 0
+        self.spectrum_count = 0
         self.disconnected_until_s: float | None = None
+        self.usb_backend: Any = None                # set when plugged into the emulated bus
         self._power_on_s = self.clock.now_s()
         self._tec_from_c, self._tec_since_s = AMBIENT_C, self._power_on_s
         self._tec_setpoint_c, self._tec_enabled = -10.0, True
@@ -200,24 +182,23 @@ class SimulatedQEProDevice:
                  * self.responsivity)
         self.responsivity *= WHITE_TARGET_COUNTS / (0.1 * float(white.max()))
 
-    # --- link -------------------------------------------------------------------------------
-    def check(self) -> None:
-        now = self.clock.now_s()
-        if self.disconnected_until_s is not None:
-            if now < self.disconnected_until_s:
-                raise SeaBreezeError("Data transfer error: device not found (USB)")
-            self.disconnected_until_s = None
-            self.is_open = False       # re-enumerated: the old handle is stale
-        if not self.is_open:
-            raise SeaBreezeError("Device is not open")
+    # --- link ---------------------------------------------------------------------------------
+    def request_lost(self) -> bool:
+        """A spectrum request reaches the device: True when the link drops now
+        (``disconnect`` fault), for the fault's parameter in seconds."""
         if self.faults.fires("disconnect"):
-            self.disconnected_until_s = now + self.faults.parameter("disconnect", 3.0)
-            raise SeaBreezeError("Data transfer error")
+            self.disconnected_until_s = self.clock.now_s() + \
+                self.faults.parameter("disconnect", 3.0)
+            return True
+        return False
 
     @property
     def present(self) -> bool:
-        return self.disconnected_until_s is None or \
-            self.clock.now_s() >= self.disconnected_until_s
+        """On the bus (enumerable) now."""
+        if self.disconnected_until_s is not None and \
+                self.clock.now_s() >= self.disconnected_until_s:
+            self.disconnected_until_s = None
+        return self.disconnected_until_s is None
 
     # --- TEC ----------------------------------------------------------------------------------
     def tec_temperature_c(self, at_s: float | None = None) -> float:
@@ -268,7 +249,6 @@ class SimulatedQEProDevice:
         return f * self.lamp_irradiance(wl) * cos_i
 
     def acquire(self) -> np.ndarray:
-        self.check()
         for kind, default in CONDITION_FAULTS.items():
             if kind not in self.conditions and self.faults.fires(kind):
                 self.conditions[kind] = self.faults.parameter(kind, default)
@@ -312,111 +292,226 @@ class WhiteStandardSlide:
         self.device.white_in_place = False
 
 
-class SimulatedSpectrometer:
-    """`seabreeze.spectrometers.Spectrometer`, simulated (same method names and behaviour)."""
+# --- the USB side: Ocean Binary Protocol ------------------------------------------------------
+VENDOR_ID = 0x2457
+PRODUCT_ID = 0x4004
+EP_OUT, EP_IN, EP_OUT2, EP_IN2 = 0x01, 0x81, 0x02, 0x82
+OBP_START = 0xC0C1
+OBP_VERSION = 0x1100
+OBP_FOOTER = 0xC2C3C4C5
+OBP_HEADER = struct.Struct("<HHHHLL6sBB16sL")
+OBP_HEADER_SIZE, OBP_FOOTER_SIZE = 44, 20
+FLAG_RESPONSE, FLAG_ACK, FLAG_REQUEST_ACK, FLAG_NACK = 0x0001, 0x0002, 0x0004, 0x0008
+CHECKSUM_NONE, CHECKSUM_MD5 = 0, 1
+ERR_VERSION, ERR_UNKNOWN, ERR_CHECKSUM, ERR_LENGTH, ERR_INVALID, ERR_CHECKSUM_TYPE = \
+    1, 2, 3, 5, 6, 8
+METADATA_BYTES = 32
+
+
+def obp_frame(message_type: int, data: bytes = b"", *, flags: int = 0, error: int = 0,
+              regarding: int = 0, checksum_type: int = CHECKSUM_NONE) -> bytes:
+    """One OBP frame (data ≤ 16 bytes go in the header's immediate field)."""
+    if len(data) <= 16:
+        immediate, payload = data, b""
+    else:
+        immediate, payload = b"", data
+    head = OBP_HEADER.pack(OBP_START, OBP_VERSION, flags, error, message_type, regarding,
+                           bytes(6), checksum_type, len(immediate), immediate.ljust(16, b"\0"),
+                           len(payload) + OBP_FOOTER_SIZE)
+    body = head + payload
+    checksum = hashlib.md5(body).digest() if checksum_type == CHECKSUM_MD5 else bytes(16)
+    return body + checksum + struct.pack("<L", OBP_FOOTER)
+
+
+class QEProUsb:
+    """The QE Pro's USB function: descriptors, bulk endpoints, OBP message handling."""
 
     def __init__(self, device: SimulatedQEProDevice) -> None:
-        self._dev = device
-        self.open()
-        nc = NonlinearityCoefficientsFeature(device).get_nonlinearity_coefficients()
-        self._nc = np.poly1d(nc[::-1])
-        self._dp = SpectrometerFeature(device).get_electric_dark_pixel_indices()
-        self._wavelengths = SpectrometerFeature(device).get_wavelengths()
-        self._features = {
-            "spectrometer": [SpectrometerFeature(device)],
-            "thermo_electric": [ThermoElectricFeature(device)],
-            "strobe_lamp": [StrobeLampFeature(device)],
-            "nonlinearity_coefficients": [NonlinearityCoefficientsFeature(device)],
-        }
+        from normbox_lab.sim.usb import bulk_endpoint, device_descriptor
 
-    # --- seabreeze's classmethods --------------------------------------------------------------
-    @classmethod
-    def from_serial_number(cls, serial: str | None = None) -> SimulatedSpectrometer:
-        for dev in list_devices():
-            if serial is None or dev.serial_number == str(serial):
-                if dev.is_open:
-                    raise SeaBreezeError("Device already opened.")
-                return cls(dev)
-        raise SeaBreezeError(f"No device attached with serial number '{serial}'.")
+        self.device = device
+        self.clock = device.clock
+        self.device_descriptor = device_descriptor(VENDOR_ID, PRODUCT_ID, bcd_device=0x0100)
+        self.strings = {1: "Ocean Optics", 2: "QE-PRO", 3: device.serial_number}
+        self.endpoints = [bulk_endpoint(EP_OUT), bulk_endpoint(EP_IN),
+                          bulk_endpoint(EP_OUT2), bulk_endpoint(EP_IN2)]
+        self._rx = bytearray()
+        self._tx = bytearray()
+        self.log: list[tuple[int, int]] = []       # (message type, error) per request
 
-    @classmethod
-    def from_first_available(cls) -> SimulatedSpectrometer:
-        return cls.from_serial_number(None)
+    # --- UsbFunction ---------------------------------------------------------------------------
+    def present(self) -> bool:
+        return self.device.present
 
-    # --- the Spectrometer API ------------------------------------------------------------------
-    def wavelengths(self) -> np.ndarray:
-        return self._wavelengths
+    def reset(self) -> None:
+        self._rx.clear()
+        self._tx.clear()
 
-    def intensities(self, correct_dark_counts: bool = False,
-                    correct_nonlinearity: bool = False) -> np.ndarray:
-        out = self._features["spectrometer"][0].get_intensities().astype(np.float64)
-        dark_offset = float(np.mean(out[self._dp]))
-        if correct_nonlinearity or correct_dark_counts:
-            out -= dark_offset
-        if correct_nonlinearity:
-            out = out / np.polyval(self._nc, out)
-        if correct_nonlinearity and not correct_dark_counts:
-            out += dark_offset
+    def bulk_out(self, endpoint: int, data: bytes) -> None:
+        if endpoint != EP_OUT:
+            return                                   # 0x02: not used by OBP over USB
+        self._rx += data
+        while True:
+            frame = self._next_frame()
+            if frame is None:
+                return
+            if self._counts_for_disconnect(frame) and self.device.request_lost():
+                self.reset()                         # the link dropped with this request
+                return
+            self._tx += self._handle(frame)
+
+    def bulk_in(self, endpoint: int, size: int) -> bytes:
+        if endpoint != EP_IN or not self.device.present:
+            return b""
+        out = bytes(self._tx[:size])
+        del self._tx[:size]
         return out
 
-    def spectrum(self, correct_dark_counts: bool = False,
-                 correct_nonlinearity: bool = False) -> np.ndarray:
-        return np.vstack((self._wavelengths,
-                          self.intensities(correct_dark_counts, correct_nonlinearity)))
+    # --- framing -------------------------------------------------------------------------------
+    def _next_frame(self) -> bytes | None:
+        start = self._rx.find(struct.pack("<H", OBP_START))
+        if start < 0:
+            del self._rx[:max(0, len(self._rx) - 1)]
+            return None
+        del self._rx[:start]
+        if len(self._rx) < OBP_HEADER_SIZE:
+            return None
+        remaining = struct.unpack_from("<L", self._rx, 40)[0]
+        if not OBP_FOOTER_SIZE <= remaining <= 1 << 16:
+            del self._rx[:2]                         # not a header after all: resynchronise
+            return self._next_frame()
+        total = OBP_HEADER_SIZE + remaining
+        if len(self._rx) < total:
+            return None
+        frame = bytes(self._rx[:total])
+        del self._rx[:total]
+        return frame
 
-    def integration_time_micros(self, integration_time_micros: int) -> None:
-        self._features["spectrometer"][0].set_integration_time_micros(integration_time_micros)
+    @staticmethod
+    def _counts_for_disconnect(frame: bytes) -> bool:
+        """Spectrum requests are the opportunities of the ``disconnect`` fault."""
+        return struct.unpack_from("<L", frame, 8)[0] in (0x00100928, 0x00101100)
 
-    @property
-    def integration_time_micros_limits(self) -> tuple[int, int]:
-        return INTEGRATION_LIMITS_US
+    def _handle(self, frame: bytes) -> bytes:
+        (_start, version, flags, _err, mtype, regarding, _res, cktype, imm_len, imm,
+         _remaining) = OBP_HEADER.unpack_from(frame)
+        data = imm[:imm_len] if imm_len else frame[OBP_HEADER_SIZE:-OBP_FOOTER_SIZE]
+        wants_ack = bool(flags & FLAG_REQUEST_ACK)
 
-    @property
-    def max_intensity(self) -> float:
-        return float(MAX_COUNTS)
+        def reply(payload: bytes | None, error: int = 0) -> bytes:
+            self.log.append((mtype, error))
+            if error:
+                if not (wants_ack or mtype in _QUERIES):
+                    return b""
+                return obp_frame(mtype, flags=FLAG_RESPONSE | FLAG_NACK, error=error,
+                                 regarding=regarding, checksum_type=self._reply_ck(cktype))
+            if payload is None:
+                if not wants_ack:
+                    return b""
+                return obp_frame(mtype, flags=FLAG_RESPONSE | FLAG_ACK, regarding=regarding,
+                                 checksum_type=self._reply_ck(cktype))
+            return obp_frame(mtype, payload, flags=FLAG_RESPONSE, regarding=regarding,
+                             checksum_type=self._reply_ck(cktype))
 
-    @property
-    def serial_number(self) -> str:
-        return self._dev.serial_number
+        if version != OBP_VERSION:
+            return reply(None, ERR_VERSION)
+        if cktype not in (CHECKSUM_NONE, CHECKSUM_MD5) or imm_len > 16:
+            return reply(None, ERR_CHECKSUM_TYPE if imm_len <= 16 else ERR_LENGTH)
+        if struct.unpack_from("<L", frame, len(frame) - 4)[0] != OBP_FOOTER:
+            return reply(None, ERR_LENGTH)
+        if cktype == CHECKSUM_MD5 and \
+                frame[-OBP_FOOTER_SIZE:-4] != hashlib.md5(frame[:-OBP_FOOTER_SIZE]).digest():
+            return reply(None, ERR_CHECKSUM)
+        handler = _HANDLERS.get(mtype)
+        if handler is None:
+            return reply(None, ERR_UNKNOWN)
+        fmt, fn = handler
+        if len(data) != struct.calcsize(fmt):
+            return reply(None, ERR_LENGTH)
+        try:
+            result = fn(self.device, *struct.unpack(fmt, data))
+        except _Invalid:
+            return reply(None, ERR_INVALID)
+        return reply(result)
 
-    @property
-    def model(self) -> str:
-        return self._dev.model
-
-    @property
-    def pixels(self) -> int:
-        return PIXELS
-
-    @property
-    def features(self) -> dict[str, list[Any]]:
-        return self._features
-
-    @property
-    def f(self) -> _FeatureAccessor:
-        return _FeatureAccessor(self._features)
-
-    def open(self) -> None:
-        if not self._dev.present:
-            raise SeaBreezeError("No device attached")
-        self._dev.disconnected_until_s = None
-        self._dev.is_open = True
-
-    def close(self) -> None:
-        self._dev.is_open = False
-
-    # --- simulation extras (not in seabreeze) --------------------------------------------------
-    @property
-    def simulated_device(self) -> SimulatedQEProDevice:
-        return self._dev
-
-    def __repr__(self) -> str:
-        return f"<SimulatedSpectrometer {self.model}:{self.serial_number}>"
+    @staticmethod
+    def _reply_ck(request_checksum_type: int) -> int:
+        return CHECKSUM_MD5 if request_checksum_type == CHECKSUM_MD5 else CHECKSUM_NONE
 
 
-def list_devices() -> list[SimulatedQEProDevice]:
-    """The simulated QE Pros that are plugged in now (`sim.core.CONTEXT` keys ``qepro*``)."""
-    return [d for k, d in core.CONTEXT.instances.items()
-            if isinstance(d, SimulatedQEProDevice) and d.present]
+class _Invalid(Exception):
+    """Payload data the device refuses (NACK, error 6)."""
+
+
+def _set_integration(dev: SimulatedQEProDevice, us: int) -> None:
+    lo, hi = INTEGRATION_LIMITS_US
+    if not lo <= us <= hi:
+        raise _Invalid
+    dev.integration_time_us = int(us)
+
+
+def _set_trigger(dev: SimulatedQEProDevice, mode: int) -> None:
+    if mode > 3:
+        raise _Invalid
+    dev.trigger_mode = mode
+
+
+def _coefficient(values: Any, i: int) -> bytes:
+    if i >= len(values):
+        raise _Invalid
+    return struct.pack("<f", float(values[i]))
+
+
+def _set_lamp(dev: SimulatedQEProDevice, on: int) -> None:
+    dev.lamp_on = bool(on)
+
+
+def _spectrum(dev: SimulatedQEProDevice, metadata: bool) -> bytes:
+    counts = dev.acquire()
+    dev.spectrum_count += 1
+    body = counts.astype("<u4").tobytes()
+    if not metadata:
+        return body
+    meta = struct.pack("<LQLB", dev.spectrum_count, round(dev.clock.now_s() * 1e6),
+                       dev.integration_time_us, dev.trigger_mode)
+    return meta.ljust(METADATA_BYTES, b"\0") + body
+
+
+#: message type → (request payload struct format, handler(device, *values) → reply data or
+#: None for a set command)
+_HANDLERS: dict[int, tuple[str, Callable[..., bytes | None]]] = {
+    0x00000100: ("", lambda d: d.serial_number.encode("ascii")[:16]),
+    0x00000101: ("", lambda d: struct.pack("<B", len(d.serial_number.encode("ascii")[:16]))),
+    0x00000080: ("", lambda d: struct.pack("<B", 1)),
+    0x00000090: ("", lambda d: struct.pack("<H", 0x0100)),
+    0x00000E11: ("", lambda d: d.model.encode("ascii")),
+    0x00100000: ("", lambda d: None),
+    0x00100830: ("", lambda d: None),
+    0x00100928: ("", lambda d: _spectrum(d, True)),
+    0x00101100: ("", lambda d: _spectrum(d, False)),
+    0x00110000: ("", lambda d: struct.pack("<L", d.integration_time_us)),
+    0x00110001: ("", lambda d: struct.pack("<L", INTEGRATION_LIMITS_US[0])),
+    0x00110002: ("", lambda d: struct.pack("<L", INTEGRATION_LIMITS_US[1])),
+    0x00110010: ("<L", _set_integration),
+    0x00110100: ("", lambda d: struct.pack("<B", d.trigger_mode)),
+    0x00110110: ("<B", _set_trigger),
+    0x00110220: ("", lambda d: struct.pack("<L", PIXELS)),
+    0x00110400: ("", lambda d: struct.pack("<B", int(d.lamp_on))),
+    0x00110410: ("<B", _set_lamp),
+    0x00180100: ("", lambda d: struct.pack("<B", len(WAVELENGTH_COEFFS))),
+    0x00180101: ("<B", lambda d, i: _coefficient(WAVELENGTH_COEFFS, i)),
+    0x00181100: ("", lambda d: struct.pack("<B", len(NONLINEARITY_COEFFS))),
+    0x00181101: ("<B", lambda d, i: _coefficient(NONLINEARITY_COEFFS, i)),
+    0x00420000: ("", lambda d: struct.pack("<B", int(d._tec_enabled))),
+    0x00420001: ("", lambda d: struct.pack("<f", d._tec_setpoint_c)),
+    0x00420004: ("", lambda d: struct.pack("<f", d.tec_temperature_c())),
+    0x00420010: ("<B", lambda d, on: d.set_tec_enabled(bool(on))),
+    0x00420011: ("<f", lambda d, c: d.set_tec_setpoint(float(c))),
+}
+#: requests that expect data back (a refusal of one is always answered)
+_QUERIES = frozenset(k for k, (fmt, _) in _HANDLERS.items()
+                     if k not in (0x00100000, 0x00100830, 0x00110010, 0x00110110, 0x00110410,
+                                  0x00420010, 0x00420011))
 
 
 def device(key: str = "qepro", clock: Clock | None = None,
@@ -431,5 +526,13 @@ def device(key: str = "qepro", clock: Clock | None = None,
     return dev
 
 
-__all__ = ["SeaBreezeError", "SimulatedQEProDevice", "SimulatedSpectrometer",
-           "WhiteStandardSlide", "device", "halogen_irradiance", "list_devices"]
+__all__ = [
+    "PRODUCT_ID",
+    "VENDOR_ID",
+    "QEProUsb",
+    "SimulatedQEProDevice",
+    "WhiteStandardSlide",
+    "device",
+    "halogen_irradiance",
+    "obp_frame",
+]

@@ -11,6 +11,7 @@ import serial
 
 from normbox_lab.core import transport
 from normbox_lab.core.clock import Clock
+from normbox_lab.sim import core
 
 
 def register_url_scheme() -> None:
@@ -31,8 +32,11 @@ def open_port(url: str, **kwargs) -> serial.SerialBase:
 def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
                                 **_: Any) -> transport.SpectrometerLink:
     """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…`` → the simulated
-    QE Pro (seabreeze's `Spectrometer` interface) behind the gonio's emulated arms."""
+    QE Pro behind the gonio's emulated arms, plugged into the emulated USB bus
+    (`normbox_lab.sim.usb`); the driver opens it with seabreeze's pyseabreeze backend through
+    that bus.  A bad option or fault spec is a `ValueError`."""
     from normbox_lab.sim import qepro as sim
+    from normbox_lab.sim import usb
 
     parts = urllib.parse.urlsplit(target if "://" in target else "sim://qepro")
     q = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
@@ -50,10 +54,13 @@ def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
                      **dev_opts)
     if world is not None:
         dev.world = world
-    serial_number = dev.serial_number
+    if q:
+        raise ValueError(f"unknown sim://qepro option(s): {', '.join(sorted(q))}")
+    backend = getattr(dev, "usb_backend", None)
+    if backend is None or backend.plug not in usb.bus().plugs:
+        # on the bus while it is the lab's live device (a later lab's CONTEXT.reset unplugs it)
+        backend = usb.plug_qepro(dev, alive=lambda: core.CONTEXT.instances.get(key) is dev)
+        dev.usb_backend = backend
+    return transport.SpectrometerLink(dev.serial_number, "pyseabreeze", str(backend),
+                                      simulated=True, white_standard=sim.WhiteStandardSlide(dev))
 
-    def reopen() -> Any:
-        return sim.SimulatedSpectrometer.from_serial_number(serial_number)
-
-    return transport.SpectrometerLink(reopen(), reopen, (sim.SeaBreezeError,), simulated=True,
-                                      white_standard=sim.WhiteStandardSlide(dev))

@@ -260,7 +260,9 @@ def qepro_operations(rng: random.Random) -> None:
     core.CONTEXT.reset(clock=clock)
     simq.device("qepro", clock=clock, light_arm=lambda: 0.0, detector_arm=lambda: 45.0)
     q = QEPro.open("sim://qepro", clock, reconnect_timeout_s=1.0)
-    q.spec = _HostileSpectrometer(q.spec, rng, simq.SeaBreezeError)
+    from seabreeze.spectrometers import SeaBreezeError
+
+    q.spec = _HostileSpectrometer(q.spec, rng, SeaBreezeError)
     q._reopen = None if rng.random() < 0.5 else (lambda: q.spec)
     for _ in range(3):
         op = rng.randrange(3)

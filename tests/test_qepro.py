@@ -1,4 +1,5 @@
-"""QE Pro through a seabreeze-shaped simulated device: counts model, corrections, faults."""
+"""QE Pro on the emulated USB bus: python-seabreeze (pyseabreeze) drives it unmodified; the
+driver's seabreeze path against it: counts model, corrections, OBP gaps filled, faults."""
 
 from __future__ import annotations
 
@@ -37,30 +38,99 @@ def test_driver_does_not_import_seabreeze_at_module_import():
     assert subprocess.run([sys.executable, "-c", code], check=False).returncode == 0
 
 
-def test_seabreeze_shape_of_the_simulated_device():
+def test_seabreeze_lists_opens_and_reads_the_emulated_qepro():
+    """seabreeze's own Spectrometer API is the client: list, open, read, close."""
+    from normbox_lab.sim.usb import emulated_usb
+
     clock = VirtualClock()
-    core.CONTEXT.reset(clock=clock)
-    sim.device("qepro", clock=clock)
-    spec = sim.SimulatedSpectrometer.from_serial_number("QEP-SIM-0001")
-    with pytest.raises(sim.SeaBreezeError):
-        sim.SimulatedSpectrometer.from_serial_number("QEP-SIM-0001")     # already open
-    assert (spec.model, spec.pixels, spec.max_intensity) == ("QE-PRO", 1044, 262143.0)
-    assert spec.integration_time_micros_limits == (8_000, 1_600_000_000)
-    wl = spec.wavelengths()
-    assert wl.shape == (1044,) and np.all(np.diff(wl) > 0) and wl[0] == 350.0
-    with pytest.raises(sim.SeaBreezeError):
-        spec.integration_time_micros(7_999)
-    spec.f.thermo_electric.set_temperature_setpoint_degrees_celsius(-10.0)
-    assert "thermo_electric" in spec.features and spec.f.strobe_lamp is not None
-    spec.integration_time_micros(200_000)
-    t0 = clock.now_s()
-    raw = spec.intensities()
-    assert clock.now_s() - t0 == pytest.approx(0.2)                      # blocks for the exposure
-    assert raw.max() <= 262143 and np.all(raw == np.round(raw))
-    assert raw[:4].mean() == pytest.approx(1500, abs=40)                 # electrically dark pixels
-    spec.close()
-    with pytest.raises(sim.SeaBreezeError):
-        spec.intensities()
+    with emulated_usb("qepro", seed=3, clock=clock, world=FlatWorld(0.5 / np.pi),
+                      light_arm=lambda: 0.0, detector_arm=lambda: 45.0,
+                      serial_number="QEP-USB-0042") as backend:
+        import seabreeze
+
+        seabreeze.use("pyseabreeze", pyusb_backend=backend)
+        from seabreeze.spectrometers import SeaBreezeError, Spectrometer, list_devices
+
+        devices = list_devices()
+        assert [(d.model, d.serial_number) for d in devices] == [("QEPRO", "QEP-USB-0042")]
+        spec = Spectrometer.from_serial_number("QEP-USB-0042")
+        with pytest.raises(SeaBreezeError):
+            Spectrometer.from_serial_number("QEP-USB-0042")                 # already open
+        assert (spec.pixels, spec.max_intensity) == (1044, 262143.0)
+        assert spec.integration_time_micros_limits == (8_000, 1_600_000_000)
+        wl = spec.wavelengths()                  # from the OBP coefficients 0x00180100/0101
+        c0, c1, c2 = sim.WAVELENGTH_COEFFS
+        px = np.arange(1044)
+        assert np.allclose(wl, np.float32(c0) + np.float32(c1) * px + np.float32(c2) * px ** 2)
+        spec.integration_time_micros(200_000)
+        assert backend.device.integration_time_us == 200_000
+        t0 = clock.now_s()
+        raw = spec.intensities()
+        assert clock.now_s() - t0 == pytest.approx(0.2)      # the exposure, on the device clock
+        assert raw.shape == (1044,) and raw.max() <= 262143 and np.all(raw == np.round(raw))
+        assert raw[:4].mean() == pytest.approx(1500, abs=40)             # electrically dark
+        assert raw[300:700].mean() > 20 * 1500                           # the lit white-ish
+        dark_corrected = spec.intensities(correct_dark_counts=True)
+        assert np.median(dark_corrected[:4]) == pytest.approx(0, abs=40)
+        with pytest.raises(SeaBreezeError):
+            spec.intensities(correct_nonlinearity=True)   # pyseabreeze: no such QEPRO feature
+        spec.close()
+    assert list_devices() == []                                          # unplugged
+
+
+def test_obp_frames_on_the_wire():
+    """Exact frames: serial number length, a set command with ACK, a refused checksum, an
+    unknown message type, and the buffered spectrum's size."""
+    dev = sim.SimulatedQEProDevice(VirtualClock(), serial_number="QEP01234")
+    fn = sim.QEProUsb(dev)
+    fn.bulk_out(sim.EP_OUT, sim.obp_frame(0x00000101))
+    reply = fn.bulk_in(sim.EP_IN, 4096)
+    assert len(reply) == 64 and reply[:2] == b"\xc1\xc0" and reply[4:6] == b"\x01\x00"
+    assert reply[22:25] == b"\x00\x01\x08"            # no checksum, 1 immediate byte: 8
+    assert reply[-4:] == b"\xc5\xc4\xc3\xc2"
+    fn.bulk_out(sim.EP_OUT, sim.obp_frame(0x00110010, (50_000).to_bytes(4, "little"),
+                                          flags=sim.FLAG_REQUEST_ACK))
+    ack = fn.bulk_in(sim.EP_IN, 4096)
+    assert ack[4:6] == b"\x03\x00" and dev.integration_time_us == 50_000         # ACK
+    fn.bulk_out(sim.EP_OUT, sim.obp_frame(0x00110010, (10).to_bytes(4, "little"),
+                                          flags=sim.FLAG_REQUEST_ACK))
+    nack = fn.bulk_in(sim.EP_IN, 4096)
+    assert nack[4:8] == b"\x09\x00\x06\x00" and dev.integration_time_us == 50_000  # NACK 6
+    good = sim.obp_frame(0x00000100, checksum_type=sim.CHECKSUM_MD5)
+    fn.bulk_out(sim.EP_OUT, good)
+    assert fn.bulk_in(sim.EP_IN, 4096)[22:32] == b"\x01\x08QEP01234"    # MD5 reply
+    bad = good[:-20] + bytes(16) + good[-4:]
+    fn.bulk_out(sim.EP_OUT, bad)
+    assert fn.bulk_in(sim.EP_IN, 4096)[4:8] == b"\x09\x00\x03\x00"      # bad checksum
+    fn.bulk_out(sim.EP_OUT, sim.obp_frame(0x00DEAD00))         # unknown, no ACK asked: silent
+    assert fn.bulk_in(sim.EP_IN, 4096) == b""
+    fn.bulk_out(sim.EP_OUT, b"\x00\x17" + sim.obp_frame(0x00DEAD00, flags=sim.FLAG_REQUEST_ACK))
+    assert fn.bulk_in(sim.EP_IN, 4096)[4:8] == b"\x09\x00\x02\x00"      # junk skipped; NACK 2
+    fn.bulk_out(sim.EP_OUT, sim.obp_frame(0x00100928))
+    spectrum = fn.bulk_in(sim.EP_IN, 1 << 16)
+    assert len(spectrum) == 44 + 32 + 1044 * 4 + 20
+    assert int.from_bytes(spectrum[76:80], "little") == pytest.approx(1500, abs=100)
+    assert fn.bulk_in(sim.EP_IN, 4096) == b""
+
+
+def test_driver_runs_the_seabreeze_path_and_fills_the_pyseabreeze_gaps():
+    q, dev = open_sim()
+    assert type(q.spec).__module__ == "seabreeze.spectrometers"             # the real thing
+    assert not q._native()["thermo_electric"] and q.has_tec and q.has_nonlinearity
+    q.set_tec_setpoint_c(-12.0)
+    assert dev._tec_setpoint_c == pytest.approx(-12.0)                     # over raw OBP
+    q.set_lamp_enabled(False)
+    assert dev.lamp_on is False
+    q.set_lamp_enabled(True)
+    assert q.status()["nonlinearity_correction"] is True
+
+
+def test_bad_fault_spec_and_unknown_option_are_instrument_errors():
+    for url in ("sim://qepro?faults=disconnect@x", "sim://qepro?faults=meltdown",
+                "sim://qepro?colour=blue"):
+        core.CONTEXT.reset(clock=VirtualClock())
+        with pytest.raises(InstrumentError):
+            QEPro.open(url, core.CONTEXT.clock)
 
 
 def test_counts_scale_with_time_and_radiance_snr_and_nonlinearity():
@@ -147,6 +217,45 @@ def test_usb_drop_reconnects_and_retries():
         q.acquire()                                                      # gone for good: typed
 
 
+def test_disconnect_longer_than_the_reconnect_window_is_typed():
+    """``faults=disconnect@3:30``: the third spectrum request drops the device for 30 s, the
+    reconnect window is 10 s → InstrumentError (never a raw seabreeze or pyusb exception) at
+    every operation while it is away; back after 30 s."""
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    sim.device("qepro", clock=clock, world=FlatWorld(0.5 / np.pi), light_arm=lambda: 0.0,
+               detector_arm=lambda: 45.0, faults="disconnect@3:30", seed=7)
+    q = QEPro.open("sim://qepro", clock)
+    q.acquire()
+    q.acquire()
+    t0 = clock.now_s()
+    with pytest.raises(InstrumentError) as err:
+        q.acquire()
+    assert "not back within 10 s" in str(err.value)
+    assert 10.0 <= clock.now_s() - t0 < 11.0
+    with pytest.raises(InstrumentError):                    # still away at t0 + 20 s: typed
+        q.set_integration_time_s(0.2)
+    assert 20.0 <= clock.now_s() - t0 < 21.0
+    assert q.tec_temperature_c() < 25.0                     # back at t0 + 30 s: reopened
+    assert q.acquire().counts.max() > 1000
+
+
 def test_real_open_reports_missing_device_typed():
+    from normbox_lab.sim.usb import BACKEND_NAME, bus
+
+    bus()                                                   # an emulated bus, nothing on it
     with pytest.raises(InstrumentError):
-        QEPro.open("usb:NO-SUCH-QEPRO", VirtualClock())
+        QEPro.open("usb:NO-SUCH-QEPRO", VirtualClock(), backend="pyseabreeze",
+                   pyusb_backend=BACKEND_NAME)
+
+
+def test_cseabreeze_stays_the_default_on_hardware():
+    code = ("import sys; from normbox_lab.core.clock import VirtualClock; "
+            "from normbox_lab.core.errors import InstrumentError; "
+            "from normbox_lab.drivers.qepro import QEPro\n"
+            "try:\n    QEPro.open('usb:NO-SUCH-QEPRO', VirtualClock())\n"
+            "except InstrumentError as e:\n    print(type(e).__name__)\n"
+            "import seabreeze.backends; print(seabreeze.backends.BackendConfig.requested)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=False, timeout=120).stdout.split()
+    assert out == ["InstrumentError", "cseabreeze"]

@@ -5,7 +5,8 @@
   scheme a package registered with `register_serial_scheme` (pyserial looks up
   ``PACKAGE.protocol_SCHEME``).  The emulators register ``sim://`` when a simulated lab is built.
 - USB spectrometers (seabreeze): `open_spectrometer(target, clock)` for a registered scheme
-  (the emulators register ``sim``), else the driver opens seabreeze itself.
+  (the emulators register ``sim``: their QE Pro sits on an emulated pyusb bus) says which
+  seabreeze backend and pyusb backend reach it; the driver opens seabreeze itself.
 - `Port`: what a serial driver may ask of its port (pyserial's `Serial`, the ``sim://`` port,
   the tests' scripted port all are one), so no driver probes it with ``hasattr``.
 - `recover_link(clock, timeout_s, attempt, …)`: the one deadline-and-reconnect loop after a
@@ -108,12 +109,12 @@ def open_port(url: str, *, instrument_id: str = "", **kwargs: Any) -> serial.Ser
 
 @dataclass(frozen=True)
 class SpectrometerLink:
-    """An opened USB spectrometer: a seabreeze `Spectrometer` (or one that behaves like it),
-    how to reopen it after a USB drop, and the errors its backend raises."""
+    """Where a registered scheme's USB spectrometer is: the driver opens it with seabreeze
+    (`backend`, and for pyseabreeze the pyusb backend by name) by its serial number."""
 
-    device: Any
-    reopen: Callable[[], Any]
-    error_types: tuple[type[BaseException], ...]
+    serial_number: str
+    backend: str = "pyseabreeze"
+    pyusb_backend: str | None = None
     simulated: bool = False
     #: the reference slide of a simulated gonio (a real lab's operator places the standard)
     white_standard: Any = None
