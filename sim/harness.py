@@ -208,6 +208,10 @@ def _child(argv: list[str], workdir: Path, tag: str, action: Action | None,
             out = os.open(name, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
             os.dup2(out, fd)
             os.close(out)
+        # the Python streams too (a test runner may have put its own objects there)
+        sys.stdin = open(0, encoding="utf-8", closefd=False)  # noqa: SIM115
+        sys.stdout = open(1, "w", encoding="utf-8", closefd=False)  # noqa: SIM115
+        sys.stderr = open(2, "w", encoding="utf-8", buffering=1, closefd=False)  # noqa: SIM115
         signal.signal(signal.SIGINT, signal.default_int_handler)
         if probes:
             journal = os.open(f"{tag}.journal", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)

@@ -1,0 +1,220 @@
+"""The simulation campaign (`normbox-lab sim campaign`): scenarios, oracle, harness, shrinker.
+
+The fixed-seed campaign below is the one `make test` runs (40 scenarios, two processes); the
+slow one (`make test-slow`) runs 1000.  Both demand zero violations.  The other tests show the
+campaign is able to fail: a radiometer that reports 5 % high, a driver that raises a raw
+`ValueError`, a garbled band are each caught, and the shrinker keeps exactly the fault that
+matters.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from normbox_lab.sim import campaign, harness, invariants
+from normbox_lab.sim.scenario import Action, Fault, Scenario, draw, lab_toml
+
+FAST_SEED, FAST_SCENARIOS = 2026, 40
+
+
+def small_sweep(**changes) -> Scenario:
+    base = Scenario(seed=1, index=0, protocol="reference-sweep",
+                    params={"angles_deg": [30, 60], "patches": [7, 19]})
+    return base.with_(**changes)
+
+
+# --- scenarios ---------------------------------------------------------------------------------
+def test_scenarios_are_drawn_deterministically_and_round_trip_as_json():
+    a, b = draw(11, 7), draw(11, 7)
+    assert a == b and a.to_json() == b.to_json()
+    assert Scenario.from_json(a.to_json()) == a
+    assert draw(11, 8) != a
+    seen = {draw(3, i).protocol for i in range(60)}
+    assert seen == {"reference-sweep", "brdf-inplane", "light-map", "repeatability"}
+    kinds = {f.kind for i in range(400) for f in draw(3, i).faults}
+    # every emulator's fault kinds are drawn: transport kinds, radiometer, rotator, sphere, QE Pro
+    assert {"garble", "late-reply", "disconnect", "busy", "power-blip", "stall", "lamp-drift",
+            "flicker", "unstable", "lamp-fail", "lamp-dim", "tec-drift", "dark-drift",
+            "saturation", "over-range", "device-error"} <= kinds
+    whats = {a.what for i in range(100) for a in draw(3, i).actions}
+    assert whats == {"kill", "pause", "estop"}
+
+
+def test_lab_config_carries_each_roles_faults_and_seed():
+    s = small_sweep(radiometer="cs2000a", rotator="rotator-zaber",
+                    faults=(Fault("radiometer", "late-reply", "=", 0.2, 12.0),
+                            Fault("sphere", "flicker", "@", 2, 5.0)))
+    text = lab_toml(s)
+    assert 'driver = "cs2000a"' in text and 'driver = "zaber"' in text
+    assert f'port = "sim://cs2000a?seed={s.device_seed("radiometer")}&faults=late-reply=0.2:12"' \
+        in text
+    assert "faults=flicker@2:5" in text
+    from normbox_lab.acquire.config import parse_config
+
+    config = parse_config(text, "<scenario>")
+    assert config.instruments["radiometer"].driver == "cs2000a"
+
+
+# --- the oracle ---------------------------------------------------------------------------------
+def _truth(patch: int = 7, angle: float = 30.0) -> tuple[np.ndarray, np.ndarray]:
+    w = invariants.analytic_world()
+    return w.wavelength_nm, w.radiance_at(patch, angle)
+
+
+def test_oracle_accepts_what_the_instrument_may_report_and_refuses_the_rest():
+    from normbox_lab.sim.radiometer_common import resample
+
+    wl, t = _truth()
+    meta = {"patch": 7, "angle_deg": 30.0}
+    view = {"patch": 7, "angle_deg": 30.02, "aim": None, "nominal_output": 1.0}
+    arrays = {"wavelength_nm": wl}
+    for gain in (0.98, 1.0, 1.0199):
+        for shift in (-0.3, 0.0, 0.3):
+            arrays["radiance_W_sr_m2_nm"] = resample(wl, t, shift) * gain
+            assert invariants.check_spectral("k", meta, arrays, view) == [], (gain, shift)
+    arrays["radiance_W_sr_m2_nm"] = t * 1.03
+    assert invariants.check_spectral("k", meta, arrays, view)
+    garbled = t.copy()
+    garbled[200] *= 0.01                                 # one band, as a bit flip leaves it
+    arrays["radiance_W_sr_m2_nm"] = garbled
+    [problem] = invariants.check_spectral("k", meta, arrays, view)
+    assert "1/401 bands" in problem and "580 nm" in problem
+    # the right numbers for another patch are wrong numbers for this one
+    arrays["radiance_W_sr_m2_nm"] = t
+    assert any("patch" in p for p in invariants.check_spectral(
+        "k", meta, arrays, {**view, "patch": 8}))
+    # and a sample standing 2° off is not the geometry the reading claims
+    assert any("stood at" in p for p in invariants.check_spectral(
+        "k", meta, arrays, {**view, "angle_deg": 32.0}))
+
+
+def test_brdf_oracle_follows_the_spectrometer_noise_but_not_a_dimmed_lamp():
+    w = invariants.analytic_world()
+    wl = w.wavelength_nm
+    truth = w._rho("patch-14") / np.pi
+    rng = np.random.default_rng(4)
+    noise = rng.normal(0, 1, wl.size) * np.where(wl < 460, 0.03, 0.002)   # blue is noisy
+    arrays = {"wavelength_nm": wl, "brdf_per_sr": truth * (1.01 + noise)}
+    meta = {"material": 14, "theta_i_deg": -20.0, "theta_o_deg": 30.0}
+    note = {"material": "patch-14", "theta_i_deg": -20.0, "theta_o_deg": 30.0}
+    assert invariants.check_brdf("k", meta, arrays, note) == []
+    arrays["brdf_per_sr"] = truth * 0.5 * (1 + noise)
+    assert any("×0.5" in p for p in invariants.check_brdf("k", meta, arrays, note))
+    arrays["brdf_per_sr"] = truth
+    assert any("gonio held" in p for p in invariants.check_brdf(
+        "k", meta, arrays, {**note, "material": "patch-13"}))
+
+
+# --- the harness, end to end ---------------------------------------------------------------------
+def test_kill_9_then_resume_completes_the_run_and_every_invariant_holds(tmp_path):
+    s = small_sweep(actions=(Action("kill", "reading-stored", 2),))
+    ex = harness.execute(s, tmp_path / "run")
+    first = ex.segments[0]
+    assert first.killed and first.fired and first.rc is None
+    stored_before_kill = [e["key"] for e in first.journal if e.get("ev") == "reading-stored"]
+    assert stored_before_kill == ["a30/p07", "a30/p19"]
+    assert ex.segments[-1].rc == 0
+    assert ex.reference is not None and ex.reference.segments[0].rc == 0
+    assert invariants.check(ex) == []
+    from normbox_lab.acquire.store import Store
+
+    with Store(ex.store) as store:
+        rec = store.get_run(ex.run_uuid)
+        assert rec.status == "done"
+        assert store.keys(rec.id) == {"a30/p07", "a30/p19", "a60/p07", "a60/p19"}
+
+
+def test_a_radiometer_that_reads_5_percent_high_is_caught(tmp_path, monkeypatch):
+    from normbox_lab.sim import radiometer_common
+
+    observe = radiometer_common.RadiometerOptics.observe
+
+    def high(self):
+        spectrum, _ = observe(self)
+        spectrum = spectrum * 1.05
+        return spectrum, radiometer_common.colorimetry(spectrum)
+
+    # the segments are forked from this process: they inherit the broken instrument
+    monkeypatch.setattr(radiometer_common.RadiometerOptics, "observe", high)
+    r = campaign.run_one(small_sweep(), tmp_path)
+    assert "a:spectral" in r.classes
+    assert all("×1.0" in v.message for v in r.violations if v.cls == "a:spectral")
+
+
+def test_a_raw_exception_is_a_traceback_violation(tmp_path, monkeypatch):
+    from normbox_lab.drivers import cs1000
+
+    def broken(self, *a, **k):
+        raise ValueError("not a typed error")
+
+    monkeypatch.setattr(cs1000.CS1000A, "measure", broken)
+    r = campaign.run_one(small_sweep(), tmp_path)
+    assert "b:traceback:ValueError" in r.classes
+
+
+def test_shrinker_keeps_only_the_fault_that_fails(tmp_path, monkeypatch):
+    culprit = Fault("sphere", "flicker", "@", 1, 5.0)
+    big = small_sweep(faults=(Fault("radiometer", "garble", "=", 0.1), culprit,
+                              Fault("rotator", "no-reply", "=", 0.05)),
+                      actions=(Action("pause", "reading-stored", 1),
+                               Action("kill", "prompt", 2)))
+    runs = []
+
+    def fake_run_one(s, root, **kw):
+        runs.append(s)
+        v = [invariants.Violation("a", "a:spectral", "x")] if culprit in s.faults else []
+        return campaign.Result(s, v, 0.0, 1, "done", 4)
+
+    monkeypatch.setattr(campaign, "run_one", fake_run_one)
+    small, n = campaign.shrink(big, "a:spectral", tmp_path)
+    assert small.faults == (culprit,) and small.actions == ()
+    assert small.params == {"angles_deg": [30], "patches": [7]}
+    assert n == len(runs) <= campaign.SHRINK_BUDGET
+    cmd = campaign.replay_command(small)
+    assert cmd.startswith("normbox-lab sim campaign --replay '")
+    assert Scenario.from_json(cmd.split("'")[1]) == small
+
+
+def test_cli_replay_prints_the_summary_line_last(tmp_path):
+    from normbox_lab import cli
+
+    out = io.StringIO()
+    results = campaign.run_campaign(replay=small_sweep().to_json(), out=out)
+    assert out.getvalue().strip().splitlines()[-1] == "1 scenarios: 0 violations"
+    assert results[0].status == "done"
+    with pytest.raises(SystemExit):
+        cli.main(["sim", "campaign", "--scenarios", "x"])
+    assert cli.main(["sim", "campaign", "--replay", "{not json"]) == 2
+    assert json.loads(small_sweep().to_json())["protocol"] == "reference-sweep"
+
+
+# --- the campaigns -------------------------------------------------------------------------------
+def _campaign(n: int, seed: int, jobs: int) -> str:
+    out = io.StringIO()
+    campaign.run_campaign(n, seed, jobs, out=out, verbose=False)
+    return out.getvalue()
+
+
+def test_fixed_seed_campaign_has_no_violations():
+    text = _campaign(FAST_SCENARIOS, FAST_SEED, 2)
+    assert text.strip().splitlines()[-1] == f"{FAST_SCENARIOS} scenarios: 0 violations", text
+
+
+@pytest.mark.slow
+def test_thousand_scenario_campaign_has_no_violations():
+    text = _campaign(1000, 7, 2)
+    assert text.strip().splitlines()[-1] == "1000 scenarios: 0 violations", text
+
+
+def test_keep_leaves_every_scenario_on_disk(tmp_path):
+    out = io.StringIO()
+    campaign.run_campaign(replay=small_sweep().to_json(), keep=str(tmp_path), out=out)
+    kept = tmp_path / small_sweep().name
+    assert (kept / "store.sqlite").is_file() and (kept / "lab.toml").is_file()
+    assert (kept / "seg0.journal").read_text().count('"ev": "reading-stored"') == 4
+    assert Path(kept / "seg0.stdout").read_text().count("\n") >= 5
