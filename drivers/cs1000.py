@@ -164,11 +164,14 @@ class CS1000A(KonicaMinoltaRadiometer):
         self.speed = mode
 
     def read_speed(self) -> str:
+        def parse(fields: list[str]) -> str:
+            if fields not in (["0"], ["1"]):
+                raise self._protocol("SPR: expected OK,0 or OK,1",
+                                     ",".join(["OK", *fields]).encode())
+            return "fast" if fields == ["1"] else "normal"
+
         self._ensure_remote()
-        fields = self.command("SPR")
-        if fields not in (["0"], ["1"]):
-            raise self._protocol("SPR: expected OK,0 or OK,1", ",".join(["OK", *fields]).encode())
-        return "fast" if fields == ["1"] else "normal"
+        return str(self.command("SPR", parse=parse))
 
     def set_time_mode(self, mode: str, time_s: float | None = None) -> None:
         """MMS: "auto", "auto-long", "multi" (time_s, %.2f) or "manual" (0.04–60 s, %.3f)."""
@@ -192,18 +195,20 @@ class CS1000A(KonicaMinoltaRadiometer):
             self.time_s = float(time_s)
 
     def status(self) -> dict[str, object]:
+        def parse(fields: list[str]) -> dict[str, object]:
+            raw = ",".join(["OK", *fields]).encode()
+            if len(fields) < 3:
+                raise self._protocol("STR: expected OK,<time mode>,<speed>,<time>", raw)
+            modes = {str(v): k for k, v in TIME_MODES.items()}
+            speeds = {str(v): k for k, v in SPEEDS.items()}
+            if fields[0] not in modes or fields[1] not in speeds:
+                raise self._protocol("STR: unknown time mode or speed", raw)
+            return {"model": self.model, "remote": self.remote, "time_mode": modes[fields[0]],
+                    "speed": speeds[fields[1]], "time_s": self.parse_number(fields[2], raw),
+                    "raw": fields}
+
         self._ensure_remote()
-        fields = self.command("STR")
-        raw = ",".join(["OK", *fields]).encode()
-        if len(fields) < 3:
-            raise self._protocol("STR: expected OK,<time mode>,<speed>,<time>", raw)
-        modes = {str(v): k for k, v in TIME_MODES.items()}
-        speeds = {str(v): k for k, v in SPEEDS.items()}
-        if fields[0] not in modes or fields[1] not in speeds:
-            raise self._protocol("STR: unknown time mode or speed", raw)
-        return {"model": self.model, "remote": self.remote, "time_mode": modes[fields[0]],
-                "speed": speeds[fields[1]], "time_s": self.parse_number(fields[2], raw),
-                "raw": fields}
+        return dict(self.command("STR", parse=parse))
 
     def estimate_measure_time_s(self, luminance_cd_m2: float) -> float:
         """Pre-measurement + 2·t + command and data transfer time at this baud rate."""

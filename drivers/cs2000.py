@@ -168,12 +168,15 @@ class CS2000A(KonicaMinoltaRadiometer):
 
     # --- the Spectroradiometer role ---------------------------------------------------------------
     def identify(self) -> InstrumentIdentity:
+        def parse(fields: list[str]) -> list[str]:
+            if len(fields) != 3 or fields[1] not in ("1", "2") \
+                    or not fields[2].strip().isascii() or not fields[2].strip().isdigit():
+                raise self._protocol("IDDR: expected OK00,<name>,<variation>,<serial>",
+                                     ",".join(["OK00", *fields]).encode())
+            return fields
+
         self._ensure_remote()
-        fields = self.command("IDDR")
-        raw = ",".join(["OK00", *fields]).encode()
-        if len(fields) != 3 or fields[1] not in ("1", "2") \
-                or not fields[2].strip().isascii() or not fields[2].strip().isdigit():
-            raise self._protocol("IDDR: expected OK00,<name>,<variation>,<serial>", raw)
+        fields = self.command("IDDR", parse=parse)
         url = str(self.port.port or "")
         return InstrumentIdentity("spectroradiometer", fields[0].strip(),
                                   serial_number=fields[2].strip(),
@@ -208,30 +211,32 @@ class CS2000A(KonicaMinoltaRadiometer):
 
     def read_speed(self) -> dict[str, object]:
         """SPMR → {"speed", "time_s" (multi/manual), "nd"}."""
+        def parse(fields: list[str]) -> dict[str, object]:
+            raw = ",".join(["OK00", *fields]).encode()
+            names = {v: k for k, v in SPEED_MODES.items()}
+            nds = {v: k for k, v in ND_MODES.items()}
+            if not fields:
+                raise self._protocol("SPMR: unexpected reply", raw)
+            mode = names.get(self.parse_int(fields[0], raw, 0, 9), "")
+            if not mode:
+                raise self._protocol("SPMR: unknown speed mode", raw)
+            if len(fields) != (2 if mode in ("normal", "fast") else 3):
+                raise self._protocol("SPMR: wrong number of fields", raw)
+            nd = nds.get(self.parse_int(fields[-1], raw, 0, 9), "")
+            if not nd:
+                raise self._protocol("SPMR: unknown ND mode", raw)
+            out: dict[str, object] = {"speed": mode, "nd": nd}
+            if mode.startswith("multi"):
+                out["time_s"] = float(self.parse_int(fields[1], raw, 1, 16))
+            elif mode == "manual":
+                out["time_s"] = self.parse_int(fields[1], raw, 5_000, 120_000_000) / 1e6
+            self.speed, self.nd = mode, str(out["nd"])
+            if "time_s" in out:
+                self.time_s = float(out["time_s"])  # type: ignore[arg-type]
+            return out
+
         self._ensure_remote()
-        fields = self.command("SPMR")
-        raw = ",".join(["OK00", *fields]).encode()
-        names = {v: k for k, v in SPEED_MODES.items()}
-        nds = {v: k for k, v in ND_MODES.items()}
-        if not fields:
-            raise self._protocol("SPMR: unexpected reply", raw)
-        mode = names.get(self.parse_int(fields[0], raw, 0, 9), "")
-        if not mode:
-            raise self._protocol("SPMR: unknown speed mode", raw)
-        if len(fields) != (2 if mode in ("normal", "fast") else 3):
-            raise self._protocol("SPMR: wrong number of fields", raw)
-        nd = nds.get(self.parse_int(fields[-1], raw, 0, 9), "")
-        if not nd:
-            raise self._protocol("SPMR: unknown ND mode", raw)
-        out: dict[str, object] = {"speed": mode, "nd": nd}
-        if mode.startswith("multi"):
-            out["time_s"] = float(self.parse_int(fields[1], raw, 1, 16))
-        elif mode == "manual":
-            out["time_s"] = self.parse_int(fields[1], raw, 5_000, 120_000_000) / 1e6
-        self.speed, self.nd = mode, str(out["nd"])
-        if "time_s" in out:
-            self.time_s = float(out["time_s"])  # type: ignore[arg-type]
-        return out
+        return dict(self.command("SPMR", parse=parse))
 
     def status(self) -> dict[str, object]:
         out: dict[str, object] = {"model": self.model, "remote": self.remote,

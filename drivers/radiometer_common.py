@@ -211,10 +211,15 @@ class SerialRadiometer:
     def with_retries(self, action: Callable[[], T], *, retry_device: tuple[str, ...] = (),
                      busy_wait_s: float = 2.0) -> T:
         """Run `action` up to `attempts` times: transport faults are retried (after a
-        reconnect when the link was lost), device errors whose code is in `retry_device`
-        after `busy_wait_s`; everything else raises at once."""
+        reconnect when the link was lost, after a resynchronisation when a reply was late or
+        made no sense), device errors whose code is in `retry_device` after `busy_wait_s`;
+        everything else raises at once.  A timeout or a garbled reply after which the sync
+        query found the line answering does not count against `attempts` (at most `attempts`
+        such faults are spared)."""
         last: InstrumentError | None = None
-        for attempt in range(1, self.attempts + 1):
+        attempt = spared = 0
+        while attempt < self.attempts:
+            attempt += 1
             try:
                 return action()
             except LinkLost as exc:
@@ -224,9 +229,15 @@ class SerialRadiometer:
                 last = exc
                 if not self._resync(late=True):  # its reply may still come, late
                     raise                        # not even the sync query is answered
+                if spared < self.attempts:       # the instrument answers: it was only late
+                    spared += 1
+                    attempt -= 1
             except ProtocolError as exc:
                 last = exc
-                self._resync()
+                # garbled, or a stray line (its own reply may follow): find the line
+                if self._resync(late=True) and spared < self.attempts:
+                    spared += 1
+                    attempt -= 1
             except DeviceError as exc:
                 if exc.code not in retry_device or attempt == self.attempts:
                     raise
@@ -271,9 +282,9 @@ class SerialRadiometer:
 
     def _sync(self) -> bool:
         """Send `sync_command` and read lines until one `is_sync_reply`, for at most the
-        command timeout plus the late window; once more if lines came but not that one.
-        False when the instrument stays silent or out of step."""
-        for _ in range(2):
+        command timeout plus the late window; again (three queries at most) while lines come
+        but not that one.  False when the instrument stays silent or out of step."""
+        for _ in range(3):
             heard = False
             try:
                 self._write(self.sync_command)
@@ -541,12 +552,16 @@ class KonicaMinoltaRadiometer(SerialRadiometer):
             raise self._protocol(f"{cmd}: unexpected fields after {self.ok_head}",
                                  ",".join([self.ok_head, *fields]).encode())
 
-    def command(self, cmd: str, timeout_s: float | None = None) -> list[str]:
-        """Send `cmd`, return the fields after the OK head.  Transport faults and ER02 (busy)
-        are retried (bounded); ER00 to a command other than the remote command re-enters
-        remote mode once (the instrument drops to local mode after a power blip) and repeats."""
-        def once() -> list[str]:
-            return self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
+    def command(self, cmd: str, timeout_s: float | None = None,
+                parse: Callable[[list[str]], Any] | None = None) -> Any:
+        """Send `cmd`, return the fields after the OK head (or `parse(fields)`, which raises
+        `ProtocolError` for fields that make no sense: such a reply is asked again, like a
+        garbled one).  Transport faults and ER02 (busy) are retried (bounded); ER00 to a
+        command other than the remote command re-enters remote mode once (the instrument
+        drops to local mode after a power blip) and repeats."""
+        def once() -> Any:
+            fields = self.parse_reply(self.exchange(cmd.encode("ascii"), timeout_s))
+            return fields if parse is None else parse(fields)
 
         try:
             return self.with_retries(once, retry_device=("ER02",))

@@ -176,11 +176,13 @@ def test_device_error_carries_code_and_meaning():
 
 
 def test_unknown_reply_is_protocol_error_with_raw_bytes():
-    d, port = scripted([Exchange(b"RMT,1\n", b"WHAT?\n")] * 3)
+    """Bounded attempts (3, and 3 more spared because the sync query (STR) is answered)."""
+    d, port = scripted([Exchange(b"RMT,1\n", b"WHAT?\n"),
+                        Exchange(b"STR\n", b"OK,0,0,1.000\n")] * 6)
     with pytest.raises(ProtocolError) as e:
         d.set_remote(True)
     assert e.value.raw == b"WHAT?"
-    port.assert_done()                                     # 3 bounded attempts
+    port.assert_done()
 
 
 def test_busy_is_retried_then_succeeds():

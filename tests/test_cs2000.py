@@ -184,10 +184,12 @@ def test_every_error_code_has_a_meaning(code):
 
 
 def test_unknown_reply_is_protocol_error_with_raw():
-    d, _port = scripted([Exchange(b"RMTS,2\n", b"OK01\n")] * 3)
+    """Bounded attempts (3, and 3 more spared because the sync query (IDDR) is answered)."""
+    d, port = scripted([Exchange(b"RMTS,2\n", b"OK01\n"), IDDR] * 6)
     with pytest.raises(ProtocolError) as e:
         d.set_remote(True)
     assert e.value.raw == b"OK01"
+    port.assert_done()
 
 
 def test_wrong_value_count_is_rejected():
@@ -388,6 +390,20 @@ def test_fuzz_every_call_with_arbitrary_replies(replies, fmt):
             assert result.radiance_W_sr_m2_nm.shape == (401,)
             assert np.all(np.isfinite(result.radiance_W_sr_m2_nm))
     assert clock.now_s() < 4 * 3600
+
+
+def test_hex_field_with_blanks_is_a_protocol_error_never_a_struct_error():
+    """``12 34 56`` has the 8 characters of a hex float, but bytes.fromhex skips the blanks
+    and gives 3 bytes (struct.error before).  Strictly 8 hex digits, else ProtocolError; the
+    block is read again each pass and never agrees."""
+    fields = [fmt_hex(v) for v in SPECTRUM[0:100]]
+    fields[17] = "12 34 56"
+    bad = Exchange(b"MEDR,1,1,1\n", ("OK00," + ",".join(fields) + "\n").encode())
+    d, port = scripted([*remote_script(), measure_script(hexfmt=True)[0], *[bad, IDDR] * 6],
+                       data_format="hex")
+    with pytest.raises(ProtocolError, match="block 1 agree"):
+        d.measure()
+    port.assert_done()
 
 
 def test_silence_is_bounded():
