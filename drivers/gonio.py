@@ -33,6 +33,22 @@ cancel, and a Lambertian white standard.  Counts are dark-pixel and nonlinearity
 (seabreeze); the BRDF is resampled from the QE Pro's pixel grid to 380–780 nm at 1 nm (linear
 interpolation); the raw counts (C_s, uncorrected, native grid) are kept in the reading.
 
+Lamp drift (the lamp is the one light of every reading, and it may dim after the white
+reference was taken): with a motorised white standard (``white_standard.motorised``, the
+simulated gonio's slide) every unblocked reading is bracketed by a *lamp check*: the white
+standard goes into the sample plane at the reading's own geometry (no arm move), one spectrum
+at t_w / max(cos θi, 0.1), and its dark-corrected rate is compared with the calibration white
+scaled as a Lambertian standard (cos θi / cos θi,ref).  The median ratio over the pixels where
+the white is above 10 % of its peak is the lamp's output relative to the white reference
+(``lamp_ratio`` in the reading's metadata).  Beyond ±`lamp_drift_limit_percent` (default 2 %:
+4× the 0.5 % repeatability of the white check at these signals, and below the ±2.6 %
+diffusivity the panel itself is specified to) the references are taken again (a new white and
+dark, `recalibrations` counts them) and the reading is repeated; still beyond the limit after
+that (the lamp is changing during the reading), `DeviceError("LAMP-DRIFT")`, which the engine
+records and retries, never a stored value.  Cost: one integration time (+ a dark when new) per
+reading.  With an operator-placed standard the lamp is compared at each calibration only
+(``lamp_ratio`` absent): drift between calibrations is not seen (docs/motion-and-light.md).
+
 Timing model for ETAs: both arms move at once (the longer of the two trapezoids), plus the
 integration times (sample + dark when t_s is new).
 """
@@ -71,6 +87,8 @@ TEC_STABLE_S = 30.0
 TEC_TIMEOUT_S = 600.0
 DARK_TEC_TOLERANCE_C = 0.2
 DARK_MAX_AGE_S = 600.0
+#: lamp check: the largest change of the lamp's output since the white reference, in percent
+LAMP_DRIFT_LIMIT_PERCENT = 2.0
 
 
 @runtime_checkable
@@ -153,7 +171,8 @@ class Gonioreflectometer:
                  tec_tolerance_c: float = TEC_TOLERANCE_C, tec_stable_s: float = TEC_STABLE_S,
                  tec_timeout_s: float = TEC_TIMEOUT_S,
                  dark_tec_tolerance_c: float = DARK_TEC_TOLERANCE_C,
-                 dark_max_age_s: float = DARK_MAX_AGE_S) -> None:
+                 dark_max_age_s: float = DARK_MAX_AGE_S,
+                 lamp_drift_limit_percent: float = LAMP_DRIFT_LIMIT_PERCENT) -> None:
         self.light_arm = light_arm
         self.detector_arm = detector_arm
         self.spectrometer = spectrometer
@@ -171,6 +190,8 @@ class Gonioreflectometer:
         self.tec_timeout_s = float(tec_timeout_s)
         self.dark_tec_tolerance_c = float(dark_tec_tolerance_c)
         self.dark_max_age_s = float(dark_max_age_s)
+        self.lamp_drift_limit_percent = float(lamp_drift_limit_percent)
+        self.recalibrations = 0
         self._cal: dict[str, Any] | None = None
         self._darks: dict[float, DarkFrame] = {}
         self._next_id = 1
@@ -328,6 +349,55 @@ class Gonioreflectometer:
         if self._cal is None:
             raise NotReady("not calibrated: run calibrate() after mounting the sample",
                            instrument=self.instrument_id)
+        reading, ratio = self._measure_once(theta_i_deg, theta_o_deg)
+        if ratio is not None and not self._lamp_ok(ratio):
+            self.calibrate()                       # the lamp changed: new white reference
+            self.recalibrations += 1
+            reading, ratio = self._measure_once(theta_i_deg, theta_o_deg)
+            if ratio is not None and not self._lamp_ok(ratio):
+                raise DeviceError("LAMP-DRIFT", f"lamp at {100 * ratio:.1f} % of its output at "
+                                  f"the white reference taken just before (limit "
+                                  f"±{self.lamp_drift_limit_percent:g} %): the lamp is not "
+                                  "stable", instrument=self.instrument_id)
+        if ratio is not None:
+            reading.metadata["lamp_ratio"] = ratio
+            reading.metadata["lamp_drift_limit_percent"] = self.lamp_drift_limit_percent
+            reading.metadata["recalibrations"] = self.recalibrations
+        return reading
+
+    def _lamp_ok(self, ratio: float) -> bool:
+        return abs(100.0 * (ratio - 1.0)) <= self.lamp_drift_limit_percent
+
+    def _motorised_white(self) -> bool:
+        return bool(getattr(self.white_standard, "motorised", False))
+
+    def _lamp_check(self, theta_i_deg: float) -> float:
+        """The lamp's output relative to the white reference: the white standard at this
+        geometry against the calibration white scaled as a Lambertian (see the module doc)."""
+        cal = self._cal
+        assert cal is not None
+        t_w = cal["integration_time_s"]
+        cos_i = math.cos(math.radians(theta_i_deg))
+        cos_ref = math.cos(math.radians(cal["theta_i_ref_deg"]))
+        t = self._clamp_t(t_w / max(cos_i, 0.1))
+        self.white_standard.insert()
+        try:
+            acq = self._acquire(t)
+            while acq.saturated and t > 8e-3:
+                t = self._clamp_t(t / 4)
+                acq = self._acquire(t)
+        finally:
+            self.white_standard.remove()
+        dark = self._dark(t, acq.tec_temperature_c)
+        ref_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w * cos_i / cos_ref
+        rate = (acq.counts - dark.counts) / t
+        use = ref_rate > 0.1 * float(np.max(ref_rate))
+        if not np.any(use):
+            return float("nan")
+        return float(np.median(rate[use] / ref_rate[use]))
+
+    def _measure_once(self, theta_i_deg: float, theta_o_deg: float
+                      ) -> tuple[BrdfReading, float | None]:
         ti, to = float(theta_i_deg), float(theta_o_deg)
         blocked = self.blocked(ti, to)
         self._move_arms(ti, to)
@@ -361,6 +431,7 @@ class Gonioreflectometer:
         brdf_native = ratio * cal["white_reflectance"] / math.pi * cos_ref / max(cos_i, 1e-6)
         wl = cal["wavelength_nm"]
         brdf = np.interp(self.output_wavelength_nm, wl, brdf_native)
+        ratio = self._lamp_check(ti) if self._motorised_white() and not blocked else None
         return BrdfReading(
             theta_i_deg=ti, theta_o_deg=to, tilt_deg=self.tilt_deg,
             wavelength_nm=self.output_wavelength_nm, brdf_per_sr=brdf,
@@ -380,7 +451,7 @@ class Gonioreflectometer:
                       "dark_drift_sigma_counts_s": dark.drift_sigma_counts_s,
                       "peak_signal_counts": float(np.max(acq.counts - dark.counts)),
                       "peak_counts": float(np.max(acq.raw_counts)),
-                      "full_scale_counts": float(full)})
+                      "full_scale_counts": float(full)}), ratio
 
     # --- timing -------------------------------------------------------------------------------
     def estimate_measure_time_s(self, theta_i_deg: float, theta_o_deg: float, *,

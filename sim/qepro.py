@@ -276,7 +276,10 @@ class SimulatedQEProDevice:
 
 
 class WhiteStandardSlide:
-    """The simulated gonio's reference slide: puts the Spectralon in the sample plane."""
+    """The simulated gonio's reference slide: puts the Spectralon in the sample plane (a
+    motorised slide: the gonio may bracket readings with lamp checks)."""
+
+    motorised = True
 
     def __init__(self, device: SimulatedQEProDevice, reflectance: float = 0.99) -> None:
         self.device = device

@@ -146,6 +146,49 @@ def test_spectrometer_drop_during_a_sweep_recovers():
         gonio.measure_brdf(-20, 50)
 
 
+def test_lamp_dimming_after_the_white_reference_is_caught_and_re_referenced():
+    """``faults=lamp-dim@5:0.5``: the lamp halves from the 5th spectrum on, after the white
+    reference.  Every reading is bracketed by a lamp check at its own geometry: the dimmed
+    lamp is seen (lamp ratio 0.5), the references are taken again and the reading repeated,
+    so every stored BRDF still agrees with the truth; none is stored at 0.5x."""
+    world = LobeWorld()
+    gonio, dev = build(world, faults="lamp-dim@5:0.5")
+    gonio.calibrate()
+    band = (gonio.output_wavelength_nm >= 420) & (gonio.output_wavelength_nm <= 720)
+    ratios = []
+    for ti, to in [(-30, 30), (-60, 60), (-80, 40), (0, 20), (-40, -10), (-50, 70)]:
+        r = gonio.measure_brdf(ti, to)
+        truth = world.brdf_truth(ti, to, 4.0, r.wavelength_nm)
+        assert abs(np.median(r.brdf_per_sr[band] / truth[band]) - 1) < 0.005, (ti, to)
+        ratios.append(r.metadata["lamp_ratio"])
+        assert abs(r.metadata["lamp_ratio"] - 1) <= 0.02
+    assert dev.conditions == {"lamp-dim": 0.5} and gonio.recalibrations == 1
+    assert r.metadata["recalibrations"] == 1 and r.metadata["lamp_drift_limit_percent"] == 2.0
+
+
+def test_a_lamp_still_drifting_after_re_referencing_is_a_device_error():
+    gonio, dev = build()
+    gonio.calibrate()
+    level = {"x": 1.0}
+    base = dev.lamp_irradiance
+
+    def fading(wl):
+        level["x"] *= 0.97                                   # 3 % dimmer at every spectrum
+        return base(wl) * level["x"]
+
+    dev.lamp_irradiance = fading
+    with pytest.raises(DeviceError) as err:
+        gonio.measure_brdf(-30, 30)
+    assert err.value.code == "LAMP-DRIFT" and gonio.recalibrations == 1
+
+
+def test_operator_placed_white_has_no_per_reading_lamp_check():
+    gonio, _dev = build()
+    gonio.calibrate()
+    gonio.white_standard = OperatorWhiteStandard(lambda message: None)
+    assert "lamp_ratio" not in gonio.measure_brdf(-30, 30).metadata
+
+
 def test_arm_stall_is_a_typed_error():
     gonio, _dev = build()
     gonio.calibrate()

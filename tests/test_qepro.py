@@ -43,12 +43,17 @@ def test_seabreeze_lists_opens_and_reads_the_emulated_qepro():
     from normbox_lab.sim.usb import emulated_usb
 
     clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)          # a simulated lab's QE Pro leaves the bus with it
     with emulated_usb("qepro", seed=3, clock=clock, world=FlatWorld(0.5 / np.pi),
                       light_arm=lambda: 0.0, detector_arm=lambda: 45.0,
                       serial_number="QEP-USB-0042") as backend:
+        import warnings
+
         import seabreeze
 
-        seabreeze.use("pyseabreeze", pyusb_backend=backend)
+        with warnings.catch_warnings():      # other tests in this process opened one before
+            warnings.simplefilter("ignore")
+            seabreeze.use("pyseabreeze", pyusb_backend=backend)
         from seabreeze.spectrometers import SeaBreezeError, Spectrometer, list_devices
 
         devices = list_devices()
