@@ -46,7 +46,9 @@ def test_init_runs_export_import(tmp_path, capsys, monkeypatch):
     assert main(["import", "brdf-json", "m.json", "--material", "wall"]) == 0
     assert "as run 1" in capsys.readouterr().out
     assert main(["runs"]) == 0
-    line = capsys.readouterr().out.splitlines()[0].split()
+    header, first = capsys.readouterr().out.splitlines()[:2]
+    assert header.split()[:4] == ["id", "uuid", "protocol", "status"]
+    line = first.split()
     assert line[0] == "1" and line[2] == "import-brdf-json" and line[3] == "done"
     assert line[4] == "1/1"
     assert main(["export", "1", "--format", "csv", "-o", "o.csv"]) == 0
@@ -195,3 +197,13 @@ def test_report_gives_no_verdict_on_error_flagged_data_unless_accepted(tmp_path,
     # accepted, it goes on (and stops later here: this store holds no comparison)
     main(["report", "1", "--accept-flagged", "--store", str(store)])
     assert "error flag" not in capsys.readouterr().err
+
+
+def test_help_texts_say_percent_once_and_name_the_run_arguments(capsys):
+    for argv, expect in ((["budget", "--help"], "95 % intervals"),
+                         (["report", "--help"], "the reference sweep (id or uuid prefix)"),
+                         (["export", "--help"], "its id or a prefix of its uuid")):
+        with pytest.raises(SystemExit):
+            main(argv)
+        out = " ".join(capsys.readouterr().out.split())
+        assert expect in out and "%%" not in out, out

@@ -178,7 +178,10 @@ def wait_until_stable(run: StepRunner, role: str, timeout_s: float, *, switch_on
             raise NotReady(f"{role} is off", instrument=role)
         if run.clock.now_s() >= deadline:
             raise NotReady(f"{role} not stable after {timeout_s:.0f} s", instrument=role)
-        run.clock.sleep(run.poll_s)
+        for _ in range(4):             # the poll's wait in quarters: a stop is seen at once
+            run.clock.sleep(run.poll_s / 4)
+            if run.stop_requested():
+                break
 
 
 # --- the kinds ---------------------------------------------------------------------------------

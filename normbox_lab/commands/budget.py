@@ -13,7 +13,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="For every patch × angle of a reference sweep (after predict and compare "
                     "--brdf-run), each error source's contribution to NRMSE / ΔE00 / NSE, "
                     "propagated through the comparison (angle, geometry and light through the "
-                    "fast renderer's derivatives with common random numbers), 95 %% intervals "
+                    "fast renderer's derivatives with common random numbers), 95 % intervals "
                     "on the observed NRMSE and ΔE00, a significance mark, and the estimated "
                     "sample-angle offset per sweep angle. Stored as artifact 'error-budget'. "
                     "The distributions: the run's [render] errors spec (virtual Normbox), else "

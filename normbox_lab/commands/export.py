@@ -12,7 +12,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Export one run (id or uuid prefix). NetCDF through xarray "
                                    "with wavelength coordinates; CSV in long form; JSON with "
                                    "the run's provenance and events.")
-    p.add_argument("run", metavar="RUN_ID")
+    p.add_argument("run", metavar="RUN_ID",
+                   help="the run to export: its id or a prefix of its uuid (normbox-lab runs)")
     p.add_argument("--format", required=True, choices=("netcdf", "csv", "json"))
     p.add_argument("-o", "--output", metavar="PATH", help="default: run-ID-PROTOCOL.EXT")
     add_store_argument(p)

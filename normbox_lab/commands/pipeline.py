@@ -51,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.set_defaults(handler=_compare)
 
     r = sub.add_parser("report", help="write the HTML report of a compared reference run")
-    r.add_argument("run", metavar="REFERENCE_RUN_ID")
+    r.add_argument("run", metavar="REFERENCE_RUN_ID",
+                   help="the reference sweep (id or uuid prefix) whose prediction was compared")
     r.add_argument("-o", "--output", metavar="PATH", help="default: report-run-ID.html")
     r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
     _accept_flagged(r)

@@ -16,6 +16,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_runs)
 
 
+#: the column names over `format_run_line`
+RUNS_HEADER = (f"{id:>4}  {uuid:<8}  {protocol:<18} {status:<11} "
+               f"{done:>5}/{planned:<7} {updated:<19}  flags")
+
+
 def format_run_line(run, flags=None, status: str | None = None) -> str:
     """One run; `flags` (a `qa.QaSummary`) adds its flag count, and a done run with flags
     reads "completed with flags"; `status` is the one to show (`Store.shown_status`)."""
@@ -44,6 +49,8 @@ def _runs(args: argparse.Namespace) -> int:
         from normbox_lab.analyze.qa import summaries_by_run
 
         counts = summaries_by_run(store)
+        if runs:
+            print(RUNS_HEADER)
         for run in runs:
             print(format_run_line(run, counts.get(run.id), store.shown_status(run)))
     return 0

@@ -143,6 +143,11 @@ class NormboxConsole(App):
         return self.pane(SpectrumPane).plot
 
     def on_mount(self) -> None:
+        from textual.widgets import Tabs
+
+        # the tab bar is no Tab stop (1–6 switch tabs): Tab goes protocol → parameters
+        for tabs in self.query(Tabs):
+            tabs.can_focus = False
         self.call_after_refresh(self._first_paint)
         self.set_interval(0.5, self._tick)
 
@@ -180,6 +185,8 @@ class NormboxConsole(App):
         try:
             s.open_store()
             runs = s.unfinished_runs()
+            if runs and not self.prefill:
+                self.call_from_thread(self._show_run_parameters, runs[-1])
             if self.offer_resume and runs:
                 self.call_from_thread(self._offer_resume, runs)
             self._runs_dirty = True
@@ -201,8 +208,8 @@ class NormboxConsole(App):
         kind = "simulated" if s.config.simulated else "real"
         scale = self._lab_time_scale()
         clock = "real clock" if scale is None else f"virtual clock ×{scale:g}"
-        self._set_status(f"{kind} lab · world {s.world_kind} · {clock} · "
-                         f"store {s.store_path.name} · {s.config.name}")
+        self._set_status(f"store {s.store_path.name} · {kind} lab · {clock} · "
+                         f"world {s.world_kind} · {s.config.name}")
         self._refresh_results()
 
     # --- helpers -----------------------------------------------------------------------------
@@ -249,6 +256,20 @@ class NormboxConsole(App):
         except Exception:  # noqa: BLE001 - the protocol's own error is shown by the form
             limits = {}
         self.pane(RunPane).show_params(params, prefill, limits, self.session.config)
+
+    def _show_run_parameters(self, run: Any) -> None:
+        """The Run tab shows an interrupted run's protocol and parameters (the console used
+        to show the default sweep after a relaunch)."""
+        from normbox_lab.acquire.plan import PROTOCOL_NAMES
+
+        if run.protocol not in PROTOCOL_NAMES:
+            return                     # a protocol file: named on the command line only
+        self.protocol = self.prefill_protocol = run.protocol
+        self.prefill = {k: v if isinstance(v, str) else json.dumps(v)
+                        for k, v in run.parameters.items()}
+        self.pane(RunPane).set_protocols(_protocol_names(), run.protocol)
+        self._show_params(run.protocol)
+        self._log("", f"run {run.id} ({run.status}) parameters shown; r resumes it")
 
     def parameters(self) -> dict[str, Any]:
         """The parameters as typed in the Run tab (JSON, like `--param K=V`)."""
@@ -379,6 +400,11 @@ class NormboxConsole(App):
         if engine.state == "paused":
             self.session.resume()
             self._log("resume requested")
+        elif self.progress.status == "pausing…":       # p again before it paused: cancelled
+            self.session.resume()
+            self._set_run_status("running")
+            self._log("pause cancelled: the run goes on")
+            self.notify("pause cancelled: the run goes on", markup=False)
         else:
             self.session.pause()
             self._log("pause requested: after the current reading")
@@ -697,6 +723,16 @@ class NormboxConsole(App):
 
     def _selected_run_id(self) -> int | None:
         return self.pane(RunsPane).selected_run_id()
+
+    def on_resize(self, event: Any) -> None:
+        if not self.panes_built:
+            return
+        self.pane(RunPane).scroll_log_end()
+        if self.session.store is not None:
+            self.pane(ImagesPane).refresh_from(self.session.store, self.size.width)
+        rows = self.session.instrument_rows() if self.session.busy else self.session.last_rows
+        if rows:
+            self.pane(InstrumentsPane).show_instruments(rows, self.size.width)
 
     @on(TabbedContent.TabActivated)
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:

@@ -29,6 +29,21 @@ log = logging.getLogger("normbox_lab.tui")
 UNFINISHED = ("created", "running", "paused", "interrupted", "aborted", "failed")
 
 
+def poll_failure(exc: BaseException) -> str:
+    """What a failed health poll means: "no answer" only when nothing (complete) came back."""
+    from normbox_lab.core.errors import DeviceError, InstrumentTimeout, ProtocolError
+
+    if isinstance(exc, InstrumentTimeout):
+        return "no answer"
+    if isinstance(exc, ProtocolError):
+        return "garbled reply"
+    if isinstance(exc, DeviceError):
+        return "device error"
+    if isinstance(exc, OSError):
+        return "port error"
+    return "error"
+
+
 def fault_text(data: Mapping[str, Any]) -> str:
     """A fault event in words: "ProtocolError: garbled reply …", never a dict or a repr —
     the engine's event carries the exception's repr ("InstrumentTimeout('…')")."""
@@ -577,7 +592,7 @@ class Session:
                 row["ok"] = True
                 row["last_seen"] = self.last_seen[role] = time.time()
             except (NormboxError, OSError) as exc:
-                row["state"] = f"no answer: {exc}"
+                row["state"] = f"{poll_failure(exc)}: {str(exc).removeprefix(role + ': ')}"
                 row["ok"] = False
             rows.append(row)
         self.last_rows = rows

@@ -39,6 +39,8 @@ class PromptScreen(ModalScreen[str]):
     PromptScreen.fault > Vertical { border: thick $error; }
     PromptScreen Horizontal { height: auto; }
     PromptScreen Button { margin: 0 1 0 0; }
+    /* toasts at the top while a prompt waits at the bottom: they never cover its text */
+    PromptScreen ToastRack { dock: top; align: right top; }
     """
 
     def __init__(self, request: Any) -> None:
@@ -116,7 +118,9 @@ class ResumeScreen(ModalScreen[int | None]):
         with Vertical():
             yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
             table: DataTable = DataTable(id="resume-table", cursor_type="row")
-            table.add_columns("id", "uuid", "protocol", "status", "readings", "flags", "created")
+            from normbox_lab.tui.tabs.runs import RUN_COLUMNS
+
+            table.add_columns(*RUN_COLUMNS)
             for r in reversed(self.runs):
                 table.add_row(*run_row(r), key=str(r.id))
             yield table

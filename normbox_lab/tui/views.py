@@ -192,7 +192,9 @@ def run_row(run: Any, flags: Any = None) -> tuple[str, ...]:
     created = time.strftime("%m-%d %H:%M", time.localtime(run.created_s))
     status = "completed with flags" if run.status == "done" and flags else run.status
     flag_text = f"{flags.errors}E {flags.warnings}W" if flags else "—"
-    return (str(run.id), run.uuid[:8], _short_protocol(run.protocol), status,
+    # no uuid column: at 80 columns it pushed `created` off the screen (the event log, the
+    # export and `normbox-lab runs` give it)
+    return (str(run.id), _short_protocol(run.protocol), status,
             f"{run.done}/{run.planned}", flag_text, created)
 
 

@@ -20,3 +20,9 @@ class StopSafeInput(Input):
 
     def check_consume_key(self, key: str, character: str | None) -> bool:
         return key != "x" and super().check_consume_key(key, character)
+
+    def on_mount(self) -> None:
+        self.cursor_position = 0          # a long value shows its beginning, not its end
+
+    def on_blur(self) -> None:
+        self.cursor_position = 0

@@ -16,6 +16,7 @@ class ImagesPane(TabPane):
     def __init__(self) -> None:
         super().__init__("6 Images", id="images")
         self.shown_artifact_id: int | None = None
+        self.shown_width = 0
 
     def build(self) -> None:
         self.mount_all([VerticalScroll(Static(
@@ -30,8 +31,10 @@ class ImagesPane(TabPane):
         from normbox_lab.images.terminal import figure_renderable
 
         found = store.artifacts(kind="image-figure")
-        if not found or self.shown_artifact_id == found[-1].id:
-            return
+        if not found or (self.shown_artifact_id == found[-1].id
+                         and self.shown_width == width_cells):
+            return                       # drawn already at this width (a resize redraws)
+        self.shown_width = width_cells
         latest = {a.name: a for a in found}
         order = sorted(latest.values(), key=lambda a: (a.name != "fig-camera", -a.id))
         self.shown_artifact_id = found[-1].id

@@ -173,6 +173,7 @@ class InstrumentsPane(TabPane):
         app: Any = self.app
         from normbox_lab.core.types import SpectralReading
 
+        text, _, warning = text.partition(" — ")        # "…taken — the lamp is not stable…"
         if isinstance(reading, SpectralReading):
             colo = reading.colorimetry
             if colo is not None:
@@ -180,8 +181,10 @@ class InstrumentsPane(TabPane):
             app.query_one(SpectrumPane).add_reading("manual", reading.wavelength_nm,
                                                     reading.radiance_W_sr_m2_nm, colo,
                                                     RADIANCE_TITLE)
+        if warning:
+            text += f" — WARNING: {warning}"
         app._log("[b]manual[/b] ", text)
-        app.notify(text, markup=False)
+        app.notify(text, markup=False, severity="warning" if warning else "information")
         app._poll(announce=False)          # the table shows the new state (no second toast)
 
     def action_goto(self) -> None:

@@ -25,7 +25,7 @@ class ResultsPane(TabPane):
     def build(self) -> None:
         self.mount_all([
             Static("no comparison in the store yet (normbox-lab compare …)", id="res-head"),
-            DataTable(id="heatmap", cursor_type="cell"),
+            DataTable(id="heatmap", cursor_type="cell", fixed_columns=1),
             Static("", id="drill")])
 
     def refresh_from(self, store: Any) -> None:

@@ -183,13 +183,16 @@ class RunPane(TabPane):
     DEFAULT_CSS = """
     #run-top { height: 1; }
     #run-top Select { width: 26; }
-    #params { height: auto; min-height: 3; max-height: 30vh;
+    #params { height: auto; min-height: 3; max-height: 45vh;
               border: round $surface-lighten-2; }
     .param { height: 1; }
     .param Input { width: 1fr; }
+    /* the field being typed in is plain to see (it was background 235 on 234) */
+    .param Input:focus { background: $accent 45%; text-style: bold; }
+    .param:focus-within Label { background: $accent; color: $text; text-style: bold; }
     .param Input.-invalid { color: $error; }
     #param-error { height: auto; color: $error; padding: 0 1; }
-    #run-info { height: 2; padding: 0 1; }
+    #run-info { height: auto; max-height: 4; padding: 0 1; }
     #progress { height: 1; padding: 0 1; }
     #progress Bar { width: 1fr; }
     #events { height: 1fr; }
@@ -208,7 +211,9 @@ class RunPane(TabPane):
             yield Select([(self.protocol, self.protocol)], value=self.protocol,
                          allow_blank=False, compact=True, type_to_search=False, id="protocol")
             yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
-        yield VerticalScroll(id="params")
+        params = VerticalScroll(id="params")
+        params.can_focus = False           # no invisible Tab stop before the first field
+        yield params
         yield Static("", id="param-error")
         yield Static("idle", id="run-info")
         with Horizontal(id="progress"):
@@ -254,9 +259,11 @@ class RunPane(TabPane):
             return Function(ok, f"{key}: not a value of its kind")
 
         for k, v in params.items():
-            text = prefill.get(k, v if isinstance(v, str) else json.dumps(v))
+            # compact JSON: the 24 patch numbers fit an 80-column field
+            text = prefill.get(k, v if isinstance(v, str) else json.dumps(v, separators=(
+                ", ", ": ") if not isinstance(v, list) or len(json.dumps(v)) < 56 else (",", ":")))
             label = Label(k)
-            label.styles.width = width
+            label.styles.width = width - 1
             field = StopSafeInput(text, id=f"param-{k}", compact=True,
                                   validators=[check(k, v)], validate_on=["changed"])
             box.mount(Horizontal(label, field, classes="param"))
@@ -319,6 +326,10 @@ class RunPane(TabPane):
         if detail:
             line.append(detail)
         self.query_one("#events", RichLog).write(line)
+
+    def scroll_log_end(self) -> None:
+        log = self.query_one("#events", RichLog)
+        log.call_after_refresh(log.scroll_end, animate=False)
 
     def set_info(self, text: str) -> None:
         self.query_one("#run-info", Static).update(text)

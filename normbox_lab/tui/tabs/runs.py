@@ -12,6 +12,10 @@ from textual.widgets import DataTable, TabPane
 from normbox_lab.tui.tabs.common import table
 
 
+#: the Runs table's (and the resume offer's) columns: `views.run_row`
+RUN_COLUMNS = ("id", "protocol", "status", "readings", "flags", "created")
+
+
 class RunsPane(TabPane):
     DEFAULT_CSS = """
     #runs-table { height: 1fr; }
@@ -25,8 +29,7 @@ class RunsPane(TabPane):
 
     def build(self) -> None:
         self.mount_all([
-            table("runs-table", ("id", "uuid", "protocol", "status", "readings", "flags",
-                                 "created"), cursor_type="row", zebra_stripes=True),
+            table("runs-table", RUN_COLUMNS, cursor_type="row", zebra_stripes=True),
             table("readings-table", ("key", "geometry", "patch", "Lv cd/m²", "x", "y",
                                      "t_int s", "flags"),
                   cursor_type="row", zebra_stripes=True)])

@@ -34,8 +34,14 @@ class SpectrumPane(TabPane):
         self.dirty = True
 
     def series(self) -> list[str]:
-        """Labels of the plotted series, previous first."""
+        """Keys of the plotted series, previous first."""
         return [s[0] for s in (self.previous, self.latest) if s is not None]
+
+    def legend(self) -> list[str]:
+        """The plot's legend, previous first: two manual readings are "previous: manual" and
+        "latest: manual", never two "manual"."""
+        out = [f"previous: {self.previous[0]}"] if self.previous is not None else []
+        return out + ([f"latest: {self.latest[0]}"] if self.latest is not None else [])
 
     def redraw_if_dirty(self) -> None:
         if self.dirty and self.latest is not None:
@@ -69,8 +75,8 @@ class SpectrumPane(TabPane):
         step = max(1, len(wl) // 100)
         if previous is not None:
             pk, pwl, pvalues, _, _ = previous
-            plt.plot(list(pwl[::step]), list(pvalues[::step]), label=pk, marker="dot",
-                     color="gray")
-        plt.plot(list(wl[::step]), list(values[::step]), label=key, marker="braille",
-                 color="cyan")
+            plt.plot(list(pwl[::step]), list(pvalues[::step]), label=self.legend()[0],
+                     marker="dot", color="gray")
+        plt.plot(list(wl[::step]), list(values[::step]), label=self.legend()[-1],
+                 marker="braille", color="cyan")
         self.plot.refresh()

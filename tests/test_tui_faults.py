@@ -1,0 +1,214 @@
+"""Pilot tests of the console's smaller faults an operator met: each is pressed as an operator
+would and the screen read back."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import replace
+
+from test_tui import answer_prompt, new_session, screen_text, set_reduced_parameters, until
+from textual.widgets import DataTable, Input, RichLog, Static
+
+from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+from normbox_lab.acquire.store import Store
+from normbox_lab.tui.app import NormboxConsole, PromptScreen
+from normbox_lab.tui.controller import Session, fault_text, poll_failure
+from normbox_lab.tui.tabs.spectrum import SpectrumPane
+
+
+def info(app) -> str:
+    return str(app.query_one("#run-info", Static).render())
+
+
+async def enter_at_prompt(pilot, app) -> None:
+    """Wait for a composed prompt, press Enter, wait for it to go."""
+    await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                and bool(app.screen.query("#prompt-message"))
+                and app.session.operator is not None
+                and app.session.operator.pending is not None, "a prompt")
+    screen = app.screen
+    await pilot.press("enter")
+    await until(pilot, lambda: app.screen is not screen, "the prompt to close")
+
+
+def test_p_while_pausing_cancels_the_pause(lab_env):
+    """p asks for a pause after the reading under way ("pausing…"); p again before the run
+    got there cancels it: the run goes on to the end without stopping."""
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 1")
+            await pilot.press("p")
+            await until(pilot, lambda: app.run_status == "pausing…", "pausing…")
+            await pilot.press("p")
+            await until(pilot, lambda: app.run_status == "running", "cancelled")
+            assert "pause cancelled" in " ".join(app.toasts_shown)
+            for _ in range(6):
+                await enter_at_prompt(pilot, app)
+            await until(pilot, lambda: app.run_status == "done", "the end")
+            assert "paused" not in app.events_seen
+    asyncio.run(scenario())
+    session.wait(5.0)
+    session.close()
+
+
+def test_toasts_never_cover_a_prompt_and_the_focus_is_seen(lab_env):
+    """With a prompt at the bottom, toasts are drawn at the top; Tab reaches the protocol
+    list and the first parameter field without invisible stops, and the focused field looks
+    different from the others."""
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24), notifications=True) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            app.set_focus(None)
+            await pilot.press("tab")
+            assert app.focused.id == "protocol"
+            await pilot.press("tab")
+            assert app.focused.id == "param-angles_deg"
+            focused = app.query_one("#param-angles_deg", Input)
+            other = app.query_one("#param-patches", Input)
+            assert focused.styles.background != other.styles.background
+            app.set_focus(None)
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "the prompt")
+            app.notify("a toast during the prompt")
+            app.notify("another one", severity="warning")
+            await pilot.pause(0.3)
+            box = app.screen.query_one("PromptScreen > Vertical").region
+            toasts = [t.region for t in app.screen.query("Toast")]
+            assert toasts and all(not t.overlaps(box) for t in toasts), (toasts, box)
+            message = str(app.screen.query_one("#prompt-message", Static).render())
+            assert message in screen_text(app)
+            await pilot.press("x")
+    asyncio.run(scenario())
+    session.wait(5.0)
+    session.close()
+
+
+def test_resize_keeps_the_run_log_at_its_end_and_fits_80x24(lab_env):
+    """160×45 → 80×24: the Run log is scrolled to its last line; the top line keeps the store
+    name when a prompt waits aside; the Runs table's created column stays on screen."""
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(160, 45)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            for i in range(60):
+                app._log("", f"line {i}")
+            await pilot.resize_terminal(80, 24)
+            await pilot.pause(0.3)
+            log = app.query_one("#events", RichLog)
+            assert log.scroll_offset.y == log.max_scroll_y > 0
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "the prompt")
+            await pilot.press("4")                   # the prompt steps aside
+            await until(pilot, lambda: not isinstance(app.screen, PromptScreen), "aside")
+            await until(pilot, lambda: app.query_one("#runs-table", DataTable).row_count == 1,
+                        "the run row")
+            top = screen_text(app).splitlines()[0]
+            assert "prompt waiting: w" in top and "store tui.sqlite" in top, top
+            text = screen_text(app)
+            assert "created" in text and "reference-sweep" in text, text
+            await pilot.press("x")
+    asyncio.run(scenario())
+    session.wait(5.0)
+    session.close()
+
+
+def test_a_garbled_reply_is_not_no_answer_and_fault_lines_are_words():
+    from normbox_lab.core.errors import DeviceError, InstrumentTimeout, ProtocolError
+
+    assert poll_failure(ProtocolError("x", raw=b"\x00")) == "garbled reply"
+    assert poll_failure(InstrumentTimeout("x")) == "no answer"
+    assert poll_failure(DeviceError(3, "lamp failure")) == "device error"
+    line = fault_text({"role": "radiometer", "error":
+                       "InstrumentTimeout('radiometer: no answer to MES within 5 s')"})
+    assert line == "no answer to MES within 5 s (InstrumentTimeout)"
+    assert "{" not in fault_text({"role": "sphere", "message": "sphere: lamp off"})
+
+
+def test_garbled_radiometer_row_lamp_at_time_scale_0_and_m_warns(lab_env, tmp_path):
+    """A radiometer whose every reply is garbled: its row says "garbled reply", not "no
+    answer".  A real sphere emulator at time scale 0: on, it is "stable" at the next poll
+    (not "settling" for ever).  m with the lamp off warns that the reading is not
+    representative; two manual readings are "previous: manual" and "latest: manual"."""
+    config = parse_config(SIM_CONFIG_TEMPLATE, "<sim>")
+    rad = config.instruments["radiometer"]
+    garbled = replace(config, instruments={**config.instruments, "radiometer": replace(
+        rad, port="sim://cs1000a?faults=garble=1.0")})
+    session = Session(garbled, tmp_path / "g.sqlite", world="analytic", time_scale=0.0)
+    rows = {r["role"]: r for r in session.poll_instruments()}
+    assert rows["radiometer"]["state"].startswith("garbled reply"), rows["radiometer"]
+    session.close()
+
+    from normbox_lab.acquire import registry
+
+    real = Session(config, tmp_path / "r.sqlite", world="analytic", time_scale=0.0)
+    real.ensure_lab()
+    assert type(real.lab.instrument("sphere")).__module__.endswith("drivers.sphere") or \
+        registry.DRIVERS["sphere-scpi"] != ("normbox_lab.drivers.sphere", "SphereLightSource")
+    app = NormboxConsole(real)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("1")
+            await pilot.press("m")
+            await until(pilot, lambda: any("single reading taken" in t
+                                           for t in app.toasts_shown), "the reading")
+            warned = [t for t in app.toasts_shown if "single reading taken" in t][-1]
+            assert "WARNING" in warned and "not stable" in warned and "Lv" in warned, warned
+            await pilot.press("o")
+            await until(pilot, lambda: real.live.lamp == "stable", "stable at time scale 0",
+                        timeout_s=10.0)
+            await pilot.press("m")
+            await until(pilot, lambda: sum("single reading taken" in t
+                                           for t in app.toasts_shown) == 2, "reading 2")
+            last = [t for t in app.toasts_shown if "single reading taken" in t][-1]
+            assert "WARNING" not in last, last
+            assert app.query_one(SpectrumPane).legend() == ["previous: manual",
+                                                             "latest: manual"]
+    asyncio.run(scenario())
+    real.close()
+
+
+def test_relaunch_shows_the_interrupted_runs_parameters(lab_env):
+    """Quit at a prompt of a reduced sweep; the next console shows that run's protocol and
+    parameters in the Run tab (not the default sweep)."""
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def first() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            await pilot.press("s")
+            await answer_prompt(pilot, app, "patch 1 ")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
+            await pilot.press("q")
+            await until(pilot, lambda: not session.busy, "the pause")
+    asyncio.run(first())
+    session.wait(5.0)
+    session.close()
+    again = NormboxConsole(new_session(lab_env), offer_resume=False)
+
+    async def second() -> None:
+        async with again.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: again.lab_ready, "the lab")
+            await until(pilot, lambda: again.query_one("#param-patches", Input).value
+                        == "[1, 9, 19]", "the run's parameters")
+            assert again.query_one("#param-angles_deg", Input).value == "[30, 90]"
+            assert any("parameters shown; r resumes it" in line.text
+                       for line in again.query_one("#events", RichLog).lines)
+    asyncio.run(second())
+    again.session.close()
+    with Store(lab_env / "tui.sqlite") as s:
+        assert [r.status for r in s.runs()] == ["paused"]
