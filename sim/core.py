@@ -208,6 +208,15 @@ class Emulator:
         self._queue.clear()
         self._last_reply_due_s = -float("inf")
 
+    def new_client(self) -> None:
+        """A new client took the line (`sim serve`): nothing said to the one before, now or
+        later, may reach it.  Drops what is scheduled and lets the device drop what it was
+        still going to say (`on_new_client`)."""
+        self.poll()
+        self.cancel_output()
+        self._out.clear()
+        self.on_new_client()
+
     def disconnect(self, duration_s: float) -> None:
         """Cable pulled / USB re-enumerated: nothing in or out for `duration_s`."""
         self.connected = False
@@ -237,6 +246,10 @@ class Emulator:
 
     def on_reconnect(self) -> None:
         """The link is back (default: nothing)."""
+
+    def on_new_client(self) -> None:
+        """A new client took the line: forget half-received commands and replies still to
+        come for the one before (default: nothing)."""
 
 
 class LineEmulator(Emulator):

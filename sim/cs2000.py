@@ -144,6 +144,10 @@ class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
         self._factory_data()
         self._power_on()
 
+    def on_new_client(self) -> None:
+        super().on_new_client()
+        self._cr_hold_s = None
+
     def _factory_settings(self) -> None:
         """Settings kept in flash (they survive a power blip); INIT,0/2 restores these."""
         self.speed_mode, self.nd, self.multi_time_s, self.manual_time_us = 2, 2, 1, 33333

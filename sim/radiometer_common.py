@@ -205,6 +205,15 @@ class KonicaMinoltaCommands:
             else:
                 method(args)
 
+    def on_new_client(self) -> None:
+        """A new client (`sim serve`): the half-received command and a measurement the last
+        client started are dropped (it would answer ``OK,<t>`` / ``OK`` to a client that
+        never asked; the buffer stays empty).  Remote mode and settings stay."""
+        emu: Any = self
+        emu._inbuf.clear()
+        if emu.phase != "idle":
+            emu.phase, emu.phase_end_s, emu._pending = "idle", None, None
+
     def advance_measurement(self, now_s: float, main_phase_s: Callable[[dict[str, Any]], float],
                             announce: Callable[[dict[str, Any]], str], done: str) -> None:
         """The measurement's phases on the clock, as both models run them: at the end of the

@@ -4,8 +4,9 @@ The emulator runs on the real clock and is serviced continuously, whether or not
 attached: its motions finish, its measurements end, and what it says while nobody listens is
 lost (as on a serial cable with no computer at the other end).  A new TCP connection, or a
 client opening the pty, starts from a clean line: nothing said before it came reaches it, as
-with a freshly opened serial port.  One TCP client at a time; a second connection is closed at
-once.
+with a freshly opened serial port, and neither does what the emulator would still have said to
+the client before (`Emulator.new_client`: the replies of a measurement that client started).
+One TCP client at a time; a second connection is closed at once.
 
 Linux ptys cannot carry modem lines (RTS/DTR ioctls fail on them), so clients that set or
 pulse RTS/DTR (Thorlabs APT clients do) should use the TCP endpoint through pyserial's
@@ -105,7 +106,7 @@ class TcpServer:
         if self.listener in ready:
             conn, _ = self.listener.accept()
             if self.client is None:
-                emu.take_output()            # said before this client came: lost
+                emu.new_client()             # said, or still to say, to the one before: lost
                 self.client = conn
             else:
                 conn.close()                 # one client at a time
@@ -154,7 +155,7 @@ class PtyServer:
             except OSError:            # EIO: no client has the slave open
                 present = False
         if present and not self.client_present:
-            emu.take_output()          # said before this client came: lost
+            emu.new_client()           # said, or still to say, to the one before: lost
         self.client_present = present
         if data:
             emu.feed(data)

@@ -180,3 +180,59 @@ def test_pty_serviced_without_a_client_and_each_client_starts_clean():
         os.close(second)
     finally:
         os.close(server.master)
+
+
+def _pump_clock(server: serve.TcpServer, clock: VirtualClock, conn: socket.socket,
+                want: bytes) -> bytes:
+    """`_pump_until` with the virtual clock moving 50 ms a step (the replies' line time)."""
+    got = b""
+    for _ in range(100):
+        clock.advance(0.05)
+        server.step()
+        try:
+            got += conn.recv(4096)
+        except BlockingIOError:
+            pass
+        if got.endswith(want):
+            break
+    return got
+
+
+@pytest.mark.parametrize(("device", "remote", "measure", "ok"), [
+    ("cs1000a", b"RMT,1\n", b"MES,1\n", b"OK\n"),
+    ("cs2000a", b"RMTS,1\n", b"MEAS,1\n", b"OK00\n"),
+])
+def test_a_new_client_never_gets_the_replies_of_a_measurement_the_last_one_started(
+        device, remote, measure, ok):
+    """The first client starts a measurement and leaves before its replies (``OK,1.01`` /
+    ``OK``; ``OK00,002`` / ``OK00``); a client that connects while it runs must not receive
+    them: its first command gets exactly its own reply."""
+    from normbox_lab.sim import core
+
+    clock = VirtualClock()
+    emu = core.create(device, clock=clock, world=object(), noise="off")
+    server = serve.TcpServer(emu, "127.0.0.1", 0)
+    port = int(server.endpoint.rsplit(":", 1)[1])
+    try:
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as first:
+            first.setblocking(False)
+            server.step()
+            first.sendall(remote)
+            assert _pump_clock(server, clock, first, ok) == ok
+            first.sendall(measure)
+            for _ in range(3):
+                server.step()
+        for _ in range(3):
+            server.step()                               # notices the hang-up
+        assert server.client is None and emu.phase != "idle"     # still measuring
+        with socket.create_connection(("127.0.0.1", port), timeout=5) as second:
+            second.setblocking(False)
+            server.step()
+            clock.advance(60.0)                         # the measurement would end now
+            server.step()
+            second.sendall(remote)
+            assert _pump_clock(server, clock, second, ok) == ok
+            clock.advance(60.0)
+            assert _pump_clock(server, clock, second, b"never") == b""     # nothing more came
+    finally:
+        server.listener.close()
