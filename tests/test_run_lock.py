@@ -70,3 +70,49 @@ def test_kill_9_of_the_owner_frees_the_lock(tmp_path):
     finally:
         if child.poll() is None:
             child.kill()
+
+
+KILLED_IN_WARM_UP = r"""
+import os, signal, sys
+sys.path.insert(0, sys.argv[2])
+from engine_fakes import FakeLab
+from normbox_lab.acquire import engine as eng
+from normbox_lab.acquire.store import Store
+
+lab = FakeLab()                                   # lamp off: the run starts with its warm-up
+engine = eng.Engine(lab, Store(sys.argv[1]), eng.build_plan(
+    "reference-sweep", {"angles_deg": [30], "patches": [1, 2]}, lab))
+engine.subscribe(lambda ev: os.kill(os.getpid(), signal.SIGKILL)
+                 if ev.kind == "step-started" and ev.data.get("kind") == "wait-stable" else None)
+engine.run()
+"""
+
+
+def test_a_run_whose_process_died_in_the_warm_up_is_never_shown_running(tmp_path, capsys):
+    """The process is killed while the lamp warms up: the store still says `running`, but no
+    live process holds the run's lock, so `runs` and `qa` show it interrupted, and it resumes."""
+    from pathlib import Path
+
+    from engine_fakes import FakeLab
+
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.cli import main
+
+    path = tmp_path / "s.sqlite"
+    child = subprocess.run([sys.executable, "-c", KILLED_IN_WARM_UP, str(path),
+                            str(Path(__file__).parent)], capture_output=True, text=True,
+                           timeout=120)
+    assert child.returncode == -signal.SIGKILL, child.stderr
+    with Store(path) as store:
+        (run,) = store.runs()
+        assert run.status == "running" and run.done == 0       # as the dead process left it
+    assert main(["runs", "--store", str(path)]) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    assert " interrupted " in line and "running" not in line, line
+    assert main(["qa", str(run.id), "--store", str(path)]) == 0
+    assert ": interrupted" in capsys.readouterr().out
+    with Store(path) as store:
+        lab = FakeLab()
+        result = eng.Engine(lab, store, eng.build_plan(
+            "reference-sweep", {"angles_deg": [30], "patches": [1, 2]}, lab)).run(resume=run.id)
+        assert result.status == "done" and result.done == 2
