@@ -10,7 +10,7 @@ register_url_scheme()
 
 # --- fixtures shared by several test files ---------------------------------------------------
 
-import pytest  # noqa: E402
+import pytest
 
 
 @pytest.fixture

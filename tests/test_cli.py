@@ -124,7 +124,7 @@ def _store_with_a_run(path, **kw):
 
 
 def _one_error_line(capsys) -> str:
-    out, err = capsys.readouterr()
+    err = capsys.readouterr().err
     assert "Traceback" not in err and len(err.strip().splitlines()) == 1, err
     return err
 

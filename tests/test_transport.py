@@ -202,13 +202,12 @@ def test_a_scripted_port_fails_when_an_expected_exchange_never_happened():
     with ScriptedPort([Exchange(b"A\n", b"ok\n")]) as port:
         port.write(b"A\n")
         assert port.readline() == b"ok\n"
-    with pytest.raises(AssertionError, match=r"still expected: \[b'B\\n'\]"):
-        with ScriptedPort([Exchange(b"A\n", b"ok\n"), Exchange(b"B\n")]) as port:
-            port.write(b"A\n")
+    with pytest.raises(AssertionError, match=r"still expected: \[b'B\\n'\]"), \
+            ScriptedPort([Exchange(b"A\n", b"ok\n"), Exchange(b"B\n")]) as port:
+        port.write(b"A\n")
     # an exception inside the block is the failure shown, not the unfinished script
-    with pytest.raises(RuntimeError, match="driver broke"):
-        with ScriptedPort([Exchange(b"A\n")]):
-            raise RuntimeError("driver broke")
+    with pytest.raises(RuntimeError, match="driver broke"), ScriptedPort([Exchange(b"A\n")]):
+        raise RuntimeError("driver broke")
     # every port made in a test is checked when the test ends (conftest); these are excused
     assert port in LIVE
     for p in LIVE:

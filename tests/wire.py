@@ -26,6 +26,7 @@ sleep.  `reset_input_buffer()` drops only bytes that have already arrived.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import Self
 
 from normbox_lab.core.clock import VirtualClock
 
@@ -60,14 +61,14 @@ class ScriptedPort:
         self.unfinished_ok = False
         LIVE.append(self)
 
-    def __enter__(self) -> ScriptedPort:
+    def __enter__(self) -> Self:
         return self
 
     def __exit__(self, exc_type: object, *exc: object) -> None:
         if exc_type is None:          # (an exception from the block is the failure to show)
             self.assert_done()
 
-    def leave_unfinished(self) -> ScriptedPort:
+    def leave_unfinished(self) -> Self:
         """This test stops before the script's end on purpose (a fault, an abort): the end-of-
         test check is waived for this port."""
         self.unfinished_ok = True

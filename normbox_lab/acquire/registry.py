@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import importlib
 import inspect
-from collections.abc import Iterator
 from dataclasses import dataclass
 
 from normbox_lab.core.errors import NormboxError

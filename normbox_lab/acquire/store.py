@@ -718,11 +718,11 @@ class Store:
         with self._lock:
             # ASCII digits only: str.isdigit() is true for "١" (Arabic-Indic one), and int()
             # reads it as 1; an id beyond SQLite's integers names no run
-            if isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isascii()
-                                            and run_ref.isdigit()):
-                if 0 <= int(run_ref) <= _SQLITE_MAX_INT:
-                    rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
-                                             (int(run_ref),)).fetchall()
+            digits = isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isascii()
+                                                  and run_ref.isdigit())
+            if digits and 0 <= int(run_ref) <= _SQLITE_MAX_INT:
+                rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
+                                         (int(run_ref),)).fetchall()
             prefix = run_ref.lower() if isinstance(run_ref, str) else ""
             if len(prefix) >= 4 and all(c in "0123456789abcdef-" for c in prefix):
                 # (uuids are hex and dashes: nothing else can match, and no LIKE wildcard

@@ -150,17 +150,16 @@ def _compare(args: argparse.Namespace) -> int:
 
 
 def _report(args: argparse.Namespace) -> int:
-    from normbox_lab.analyze.pipeline import report_run
-
     from normbox_lab.analyze import qa
+    from normbox_lab.analyze.pipeline import report_run
 
     with _open(args) as store:
         # a verdict is given only on data without error flags, unless they are accepted
         accepted = [f for run in (args.run, args.brdf_run) if run is not None
                     for f in qa.require_clean(store, run=run, accept_flagged=args.accept_flagged,
                                               step="report")]
-        notes = [f"The verdict rests on data with {len(accepted)} accepted error flag(s) "
-                 "(--accept-flagged; see `normbox-lab qa`)."] if accepted else []
+        notes = [(f"The verdict rests on data with {len(accepted)} accepted error flag(s) "
+                  "(--accept-flagged; see `normbox-lab qa`).")] if accepted else []
         out = report_run(store, args.run, args.output, args.brdf_run, notes=notes)
     print(f"report: {out}")
     return 0
