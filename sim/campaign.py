@@ -185,14 +185,16 @@ def run_campaign(scenarios: int = 30, seed: int = 0, jobs: int = 1, keep: str | 
                 print(f"  {v.line()}", file=out)
             if len(r.violations) > 8:
                 print(f"  … {len(r.violations) - 8} more", file=out)
-            target = r.classes[0]
-            if shrink_failures and target not in shrunk_classes:
+            targets = [c for c in r.classes if c not in shrunk_classes] if shrink_failures \
+                else []
+            for target in targets:            # each class once per campaign: its own culprit
                 shrunk_classes.add(target)
-                r.shrunk, r.shrink_runs = shrink(r.scenario, target, root / "shrink")
-                print(f"  shrunk ({target}, {r.shrink_runs} runs) to: {r.shrunk.describe()}",
-                      file=out)
-            print(f"  reproduce: {replay_command(r.shrunk or r.scenario)}", file=out,
-                  flush=True)
+                small, runs = shrink(r.scenario, target, root / "shrink")
+                r.shrunk, r.shrink_runs = small, r.shrink_runs + runs
+                print(f"  shrunk ({target}, {runs} runs) to: {small.describe()}", file=out)
+                print(f"  reproduce: {replay_command(small)}", file=out, flush=True)
+            if not targets:
+                print(f"  reproduce: {replay_command(r.scenario)}", file=out, flush=True)
         violations = sum(len(r.classes) for r in results)
         if failing:
             classes: dict[str, int] = {}

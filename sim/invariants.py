@@ -300,7 +300,7 @@ def no_hang(ex: Execution) -> list[Violation]:
                 took = float(e["d"].get("duration_s", 0.0))
                 if took > bound:
                     out.append(Violation(
-                        "c", "c:step-time",
+                        "c", "c:step-time-10x" if took > 10 * bound else "c:step-time",
                         f"segment {i}: {key} took {took:.0f} s (virtual) > bound {bound:.0f} s "
                         f"(estimate {est:.0f} s, {c or 'no faults'})"))
     return out
