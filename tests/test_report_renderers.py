@@ -41,9 +41,10 @@ def test_renderer_rows_paper_column_and_simulated_verdict():
     table = html[html.index('id="tab-renderers"'):]
     table = table[:table.index("</table>")]
     assert table.count("<tr>") == 3           # header + one row per renderer
-    assert "<th>mitsuba-rgb</th><td>mitsuba 3.9.1 llvm_ad_rgb</td><td class=\"num\">1.34</td>" \
+    assert "<th>mitsuba-rgb</th><td class=\"text\">mitsuba 3.9.1 llvm_ad_rgb</td>" \
+        "<td class=\"num\">1.34</td>" \
         in table
-    assert "<td>0.84 / 0.62</td><td>0.80 / 0.55</td>" in html
+    assert "<td>0.84 / 0.62</td><td>0.80 / 0.55</td>" in html       # short text: as it was
     rgb = html[html.index('id="tab-rgb-mitsuba-rgb"'):]
     assert '<td class="r0 num">1.00</td>' in rgb
     assert html.count("Campaign") == 1        # the campaign line once (the page's subtitle)

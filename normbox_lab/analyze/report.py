@@ -20,6 +20,8 @@
     methods          instruments (serials, calibration dates), software, seeds, render
                      quality and Monte-Carlo error
     appendix         per-configuration metrics as a CSV (data: link)
+    renderers        one row per renderer (ours and every imported one), the paper's
+                     published figures beside this run's, spectral-vs-RGB ΔE00
 
 Units: radiance and RMSE in W·sr⁻¹·m⁻²·nm⁻¹; NRMSE, NSE and fit errors in percent; ΔE00
 (CIE 2000, kL = kC = kH = 1) in two conventions (see `delta_e00_adapted`).  Sections appear only
@@ -162,6 +164,8 @@ class _Doc:
                 cls = cell_class(i, j, v) if cell_class else ""
                 if j > 0 and isinstance(v, float | np.floating):
                     cls = f"{cls} num".strip()       # a number never breaks ("2.02×10⁻⁵")
+                elif j > 0 and isinstance(v, str) and len(v) > 16:
+                    cls = f"{cls} text".strip()      # prose reads from the left
                 attr = f' class="{cls}"' if cls else ""
                 tag = "th" if j == 0 else "td"
                 out.append(f"<{tag}{attr}>{_esc(_fmt(v))}</{tag}>")
@@ -218,7 +222,7 @@ figcaption,.caption{font-size:.9rem;color:var(--muted);max-width:none}
 .scroll{overflow-x:auto}
 table{border-collapse:collapse;font-size:.8rem;font-variant-numeric:tabular-nums}
 td,th{border:1px solid var(--rule);padding:.15rem .4rem;text-align:right}
-td.num{white-space:nowrap}
+td.num{white-space:nowrap} td.text{text-align:left}
 thead th{background:#eeeeee;text-align:center} tbody th{text-align:left;background:#f7f7f7;
 font-weight:600}
 .r0{background:RC0;color:RT0} .r1{background:RC1;color:RT1} .r2{background:RC2;color:RT2}
@@ -273,8 +277,6 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
     hl = headline(c, adapted) if c is not None and adapted is not None else None
     _summary_section(doc, d, c, hl)
     _qa_section(doc, d.flags)
-    if d.renderers or d.paper:
-        _renderers_section(doc, d, c)
     if c is not None and adapted is not None:
         _comparison_sections(doc, d, c, adapted, hl)
     if d.images:
@@ -291,6 +293,9 @@ def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
         _methods_section(doc, d)
     if c is not None and adapted is not None:
         _appendix_section(doc, c, adapted)
+    # last, so that the sections before keep their numbers (report-NN-*.png screenshots)
+    if d.renderers or d.paper:
+        _renderers_section(doc, d, c)
     return _assemble(doc, d), doc.figs, doc.tabs
 
 
