@@ -24,6 +24,9 @@ from typing import Any
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, NotReady
 
+#: homing ends with the switch approach: off the switch by this much and back (the emulators
+#: model it as time at the switch; *assumed* 1°)
+HOME_BACKOFF_DEG = 1.0
 
 def trapezoid_time_s(distance_deg: float, max_velocity_deg_s: float,
                      acceleration_deg_s2: float) -> float:
@@ -71,10 +74,13 @@ class RotationStageBase:
         return t + self.move_overhead_s if t > 0 else 0.0
 
     def estimate_home_time_s(self) -> float:
-        """Worst case: from the farthest soft limit to the home switch at 0°."""
+        """Worst case: from the farthest soft limit to the home switch at 0°, then the switch
+        approach (off the switch by `HOME_BACKOFF_DEG` and back at the homing speed)."""
         far = max(abs(self.min_angle_deg), abs(self.max_angle_deg))
+        approach = 2.0 * trapezoid_time_s(HOME_BACKOFF_DEG, self.home_velocity_deg_s,
+                                          self.acceleration_deg_s2)
         return trapezoid_time_s(far, self.home_velocity_deg_s, self.acceleration_deg_s2) \
-            + self.move_overhead_s
+            + approach + self.move_overhead_s
 
     def _timeout_for(self, duration_s: float) -> float:
         return 1.5 * duration_s + 3.0

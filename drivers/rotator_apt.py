@@ -17,7 +17,8 @@ docs/references.md.  Frames are encoded with `thorlabs-apt-protocol`
     move      MOT_MOVE_ABSOLUTE 0x0453 (chan, position) → MOT_MOVE_COMPLETED 0x0464
               (long form with the status block), or MOT_MOVE_STOPPED 0x0466 when a limit
               switch or a stop ended it
-    stop      MOT_MOVE_STOP 0x0465 (chan, 0x02 profiled) → MOT_MOVE_STOPPED 0x0466
+    stop      MOT_MOVE_STOP 0x0465 (chan, 0x02 profiled) → MOT_MOVE_STOPPED 0x0466 once the
+              rotor has decelerated (up to v/a later)
     push      with HW_START_UPDATEMSGS the controller pushes 0x0481 every 100 ms; the host
               sends MOT_ACK_DCSTATUSUPDATE 0x0492 at least every 0.9 s as keep-alive
     close     HW_STOP_UPDATEMSGS 0x0012 (push mode), HW_DISCONNECT 0x0002
@@ -200,30 +201,31 @@ class AptRotationStage(RotationStageBase):
                 return msg
 
     def _ensure_link(self) -> None:
-        """After a lost link: reopen the port and re-initialise, or raise InstrumentError."""
+        """After a lost link: reopen the port and re-initialise (`core.transport.recover_link`
+        within `reconnect_timeout_s`), or raise InstrumentError."""
         if not self._lost:
             return
-        deadline = self.clock.now_s() + self.reconnect_timeout_s
-        last: Exception | None = None
-        while self.clock.now_s() < deadline:
+
+        def attempt() -> None:
+            self._lost = True
+            if not self.port.is_open:
+                self.port.open()
+            self.port.reset_input_buffer()
+            self._unpacker = apt.Unpacker()
+            self._lost = False
+            self.connect()
+
+        def close_half_open(_exc: BaseException) -> None:
+            self._lost = True
             try:
-                if hasattr(self.port, "is_open") and not self.port.is_open:
-                    self.port.open()
-                self.port.reset_input_buffer()
-                self._unpacker = apt.Unpacker()
-                self._lost = False
-                self.connect()
-                return
-            except (SerialException, OSError, InstrumentError) as exc:
-                last = exc
-                self._lost = True
-                try:
-                    self.port.close()
-                except (SerialException, OSError):
-                    pass
-                self.clock.sleep(0.5)
-        raise InstrumentError(f"cannot reconnect within {self.reconnect_timeout_s:g} s: {last}",
-                              instrument=self.instrument_id)
+                self.port.close()
+            except (SerialException, OSError):
+                pass                    # the port is gone already
+
+        transport.recover_link(self.clock, self.reconnect_timeout_s, attempt,
+                               retry_on=(SerialException, OSError, InstrumentError),
+                               instrument_id=self.instrument_id, what="APT link lost",
+                               on_failure=close_half_open)
 
     # --- conversions --------------------------------------------------------------------------
     def _steps(self, angle_deg: float) -> int:
@@ -358,7 +360,9 @@ class AptRotationStage(RotationStageBase):
         self._done_msg = None
         self._send(apt.mot_move_stop(DEVICE, HOST, CHANNEL, STOP_PROFILED))
         try:
-            self._expect(MSG_STOPPED)
+            # a profiled stop decelerates first: v/a at most, then MOVE_STOPPED
+            self._expect(MSG_STOPPED, self.command_timeout_s
+                         + self.max_velocity_deg_s / self.acceleration_deg_s2)
         finally:
             self._waiting_for = ()
             self._done_msg = None

@@ -14,7 +14,13 @@ and decelerates to stop exactly at the target.  For a distance d:
 - the **encoder** (counts physical motion since the last homing or power-up).
 
 At power-up the counter and the encoder read 0 wherever the rotor is, and `homed` is false.
-Homing drives the rotor to the home switch (physical 0°) and zeroes counter and encoder.
+Homing drives the rotor to the home switch (physical 0°) and zeroes counter and encoder; the
+reference is lost (`homed` false) from the moment homing starts until it completes, and a
+homing that is stopped leaves it lost.  Every homing ends with the switch approach (the rotor
+backs off the switch by `home_backoff_deg` and comes back at the homing speed), so homing from
+0° takes time too (modelled as time at the switch, *assumed* 1°).
+Stopping: a *profiled* stop decelerates at the axis's acceleration from the speed it has (the
+rotor runs on v²/2a), an *immediate* stop halts the rotor where it is.
 A stall freezes the rotor part way; an open-loop controller (APT stepper) keeps counting to the
 target (`stall_stops_controller=False`), a closed-loop one (Zaber) stops counting too.  Hardware
 limit switches at `limit_min_deg` / `limit_max_deg` stop any motion that reaches them.
@@ -80,6 +86,10 @@ class Motion:
     reason: str               # "done", "limit-max", "limit-min", "stall"
     stall_s: float | None = None   # physical rotor stops here (stall)
     stall_stops_controller: bool = True
+    #: a profiled stop: the rotor decelerates from this speed at the trapezoid's acceleration
+    v0_deg_s: float = 0.0
+    #: time spent at the target after arriving (homing's switch approach)
+    dwell_s: float = 0.0
 
     @property
     def distance_deg(self) -> float:
@@ -91,8 +101,18 @@ class Motion:
 
     def commanded_deg(self, now_s: float) -> float:
         t = min(now_s, self.end_s) - self.t0_s
+        if self.v0_deg_s > 0:
+            a = self.trapezoid.acceleration_deg_s2
+            t = max(0.0, min(t, self.v0_deg_s / a))
+            return self.start_counter_deg + self.sign * (self.v0_deg_s * t - 0.5 * a * t * t)
         return self.start_counter_deg + self.sign * self.trapezoid.travelled_deg(
             t, self.distance_deg)
+
+    def speed_deg_s(self, now_s: float) -> float:
+        t = now_s - self.t0_s
+        if self.v0_deg_s > 0:
+            return max(0.0, self.v0_deg_s - self.trapezoid.acceleration_deg_s2 * max(t, 0.0))
+        return self.trapezoid.velocity_deg_s(t, self.distance_deg)
 
 
 @dataclass
@@ -105,12 +125,14 @@ class MotionEnd:
 class Axis:
     def __init__(self, trapezoid: Trapezoid, *, home_trapezoid: Trapezoid | None = None,
                  limit_min_deg: float = -170.0, limit_max_deg: float = 170.0,
-                 power_up_angle_deg: float = 0.0, stall_stops_controller: bool = True) -> None:
+                 power_up_angle_deg: float = 0.0, stall_stops_controller: bool = True,
+                 home_backoff_deg: float = 1.0) -> None:
         self.trapezoid = trapezoid
         self.home_trapezoid = home_trapezoid or trapezoid
         self.limit_min_deg = float(limit_min_deg)
         self.limit_max_deg = float(limit_max_deg)
         self.stall_stops_controller = stall_stops_controller
+        self.home_backoff_deg = float(home_backoff_deg)
         self._physical_deg = float(power_up_angle_deg)   # at rest / at the last settle
         self.offset_deg = 0.0          # physical − counter
         self.encoder_zero_deg = 0.0    # physical angle where the encoder reads 0
@@ -150,7 +172,7 @@ class Axis:
         m = self.motion
         if m is None or (m.stall_s is not None and now_s >= m.stall_s):
             return 0.0
-        return m.sign * m.trapezoid.velocity_deg_s(now_s - m.t0_s, m.distance_deg)
+        return m.sign * m.speed_deg_s(now_s)
 
     @property
     def moving(self) -> bool:
@@ -168,7 +190,13 @@ class Axis:
         # drive the rotor to the home switch: physical 0° ⇔ counter −offset
         if self.motion is not None:
             self._settle(now_s)
+        self.homed = False                 # the reference is being found again
         self._start("home", -self.offset_deg, self.home_trapezoid, now_s, None)
+        m = self.motion
+        assert m is not None
+        if m.reason == "done":
+            m.dwell_s = 2.0 * self.home_trapezoid.duration_s(self.home_backoff_deg)
+            m.end_s += m.dwell_s
 
     def _start(self, kind: str, target_counter_deg: float, trap: Trapezoid, now_s: float,
                stall_fraction: float | None) -> None:
@@ -208,13 +236,26 @@ class Axis:
                 hi = mid
         return hi
 
-    def stop(self, now_s: float) -> MotionEnd | None:
-        """Stop at once (the rotor stays where it is now)."""
-        if self.motion is None:
+    def stop(self, now_s: float, *, profiled: bool = False) -> MotionEnd | None:
+        """Immediate stop: the rotor stays where it is now; returns how the motion ended.
+        Profiled stop: the rotor decelerates from its speed now; returns None, and the motion
+        ends ("stopped") when it is at rest (`poll`)."""
+        m = self.motion
+        if m is None:
             return None
-        kind = self.motion.kind
+        kind = m.kind
+        speed = abs(self.velocity_deg_s(now_s))
+        sign = m.sign
         self._settle(now_s)
-        return MotionEnd(kind, "stopped", now_s)
+        if not profiled or speed <= 1e-9:
+            return MotionEnd(kind, "stopped", now_s)
+        trap = m.trapezoid
+        start = self._physical_deg - self.offset_deg
+        d = speed * speed / (2.0 * trap.acceleration_deg_s2)
+        self.motion = Motion(kind, now_s, start, start + sign * d, trap,
+                             now_s + speed / trap.acceleration_deg_s2, "stopped",
+                             stall_stops_controller=self.stall_stops_controller, v0_deg_s=speed)
+        return None
 
     def _settle(self, now_s: float) -> None:
         m = self.motion
@@ -237,6 +278,8 @@ class Axis:
         self.offset_deg = phys - counter
         if m.reason in ("limit-max", "limit-min"):
             self.at_limit = m.reason[6:]
+        if m.reason == "stopped":
+            return MotionEnd(m.kind, "stopped", m.end_s)
         if m.kind == "home" and m.reason == "done":
             self.offset_deg = self._physical_deg   # counter := 0 at the home switch
             self.encoder_zero_deg = self._physical_deg

@@ -35,13 +35,26 @@ is 0x01.  Channel 1.  Messages (request → reply; "set" messages have no reply)
                                           stored MOVEABSPARAMS position
     0x0448 MOT_MOVE_RELATIVE              long form (chan, distance), or short form: the stored
                                           MOVERELPARAMS distance
-    0x0457 MOT_MOVE_VELOCITY              short (chan, 0x01 forward / 0x02 reverse): runs at the
-                                          VELPARAMS maximum until MOVE_STOP or a limit switch
+    0x0457 MOT_MOVE_VELOCITY              short (chan, direction): runs at the VELPARAMS maximum
+                                          until MOVE_STOP (or a limit switch, if configured)
     0x046A MOT_MOVE_JOG                   short (chan, direction): one jog step (JOGPARAMS mode
                                           2) or a continuous jog (mode 1) at the jog velocity
-    moves end with 0x0464 MOT_MOVE_COMPLETED, or 0x0466 MOT_MOVE_STOPPED at a limit switch
-    0x0465 MOT_MOVE_STOP                  → 0x0466 MOT_MOVE_STOPPED (immediate and profiled
-                                          stop both immediate: deceleration not modelled)
+    moves end with 0x0464 MOT_MOVE_COMPLETED, or 0x0466 MOT_MOVE_STOPPED (stop, limit switch)
+    0x0465 MOT_MOVE_STOP                  short (chan, 0x01 immediate / 0x02 profiled): immediate
+                                          → 0x0466 at once where the rotor is; profiled → the
+                                          rotor decelerates (v²/2a), 0x0466 when at rest
+    0x04F4 / 0x04F5 BOWINDEX              set (chan, bow index) / → 0x04F6 MOT_GET_BOWINDEX
+                                          (0 = trapezoidal profile, the one modelled)
+
+Direction codes (MOVE_VELOCITY, MOVE_JOG): the protocol calls 0x01 "forward" and 0x02
+"reverse" without saying which way the position counter goes.  On Kinesis motor controllers
+(K10CR1 among the stages its author tested) code 0x02 moves towards *increasing* position
+counts: pylablib's ``KinesisMotor`` sends 2 for a "+" jog or velocity move
+(``_forward_positive = False``), and thorlabs-apt-device documents that on some devices
+"forward" moves towards negative counts (its ``invert_direction_logic``).  So here 0x02 ("reverse")
+increases the counter and 0x01 ("forward") decreases it, and the status bits follow the
+protocol's names: 0x10 "moving forward" (0x40 jogging forward) while the counter decreases,
+0x20 / 0x80 while it increases ([APT], [PYLABLIB] in docs/references.md).
     0x04B9 MOT_SET_EEPROMPARAMS           accepted (parameters are kept in memory only)
 Anything else is ignored, as the controller ignores messages it does not implement.
 
@@ -56,9 +69,12 @@ disabled with 0x0210 ignores motion commands, as the controller does.
 
 Mechanics (`sim.motion.Axis`): K10CR1 409600/3 µsteps/°, default 10 °/s and 10 °/s²
 (velocity APT units = µsteps/s × 53.68, acceleration = µsteps/s² / 90.9), homing at 5 °/s to
-the home switch at 0°; hardware limit switches at ±170° (the Normbox holder's cable wrap,
-*assumed*).  The stepper is open loop: after a stall the position counter still reaches the
-target while the encoder tells the truth.
+the home switch at 0° plus the switch approach (so homing from 0° takes ~0.6 s); the status
+clears "homed" (0x400) while homing and sets 0x200.  A K10CR1 rotates continuously: no limit
+switches (``limit_min_deg`` / ``limit_max_deg`` options add them for tests); the ±170° range of
+the Normbox sample holder is the lab's configuration (the driver's ``min_angle_deg`` /
+``max_angle_deg``), not the controller's.  The stepper is open loop: after a stall the
+position counter still reaches the target while the encoder tells the truth.
 
 Device faults: ``stall`` (the next move stalls half-way; parameter = fraction, default 0.5),
 ``power-blip`` (at the next command the controller resets: link down 1 s, reference lost).
@@ -66,6 +82,7 @@ Device faults: ``stall`` (the next move stalls half-way; parameter = fraction, d
 
 from __future__ import annotations
 
+import math
 import struct
 from typing import Any, ClassVar
 
@@ -99,6 +116,11 @@ BIT_MOTION_ERROR = 0x4000
 BIT_ENABLED = 0x80000000
 
 
+def direction_sign(code: int) -> int:
+    """MOVE_VELOCITY / MOVE_JOG direction code → counter direction (0x02 increases it)."""
+    return +1 if code == 0x02 else -1
+
+
 def short_frame(msg_id: int, p1: int = 0, p2: int = 0) -> bytes:
     return struct.pack("<HBBBB", msg_id, p1 & 0xFF, p2 & 0xFF, HOST, CONTROLLER)
 
@@ -113,7 +135,7 @@ class AptRotatorEmulator(core.Emulator):
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
                  serial_number: int = 55123456, power_up_angle_deg: float = 0.0,
-                 limit_min_deg: float = -170.0, limit_max_deg: float = 170.0,
+                 limit_min_deg: float = -math.inf, limit_max_deg: float = math.inf,
                  max_velocity_deg_s: float = 10.0, acceleration_deg_s2: float = 10.0,
                  home_velocity_deg_s: float = 5.0) -> None:
         super().__init__(clock, faults, seed)
@@ -147,6 +169,7 @@ class AptRotatorEmulator(core.Emulator):
         self.jog_trapezoid = self.move_trapezoid
         self.home_dir, self.home_limit_switch, self.home_offset_steps = 2, 1, 0
         self.limit_params = (2, 2, 0, 0, 1)   # hard limits make on contact; soft limits off
+        self.bow_index = 0                     # trapezoidal velocity profile
 
     # --- what the world reads ----------------------------------------------------------------
     def angle_deg(self) -> float:
@@ -234,10 +257,10 @@ class AptRotatorEmulator(core.Emulator):
             self._move(msg_id, fields("<Hl"), now)
         elif msg_id == 0x0457:
             if self.enabled:
-                self._run(+1 if p2 == 0x01 else -1, self.move_trapezoid, "velocity", now)
+                self._run(direction_sign(p2), self.move_trapezoid, "velocity", now)
         elif msg_id == 0x046A:
             if self.enabled:
-                sign = +1 if p2 == 0x01 else -1
+                sign = direction_sign(p2)
                 if self.jog_mode == 1:
                     self._run(sign, self.jog_trapezoid, "jog", now)
                 else:
@@ -245,6 +268,10 @@ class AptRotatorEmulator(core.Emulator):
                     self._start(self.axis.counter_deg(now)
                                 + sign * self.jog_step_steps / STEPS_PER_DEG, "jog", now)
         elif msg_id == 0x0465:
+            if self.axis.moving and p2 == 0x02:
+                self.axis.stop(now, profiled=True)     # MOVE_STOPPED once at rest
+                if self.axis.moving:
+                    return
             self.axis.stop(now)
             self.axis.trapezoid = self.move_trapezoid
             self.emit(long_frame(0x0466, self._dc_status_block(now)))
@@ -378,14 +405,15 @@ class AptRotatorEmulator(core.Emulator):
         if m is not None and now_s < m.end_s:
             if m.kind == "home":
                 bits |= BIT_HOMING
+            # the protocol's "forward" (code 0x01) decreases the counter (module docstring)
             if self.motion_kind == "jog":
-                bits |= BIT_JOGGING_FWD if m.sign > 0 else BIT_JOGGING_REV
-            bits |= BIT_MOVING_FWD if m.sign > 0 else BIT_MOVING_REV
+                bits |= BIT_JOGGING_FWD if m.sign < 0 else BIT_JOGGING_REV
+            bits |= BIT_MOVING_FWD if m.sign < 0 else BIT_MOVING_REV
         if self.axis.homed:
             bits |= BIT_HOMED
-        if self.axis.at_limit == "max":
-            bits |= BIT_FWD_LIMIT
         if self.axis.at_limit == "min":
+            bits |= BIT_FWD_LIMIT
+        if self.axis.at_limit == "max":
             bits |= BIT_REV_LIMIT
         if self.motion_error:
             bits |= BIT_MOTION_ERROR
@@ -442,6 +470,7 @@ AptRotatorEmulator._REQUESTS = {
     0x0451: lambda e, now: (0x0452, _chan("<Hl", lambda e, n: e.abs_position_steps)(e, now)),
     0x0429: lambda e, now: (0x042A, _chan("<HL", AptRotatorEmulator._status_bits)(e, now)),
     0x0480: lambda e, now: (0x0481, e._status_block(now)),
+    0x04F5: lambda e, now: (0x04F6, _chan("<HH", lambda e, n: e.bow_index)(e, now)),
     0x0490: lambda e, now: (0x0491, e._dc_status_block(now)),
 }
 
@@ -457,6 +486,7 @@ AptRotatorEmulator._SETTERS = {
     0x0423: ("<3HLLH", lambda e, v, now: setattr(e, "limit_params", tuple(v))),
     0x0445: ("<Hl", lambda e, v, now: setattr(e, "rel_distance_steps", v[0])),
     0x0450: ("<Hl", lambda e, v, now: setattr(e, "abs_position_steps", v[0])),
+    0x04F4: ("<HH", lambda e, v, now: setattr(e, "bow_index", v[0])),
 }
 
 

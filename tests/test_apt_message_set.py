@@ -33,7 +33,7 @@ def ask(emu: AptRotatorEmulator, frame: bytes):
 def homed(clock: VirtualClock) -> AptRotatorEmulator:
     emu = AptRotatorEmulator(clock)
     emu.feed(apt.mot_move_home(DEV, HOST, CH))
-    clock.advance(1.0)
+    clock.advance(2.0)                        # from 0°: the switch approach takes 1.26 s
     assert [m.msg for m in replies(emu)] == ["mot_move_homed"]
     return emu
 
@@ -44,7 +44,7 @@ def test_powers_up_enabled_and_moves_without_an_enable_message():
     state = ask(emu, apt.mod_req_chanenablestate(DEV, HOST, CH))
     assert (state.msg, state.enabled) == ("mod_get_chanenablestate", True)
     emu.feed(apt.mot_move_home(DEV, HOST, CH))
-    clock.advance(2.0)
+    clock.advance(3.0)
     assert [m.msg for m in replies(emu)] == ["mot_move_homed"]
     # disabled: motion commands are ignored, as the controller ignores them
     emu.feed(apt.mod_set_chanenablestate(DEV, HOST, CH, 2))
@@ -153,39 +153,84 @@ def test_completed_status_block_layout():
 
 
 def test_velocity_move_runs_until_stopped():
+    """Direction 0x02 increases the position counter, 0x01 decreases it (Kinesis motors, as
+    pylablib's KinesisMotor drives them); the "forward"/"reverse" bits follow the codes."""
     clock = VirtualClock()
     emu = homed(clock)
-    emu.feed(apt.mot_move_velocity(DEV, HOST, CH, 1))          # forward at 10 °/s
+    emu.feed(apt.mot_move_velocity(DEV, HOST, CH, 2))          # code 2: counts up, 10 °/s
     clock.advance(3.0)                                          # 1 s ramp: 5° + 10°
     status = ask(emu, apt.mot_req_dcstatusupdate(DEV, HOST, CH))
-    assert status.moving_forward and status.position == round(25 * STEPS)
+    assert status.moving_reverse and not status.moving_forward
+    assert status.position == round(25 * STEPS)
     assert status.velocity == round(10 * STEPS / 2048)
-    stopped = ask(emu, apt.mot_move_stop(DEV, HOST, CH, 1))
-    assert stopped.msg == "mot_move_stopped" and not stopped.moving_forward
+    stopped = ask(emu, apt.mot_move_stop(DEV, HOST, CH, 1))    # immediate
+    assert stopped.msg == "mot_move_stopped" and not stopped.moving_reverse
     assert emu.angle_deg() == pytest.approx(25.0, abs=1e-6)
-    # reverse into the hardware limit switch: MOVE_STOPPED with the limit bit
-    emu.feed(apt.mot_move_velocity(DEV, HOST, CH, 2))
+    emu.feed(apt.mot_move_velocity(DEV, HOST, CH, 1))          # code 1: counts down
+    clock.advance(2.0)
+    assert ask(emu, apt.mot_req_dcstatusupdate(DEV, HOST, CH)).moving_forward
+    assert emu.angle_deg() == pytest.approx(25.0 - 15.0, abs=1e-6)
+    # a profiled stop decelerates: 10 °/s at 10 °/s² runs on 5° in 1 s, then MOVE_STOPPED
+    emu.feed(apt.mot_move_stop(DEV, HOST, CH, 2))
+    assert replies(emu) == []
+    clock.advance(0.5)
+    assert emu.angle_deg() == pytest.approx(10.0 - (5.0 - 1.25), abs=1e-6)
+    clock.advance(0.6)
+    assert [m.msg for m in replies(emu)] == ["mot_move_stopped"]
+    assert emu.angle_deg() == pytest.approx(5.0, abs=1e-6)
+
+
+def test_continuous_rotation_and_optional_limit_switches():
+    clock = VirtualClock()
+    emu = homed(clock)
+    emu.feed(apt.mot_move_absolute(DEV, HOST, CH, round(400 * STEPS)))   # no limits: 400°
     clock.advance(60.0)
-    end = replies(emu)
+    assert [m.msg for m in replies(emu)] == ["mot_move_completed"]
+    assert emu.angle_deg() == pytest.approx(400.0, abs=1e-5)           # µstep rounding
+    lim = AptRotatorEmulator(clock, limit_min_deg=-170.0, limit_max_deg=170.0)
+    lim.feed(apt.mot_move_velocity(DEV, HOST, CH, 2))          # counts up into the switch
+    clock.advance(60.0)
+    end = replies(lim)
     assert [m.msg for m in end] == ["mot_move_stopped"] and end[0].reverse_limit_switch
-    assert emu.angle_deg() == pytest.approx(-170.0, abs=1e-6)
+    assert lim.angle_deg() == pytest.approx(170.0, abs=1e-6)
+
+
+def test_rehoming_clears_homed_and_takes_time_from_zero():
+    clock = VirtualClock()
+    emu = homed(clock)
+    emu.feed(apt.mot_move_home(DEV, HOST, CH))                 # already at 0°: re-home
+    clock.advance(0.1)
+    status = ask(emu, apt.mot_req_dcstatusupdate(DEV, HOST, CH))
+    assert status.homing and not status.homed                  # 0x200 set, 0x400 clear
+    clock.advance(1.0)
+    assert replies(emu) == []                                  # still approaching the switch
+    clock.advance(0.3)
+    assert [m.msg for m in replies(emu)] == ["mot_move_homed"]
+    assert ask(emu, apt.mot_req_dcstatusupdate(DEV, HOST, CH)).homed
+
+
+def test_bow_index_request_is_answered():
+    emu = AptRotatorEmulator(VirtualClock())
+    got = ask(emu, apt.mot_req_bowindex(DEV, HOST, CH))
+    assert (got.msg, got.bow_index) == ("mot_get_bowindex", 0)
+    emu.feed(apt.mot_set_bowindex(DEV, HOST, CH, 3))
+    assert ask(emu, apt.mot_req_bowindex(DEV, HOST, CH)).bow_index == 3
 
 
 def test_jog_step_and_continuous_jog():
     clock = VirtualClock()
     emu = homed(clock)
-    emu.feed(apt.mot_move_jog(DEV, HOST, CH, 1))              # one 5° step forward
+    emu.feed(apt.mot_move_jog(DEV, HOST, CH, 2))              # one 5° step, counts up
     clock.advance(5.0)
     assert [(m.msg, m.position) for m in replies(emu)] == \
         [("mot_move_completed", round(5 * STEPS))]
     v_apt, a_apt = round(2 * STEPS * 53.68), round(10 * STEPS / 90.9)
     emu.feed(apt.mot_set_jogparams(DEV, HOST, CH, 1, 0, 0, a_apt, v_apt, 2))   # continuous
-    emu.feed(apt.mot_move_jog(DEV, HOST, CH, 2))
+    emu.feed(apt.mot_move_jog(DEV, HOST, CH, 1))              # code 1: counts down
     clock.advance(2.0)                                          # 0.2 s ramp, then 2 °/s
-    status = ask(emu, apt.mot_req_statusbits(DEV, HOST, CH)) if hasattr(
-        apt, "mot_req_statusbits") else ask(emu, bytes.fromhex("290401005001"))
-    assert status.jogging_reverse and status.moving_reverse
-    ask(emu, apt.mot_move_stop(DEV, HOST, CH, 2))
+    status = ask(emu, bytes.fromhex("290401005001"))
+    assert status.jogging_forward and status.moving_forward
+    ask(emu, apt.mot_move_stop(DEV, HOST, CH, 1))
     assert emu.angle_deg() == pytest.approx(5.0 - (2.0 * 2.0 - 0.2), abs=1e-3)
 
 

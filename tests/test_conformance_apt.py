@@ -110,19 +110,21 @@ def test_ordinary_workflow(transport, monkeypatch):
 
             dev.set_jog_params(round(2.5 * STEPS_PER_DEG), A_APT, V_APT)
             client.until(lambda: dev.jogparams_[0][0]["step_size"] == round(2.5 * STEPS_PER_DEG))
-            dev.move_jog("forward")
+            # thorlabs-apt-device's "reverse" is code 0x02: the counter goes up on a Kinesis
+            # motor (its invert_direction_logic exists for this; see sim/rotator_apt.py)
+            dev.move_jog("reverse")
             client.until(lambda: [m.msg for m in client.messages].count(
                 "mot_move_completed") == 3)
             assert client.last("mot_move_completed").position == round(22.5 * STEPS_PER_DEG)
 
             dev.set_velocity_params(A_APT, V_APT // 100)               # 2 °/s
             client.until(lambda: dev.velparams_[0][0]["max_velocity"] == V_APT // 100)
-            dev.move_velocity("reverse")
-            client.until(lambda: client.status["moving_reverse"])
+            dev.move_velocity("forward")                               # code 0x01: down
+            client.until(lambda: client.status["moving_forward"])
             dev.stop()
             client.until(lambda: any(m.msg == "mot_move_stopped" for m in client.messages))
             stopped = client.last("mot_move_stopped")
-            assert not stopped.moving_reverse and stopped.position < round(22.5 * STEPS_PER_DEG)
+            assert not stopped.moving_forward and stopped.position < round(22.5 * STEPS_PER_DEG)
             assert emu.angle_deg() == pytest.approx(stopped.position / STEPS_PER_DEG, abs=1e-5)
         finally:
             dev.close()

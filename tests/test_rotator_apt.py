@@ -167,8 +167,8 @@ def test_emulator_60_degree_move_follows_the_trapezoid():
     emu = AptRotatorEmulator(clock)
     emu.feed(ENABLE)
     emu.feed(HOME)
-    clock.advance(1.0)
-    assert [m for m, _ in frames(emu)] == [0x0444]            # homed at once (already at 0)
+    clock.advance(1.3)
+    assert [m for m, _ in frames(emu)] == [0x0444]    # from 0°: the switch approach, 1.26 s
     emu.feed(move_abs(round(60 * STEPS)))
     t0 = clock.now_s()
     # v = 10 °/s, a = 10 °/s²: T = d/v + v/a = 6 + 1 = 7 s; 0.5 s in: a t²/2 = 1.25°
@@ -195,7 +195,8 @@ def test_driver_eta_equals_emulator_time_and_world_angle():
         stage.move_to(30.0)                                    # homing required after power-up
     t0 = clock.now_s()
     stage.home()
-    assert clock.now_s() - t0 == pytest.approx(12 / 5 + 5 / 10, abs=0.06)   # 5 °/s homing
+    # 5 °/s homing, then the switch approach (1° off and back: 2 × 2·√(1/10) s)
+    assert clock.now_s() - t0 == pytest.approx(12 / 5 + 5 / 10 + 4 * 0.1 ** 0.5, abs=0.06)
     for a, b in ((0.0, 60.0), (60.0, 62.5), (62.5, 30.0)):
         t0 = clock.now_s()
         stage.move_to(b)
@@ -208,15 +209,31 @@ def test_driver_eta_equals_emulator_time_and_world_angle():
 def test_hardware_limit_switch_through_the_emulator():
     clock = VirtualClock()
     core.CONTEXT.reset(clock=clock)
-    stage = AptRotationStage.open("sim://rotator-apt?key=apt-lim", clock, max_angle_deg=200.0)
+    # a K10CR1 has none: switches added to the emulator (counts up ends at the switch the
+    # protocol calls "reverse": direction code 0x02 increases the counter)
+    stage = AptRotationStage.open("sim://rotator-apt?key=apt-lim&limit_max_deg=170", clock,
+                                  max_angle_deg=200.0)
     stage.home()
     with pytest.raises(DeviceError) as err:
         stage.move_to(175.0)
     assert err.value.code == "LIMIT"
     assert core.CONTEXT.instances["apt-lim"].angle_deg() == pytest.approx(170.0, abs=1e-6)
-    assert stage.status()["limit_forward"]
+    assert stage.status()["limit_reverse"]
     stage.move_to(90.0)                                        # back off the switch
-    assert not stage.status()["limit_forward"]
+    assert not stage.status()["limit_reverse"]
+
+
+def test_k10cr1_rotates_continuously_soft_limits_are_the_labs():
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    stage = AptRotationStage.open("sim://rotator-apt?key=apt-cont", clock, max_angle_deg=200.0)
+    stage.home()
+    stage.move_to(185.0)                                        # past ±170°: no switch there
+    assert core.CONTEXT.instances["apt-cont"].angle_deg() == pytest.approx(185.0, abs=1e-5)
+    holder = AptRotationStage.open("sim://rotator-apt?key=apt-cont2", clock)  # ±170° config
+    holder.home()
+    with pytest.raises(DeviceError):
+        holder.move_to(175.0)
 
 
 def test_stall_is_caught_by_the_encoder_check():
@@ -265,9 +282,12 @@ def test_stop_while_moving():
     stage.move_to(90.0, wait=False)
     clock.advance(2.0)
     assert stage.is_moving()
-    stage.stop()
+    t0 = clock.now_s()
+    stage.stop()                                               # profiled: decelerates
     assert not stage.is_moving()
-    assert stage.position_deg() == pytest.approx(15.0, abs=1e-4)   # 5° + 10 °/s · 1 s
+    assert clock.now_s() - t0 == pytest.approx(1.0, abs=0.06)  # 10 °/s at 10 °/s²: 1 s
+    # 5° + 10 °/s · 1 s at the stop, then v²/2a = 5° more
+    assert stage.position_deg() == pytest.approx(20.0, abs=1e-4)
 
 
 def test_lost_keepalive_stops_pushes():

@@ -150,7 +150,9 @@ def test_emulator_replies_and_rejections():
     assert ask(emu, "/1 2 get pos") == "@01 2 RJ IDLE WR BADAXIS\r\n"
     assert ask(emu, "/1 1 warnings") == "@01 1 OK IDLE WR 01 WR\r\n"
     assert ask(emu, "/1 1 home") == "@01 1 OK BUSY WR 0\r\n"             # already at home:
-    assert ask(emu, "/1 1") == "@01 1 OK IDLE -- 0\r\n"                    # done at once
+    assert emu.next_event_s() > 0.3                 # the switch approach takes time from 0° too
+    clock.advance(2.0)
+    assert ask(emu, "/1 1") == "@01 1 OK IDLE -- 0\r\n"
     assert ask(emu, "/1 1 move abs 99999999") == "@01 1 RJ IDLE -- BADDATA\r\n"
     assert ask(emu, "/1 1 move abs 256000") == "@01 1 OK BUSY -- 0\r\n"
     assert ask(emu, "/2 1 get pos") == ""                                 # another device
@@ -160,11 +162,13 @@ def test_emulator_60_degree_move_timing():
     clock = VirtualClock()
     emu = ZaberRotatorEmulator(clock)
     ask(emu, "/1 1 home")
+    clock.advance(5.0)                                  # homing from 0°: the switch approach
+    t0 = clock.now_s()
     ask(emu, "/1 1 move abs 256000")
     v = SPEED / 1.6384 / STEPS
     a = ACCEL / (1.6384 / 10000) / STEPS
     expected = 60 / v + v / a                                             # d ≥ v²/a
-    assert emu.next_event_s() == pytest.approx(expected, abs=1e-9)
+    assert emu.next_event_s() - t0 == pytest.approx(expected, abs=1e-9)
     clock.advance(expected - 1e-6)
     assert "BUSY" in ask(emu, "/1 1")
     clock.advance(2e-6)
