@@ -41,7 +41,6 @@ from __future__ import annotations
 import functools
 import inspect
 import json
-import os
 import sqlite3
 import threading
 import uuid as uuidlib
@@ -53,14 +52,19 @@ from typing import Any, Self
 import numpy as np
 
 from normbox_lab import __version__
+from normbox_lab.acquire.store_file import (
+    APPLICATION_ID,
+    RunLock,
+    damaged,
+    describe,
+    preflight,
+    read_only_uri,
+    refusal,
+)
 from normbox_lab.core.errors import StoreError
 from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
 
 DEFAULT_STORE = "normbox.sqlite"
-#: PRAGMA application_id of a normbox-lab store: "NBOX" as a big-endian 32-bit integer
-APPLICATION_ID = 0x4E424F58
-#: the tables by which a store from before the application id is recognised
-_CORE_TABLES = {"runs", "run_events", "readings", "arrays", "instruments", "artifacts"}
 
 MIGRATIONS: list[str] = [
     # version 1
@@ -252,95 +256,6 @@ def _json_default(obj: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(obj).__name__}")
 
 
-class RunLock:
-    """Who is executing a run: an exclusive `flock` on a sidecar file next to the store
-    (``STORE.RUN-UUID.lock``, holding the owner's pid for the message).  The kernel drops the
-    lock when its process dies, so `kill -9` cannot leave it stuck; the file is removed on
-    release.  Without `fcntl` (Windows) locking is skipped."""
-
-    def __init__(self, store_path: Path, run_uuid: str) -> None:
-        self.path = store_path.with_name(f"{store_path.name}.{run_uuid}.lock")
-        self.run_uuid = run_uuid
-        self._fh: Any = None
-
-    def acquire(self) -> Self:
-        if self.path.name.startswith(":memory:"):    # no other process can see it
-            return self
-        try:
-            import fcntl
-        except ImportError:                      # pragma: no cover - not on POSIX
-            return self
-        while True:
-            fh = open(self.path, "a+", encoding="utf-8")  # noqa: SIM115 - held until release
-            try:
-                fcntl.flock(fh.fileno(), fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                fh.seek(0)
-                holder = fh.read().strip()
-                fh.close()
-                raise StoreError(
-                    f"run {self.run_uuid} is being executed by another normbox-lab process"
-                    f"{f' (pid {holder})' if holder else ''}; wait for it to finish or pause "
-                    "it, then resume") from None
-            try:                                   # a releasing owner may have removed it
-                same = os.fstat(fh.fileno()).st_ino == os.stat(self.path).st_ino
-            except FileNotFoundError:
-                same = False
-            if same:
-                fh.seek(0)
-                fh.truncate()
-                fh.write(str(os.getpid()))
-                fh.flush()
-                self._fh = fh
-                return self
-            fh.close()
-
-    @staticmethod
-    def held(store_path: Path, run_uuid: str) -> bool:
-        """Whether a live process holds the lock of `run_uuid` — asked without taking it and
-        without creating or writing any file (a shared, non-blocking probe of the sidecar)."""
-        path = store_path.with_name(f"{store_path.name}.{run_uuid}.lock")
-        if path.name.startswith(":memory:"):
-            return True
-        try:
-            import fcntl
-        except ImportError:                      # pragma: no cover - not on POSIX
-            return True
-        try:
-            fh = open(path, encoding="utf-8")  # noqa: SIM115 - closed below
-        except FileNotFoundError:
-            return False
-        except OSError:
-            return True
-        try:
-            fcntl.flock(fh.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
-        except BlockingIOError:
-            return True
-        finally:
-            fh.close()                         # (closing drops the probe's shared lock)
-        return False
-
-    def release(self) -> None:
-        if self._fh is not None:
-            try:
-                os.unlink(self.path)
-            except OSError:
-                pass
-            self._fh.close()
-            self._fh = None
-
-    def __enter__(self) -> Self:
-        return self.acquire()
-
-    def __exit__(self, *exc: object) -> None:
-        self.release()
-
-
-def _damaged(path: Path, exc: Exception) -> StoreError:
-    return StoreError(f"{path}: the store is damaged or unreadable ({exc}); check it with "
-                      "`sqlite3 FILE 'PRAGMA integrity_check'` and restore a copy")
-
-
 def _typed_store_errors(cls: type) -> type:
     """Every public method: a sqlite3 error (a damaged file) becomes `StoreError`."""
     for name, fn in list(vars(cls).items()):
@@ -351,101 +266,20 @@ def _typed_store_errors(cls: type) -> type:
                 try:
                     yield from __fn(self, *a, **k)
                 except sqlite3.Error as exc:
-                    raise _damaged(self.path, exc) from exc
+                    raise damaged(self.path, exc) from exc
             setattr(cls, name, functools.wraps(fn)(wrapped_gen))
         else:
             def wrapped(self, *a, __fn=fn, **k):
                 try:
                     return __fn(self, *a, **k)
                 except sqlite3.Error as exc:
-                    raise _damaged(self.path, exc) from exc
+                    raise damaged(self.path, exc) from exc
             setattr(cls, name, functools.wraps(fn)(wrapped))
     return cls
 
 
-_SQLITE_MAGIC = b"SQLite format 3\x00"
 #: largest integer SQLite stores (a run id beyond it names no run)
 _SQLITE_MAX_INT = 2**63 - 1
-
-
-def _uri(path: Path, **query: str) -> str:
-    from urllib.parse import quote
-
-    q = "&".join(f"{k}={v}" for k, v in query.items())
-    return f"file:{quote(str(path.resolve()))}?{q}"
-
-
-def _read_only_uri(path: Path) -> str:
-    """A read-only URI: ``mode=ro`` where a WAL is beside the file (its pages are read, nothing
-    is recovered into the file or checkpointed; SQLite may rebuild the ``-shm`` index), else
-    ``immutable=1`` (no side file is created)."""
-    if path.with_name(path.name + "-wal").exists():
-        return _uri(path, mode="ro")
-    return _uri(path, immutable="1")
-
-
-def _refusal(path: Path, app_id: int, version: int, tables: set[str]) -> str:
-    """Why a file is not a store this program may open ("" when it is)."""
-    if app_id not in (0, APPLICATION_ID):
-        return (f"{path}: not a normbox-lab store (SQLite application id {app_id:#010x}); "
-                "refusing to touch it (the file was not changed)")
-    if app_id == 0 and tables and not (_CORE_TABLES <= tables and version >= 1):
-        return (f"{path}: not a normbox-lab store (an SQLite file with tables "
-                f"{', '.join(sorted(tables)[:6])}); refusing to touch it (the file was not "
-                "changed)")
-    if version > SCHEMA_VERSION:
-        return (f"{path}: schema version {version} is newer than this normbox-lab "
-                f"({SCHEMA_VERSION}); upgrade normbox-lab (the file was not changed)")
-    return ""
-
-
-def _describe(db: sqlite3.Connection) -> tuple[int, int, set[str]]:
-    app_id = int(db.execute("PRAGMA application_id").fetchone()[0])
-    version = int(db.execute("PRAGMA user_version").fetchone()[0])
-    tables = {r[0] for r in db.execute(
-        "SELECT name FROM sqlite_master WHERE type='table'").fetchall()}
-    return app_id, version, tables
-
-
-def preflight(path: Path) -> bool:
-    """Check a store file before SQLite may recover (and so change) it: the header by plain
-    file I/O, then an ``immutable=1`` open.  Returns False when there is no file or it is
-    empty (a new store), True for a file that may be opened; raises `StoreError` otherwise."""
-    try:
-        st = path.stat()
-    except FileNotFoundError:
-        return False
-    except OSError as exc:
-        raise StoreError(f"{path}: cannot read ({exc})") from None
-    import stat
-
-    if not stat.S_ISREG(st.st_mode):
-        raise StoreError(f"{path}: not a file")
-    if st.st_size == 0:
-        return False
-    try:
-        with open(path, "rb") as fh:
-            header = fh.read(100)
-    except OSError as exc:
-        raise StoreError(f"{path}: cannot read ({exc})") from None
-    if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
-        raise StoreError(f"{path}: not a normbox-lab store (not an SQLite file); refusing to "
-                         "touch it (the file was not changed)")
-    why = _refusal(path, int.from_bytes(header[68:72], "big"),
-                   int.from_bytes(header[60:64], "big"), set())
-    if why:
-        raise StoreError(why)
-    try:
-        db = sqlite3.connect(_uri(path, immutable="1"), uri=True)
-        try:
-            why = _refusal(path, *_describe(db))
-        finally:
-            db.close()
-    except sqlite3.Error as exc:
-        raise _damaged(path, exc) from None
-    if why:
-        raise StoreError(why)
-    return True
 
 
 class _Transaction:
@@ -488,7 +322,7 @@ class Store:
         self._wall_s = clock_wall_s or time.time
         self._lock = threading.RLock()
         memory = str(path) == ":memory:"
-        exists = False if memory else preflight(self.path)
+        exists = False if memory else preflight(self.path, SCHEMA_VERSION)
         if exists:
             self._check_read_only()            # recognised with the WAL, nothing recovered
         try:
@@ -496,7 +330,7 @@ class Store:
                 self._db = sqlite3.connect(":memory:", isolation_level=None,
                                            check_same_thread=False)
             elif self.read_only:
-                self._db = sqlite3.connect(_read_only_uri(self.path), uri=True,
+                self._db = sqlite3.connect(read_only_uri(self.path), uri=True,
                                            isolation_level=None, check_same_thread=False,
                                            timeout=30.0)
             else:
@@ -525,11 +359,11 @@ class Store:
         """Recognise the file and check its pages through a read-only connection (it reads a
         WAL's pages; it recovers nothing, checkpoints nothing): a refusal changes nothing."""
         try:
-            db = sqlite3.connect(_read_only_uri(self.path), uri=True, timeout=30.0)
+            db = sqlite3.connect(read_only_uri(self.path), uri=True, timeout=30.0)
         except sqlite3.Error as exc:
             raise StoreError(f"{self.path}: cannot open ({exc})") from exc
         try:
-            why = _refusal(self.path, *_describe(db))
+            why = refusal(self.path, *describe(db), SCHEMA_VERSION)
             if why:
                 raise StoreError(why)
             rows = [line for r in db.execute("PRAGMA quick_check").fetchall()
@@ -543,7 +377,7 @@ class Store:
             msg = str(exc)
             if "readonly" in msg or "read-only" in msg:
                 return       # a hot rollback journal: recognised by its header, recovered on open
-            raise _damaged(self.path, exc) from exc
+            raise damaged(self.path, exc) from exc
         finally:
             db.close()
 
@@ -562,7 +396,7 @@ class Store:
     def _recognise(self) -> None:
         """Refuse a file that is not a normbox-lab store, or one with a newer schema, before
         anything is written to it."""
-        why = _refusal(self.path, *_describe(self._db))
+        why = refusal(self.path, *describe(self._db), SCHEMA_VERSION)
         if why:
             raise StoreError(why)
 
