@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the reference sweep (id or uuid prefix) whose prediction was compared")
     r.add_argument("-o", "--output", metavar="PATH", help="default: report-run-ID.html")
     r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
+    r.add_argument("--renderer", metavar="NAME",
+                   help="build the report on an imported renderer's comparison (default: "
+                        "ours; every renderer's row is in the report either way)")
     _accept_flagged(r)
     add_store_argument(r)
     r.set_defaults(handler=_report)
@@ -160,6 +163,7 @@ def _report(args: argparse.Namespace) -> int:
                                               step="report")]
         notes = [(f"The verdict rests on data with {len(accepted)} accepted error flag(s) "
                   "(--accept-flagged; see `normbox-lab qa`).")] if accepted else []
-        out = report_run(store, args.run, args.output, args.brdf_run, notes=notes)
+        out = report_run(store, args.run, args.output, args.brdf_run, notes=notes,
+                         renderer=args.renderer)
     print(f"report: {out}")
     return 0
