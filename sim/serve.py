@@ -10,20 +10,34 @@ One TCP client at a time; a second connection is closed at once.
 
 Linux ptys cannot carry modem lines (RTS/DTR ioctls fail on them), so clients that set or
 pulse RTS/DTR (Thorlabs APT clients do) should use the TCP endpoint through pyserial's
-``socket://HOST:PORT`` URL.
+``socket://HOST:PORT`` URL.  pyserial's ``socket://`` port reports at most 1 byte in
+`in_waiting`, so a client that empties its input with ``read_all()`` (colour-specio does)
+leaves the rest of a line behind; with ``rfc2217=True`` the port speaks RFC 2217 (Telnet COM
+port control, pyserial's own `serial.rfc2217.PortManager` on this side) and clients use
+``rfc2217://HOST:PORT``, whose `in_waiting` counts every byte, and whose baud rate, framing and
+modem-line settings are accepted (and, as over USB, do not matter to the emulator).
 
     server = TcpServer(emulator, "127.0.0.1", 0)      # or PtyServer(emulator)
     print(server.endpoint)                            # "tcp: 127.0.0.1:40123"
     server.serve(stop_event)                          # until stop_event is set
+
+`serve_until_signalled(server)` is what `normbox-lab sim serve` runs: it serves until SIGTERM
+or SIGINT, closes the endpoint and ends the process at once (within a poll interval, 20 ms):
+tearing down the emulator's libraries (colour-science for the radiometers) took seconds.
 """
 
 from __future__ import annotations
 
 import os
 import select
+import signal
 import socket
+import sys
 import threading
 import tty
+
+import serial
+from serial.rfc2217 import PortManager
 
 from normbox_lab.sim import core
 
@@ -58,9 +72,53 @@ def _timeout_s(emulator: core.Emulator) -> float:
     return max(0.0, min(POLL_S, nxt - emulator.clock.now_s()))
 
 
+class _LineSettings(serial.SerialBase):
+    """The serial settings an RFC 2217 client sets (baud rate, framing, flow control, RTS/DTR,
+    break): kept and read back, as `PortManager` needs; the emulator ignores them (as over
+    USB).  Modem inputs read CTS, DSR and CD on, RI off."""
+
+    def __init__(self) -> None:
+        super().__init__()                       # no port: never "opened"
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
+
+    def reset_input_buffer(self) -> None: ...
+    def reset_output_buffer(self) -> None: ...
+
+
+class _SocketWriter:
+    """`PortManager`'s connection: Telnet negotiation and notifications to the client."""
+
+    def __init__(self, conn: socket.socket) -> None:
+        self.conn = conn
+
+    def write(self, data: bytes) -> None:
+        try:
+            self.conn.sendall(data)
+        except OSError:
+            pass                                 # the client left: the step notices
+
+
 class TcpServer:
-    def __init__(self, emulator: core.Emulator, host: str, port: int) -> None:
+    def __init__(self, emulator: core.Emulator, host: str, port: int, *,
+                 rfc2217: bool = False) -> None:
         self.emulator = emulator
+        self.rfc2217 = rfc2217
+        self._manager: PortManager | None = None
         family = LOOPBACK_FAMILIES.get(host)
         if family is None:
             raise EndpointError(f"sim serve listens on loopback only, not {host!r}")
@@ -71,7 +129,7 @@ class TcpServer:
                 from exc
         bound_port = self.listener.getsockname()[1]
         shown = f"[{host}]" if family == socket.AF_INET6 else host
-        self.url = f"socket://{shown}:{bound_port}"
+        self.url = f"{'rfc2217' if rfc2217 else 'socket'}://{shown}:{bound_port}"
         self.endpoint = f"tcp: {shown}:{bound_port}"
         self.client: socket.socket | None = None
 
@@ -79,6 +137,7 @@ class TcpServer:
         if self.client is not None:
             self.client.close()
             self.client = None
+            self._manager = None
 
     def serve(self, stop: threading.Event | None = None) -> None:
         stop = stop or threading.Event()
@@ -99,18 +158,25 @@ class TcpServer:
                 data = self.client.recv(4096)
             except OSError:
                 data = b""
-            if data:
-                emu.feed(data)
+            if not data:
+                self._drop_client()              # the client hung up
             else:
-                self._drop_client()
+                if self._manager is not None:    # Telnet / RFC 2217 commands taken out
+                    data = b"".join(self._manager.filter(data))
+                if data:
+                    emu.feed(data)
         if self.listener in ready:
             conn, _ = self.listener.accept()
             if self.client is None:
                 emu.new_client()             # said, or still to say, to the one before: lost
                 self.client = conn
+                if self.rfc2217:
+                    self._manager = PortManager(_LineSettings(), _SocketWriter(conn))
             else:
                 conn.close()                 # one client at a time
         out = emu.take_output()
+        if out and self._manager is not None:
+            out = b"".join(self._manager.escape(out))
         if out and self.client is not None:
             try:
                 self.client.sendall(out)
@@ -168,3 +234,24 @@ class PtyServer:
                 os.write(self.master, out)
             except OSError:            # buffer full or the client just left: lost
                 pass
+
+
+def serve_until_signalled(server: TcpServer | PtyServer) -> None:
+    """Serve until SIGTERM or SIGINT, close the endpoint, then end the process at once (no
+    interpreter teardown: nothing is left to write, and unloading colour-science and numpy
+    took the radiometers 1–6 s).  Returns only when serving ends otherwise."""
+    stop = threading.Event()
+
+    def _stop(signum: int, frame: object) -> None:
+        stop.set()
+
+    previous = {sig: signal.signal(sig, _stop) for sig in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        server.serve(stop)
+    finally:
+        if stop.is_set():
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(0)
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)

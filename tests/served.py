@@ -21,13 +21,14 @@ NO_WORLD = object()
 @contextlib.contextmanager
 def served(device: str, transport: str, **options: str) -> Iterator[serve.TcpServer |
                                                                   serve.PtyServer]:
-    """Yield the running server (`.url` for pyserial, `.path` for a pty, `.emulator`)."""
+    """Yield the running server (`.url` for pyserial, `.path` for a pty, `.emulator`);
+    `transport` is "pty", "tcp" (``socket://``) or "rfc2217" (``rfc2217://``)."""
     # not the process-wide world another test may have left in `core.CONTEXT`: with a world
     # that has nothing to say, the radiometers see their default light
     emulator = core.create(device, clock=RealClock(), world=NO_WORLD, **options)
     emulator.prepare()
     server = serve.PtyServer(emulator) if transport == "pty" else \
-        serve.TcpServer(emulator, "127.0.0.1", 0)
+        serve.TcpServer(emulator, "127.0.0.1", 0, rfc2217=transport == "rfc2217")
     stop = threading.Event()
     thread = threading.Thread(target=server.serve, args=(stop,), daemon=True)
     thread.start()

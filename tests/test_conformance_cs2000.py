@@ -1,5 +1,6 @@
 """colour-specio's Konica Minolta CS-2000 driver (an outside client, dev extra) drives the
-cs2000a emulator over a pty and over TCP: connect (remote mode), identify, speed and sync modes
+cs2000a emulator over a pty, over TCP and over RFC 2217 (``rfc2217://``, pyserial's own port
+unmodified): connect (remote mode), identify, speed and sync modes
 (SPMS/SPMR, SCMS/SCMR), measure (MEAS, MEDR conditions and four spectral blocks in hex).  Its
 measurement waits the announced time in real seconds (2 s here) before reading."""
 
@@ -7,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import serial
 from served import CountingSocketSerial, served
 
 from normbox_lab.sim.radiometer_common import colorimetry, default_spectrum
@@ -19,6 +21,11 @@ konica = pytest.importorskip(
 def _connect(server, transport: str):
     if transport == "pty":
         return konica.CS2000(server.path)
+    if transport == "rfc2217":
+        # `sim serve --tcp … --rfc2217`: pyserial's own rfc2217:// port, unmodified (its
+        # in_waiting counts every byte, so specio's read_all() empties the line)
+        return konica.CS2000(serial.serial_for_url(server.url,
+                                                   **konica.CS2000.CS2000_SERIAL_KWARGS))
     # TCP: pyserial's socket:// port with a byte-counting in_waiting (see CountingSocketSerial)
     port = CountingSocketSerial(None, **konica.CS2000.CS2000_SERIAL_KWARGS)
     port.port = server.url
@@ -26,7 +33,7 @@ def _connect(server, transport: str):
     return konica.CS2000(port)
 
 
-@pytest.mark.parametrize("transport", ["pty", "tcp"])
+@pytest.mark.parametrize("transport", ["pty", "tcp", "rfc2217"])
 def test_ordinary_workflow(transport):
     with served("cs2000a", transport, noise="off", time_factor="0.05") as server:
         emu = server.emulator

@@ -236,3 +236,77 @@ def test_a_new_client_never_gets_the_replies_of_a_measurement_the_last_one_start
             assert _pump_clock(server, clock, second, b"never") == b""     # nothing more came
     finally:
         server.listener.close()
+
+
+def test_rfc2217_port_counts_every_waiting_byte_where_socket_counts_one():
+    """Why `--rfc2217` exists: pyserial's socket:// port reports at most 1 byte waiting, so
+    a read_all() client takes one byte of a reply; rfc2217:// reports them all."""
+    import time
+
+    import serial
+    from served import served
+
+    reply = b"OK00,CS-2000A ,2,2000123\n"
+    counts = {}
+    for transport in ("tcp", "rfc2217"):
+        with served("cs2000a", transport, noise="off") as server:
+            port = serial.serial_for_url(server.url, baudrate=115200, timeout=2)
+            try:
+                port.write(b"RMTS,1\n")
+                assert port.read_until(b"\n") == b"OK00\n"
+                port.write(b"IDDR\n")
+                deadline = time.monotonic() + 5
+                while time.monotonic() < deadline and port.in_waiting < len(reply) \
+                        and not (transport == "tcp" and port.in_waiting):
+                    time.sleep(0.01)
+                time.sleep(0.1)                      # the whole reply has arrived by now
+                counts[transport] = port.in_waiting
+                assert port.read_until(b"\n") == reply
+            finally:
+                port.close()
+    assert counts == {"tcp": 1, "rfc2217": len(reply)}
+
+
+@pytest.mark.parametrize(("device", "where"), [
+    ("cs1000a", "--tcp"), ("cs2000a", "--tcp"), ("cs2000a", "--pty"), ("sphere", "--tcp"),
+    ("cs2000a", "--rfc2217")])
+def test_served_emulator_exits_within_half_a_second_of_sigterm(device, where):
+    """A real `sim serve` process, a client connected and a measurement running (for the
+    radiometers): from SIGTERM to the process gone ≤ 0.5 s (a bound measured with
+    time.monotonic; before, unloading colour-science took the radiometers 1–6 s)."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    import serial
+
+    args = {"--tcp": ["--tcp", "127.0.0.1:0"], "--pty": ["--pty"],
+            "--rfc2217": ["--tcp", "127.0.0.1:0", "--rfc2217"]}[where]
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", device,
+                             *args], stdout=subprocess.PIPE, text=True)
+    try:
+        kind, _, address = proc.stdout.readline().strip().partition(": ")
+        url = address if kind == "pty" else \
+            f"{'rfc2217' if where == '--rfc2217' else 'socket'}://{address}"
+        client = serial.serial_for_url(url, timeout=2)
+        if device.startswith("cs"):
+            remote, measure = (b"RMT,1\n", b"MES,1\n") if device == "cs1000a" else \
+                (b"RMTS,1\n", b"MEAS,1\n")
+            client.write(remote)
+            assert client.read_until(b"\n").startswith(b"OK")
+            client.write(measure)                      # still measuring at the signal
+        else:
+            client.write(b"*IDN?\n")
+            assert client.read_until(b"\n")
+        t0 = time.monotonic()
+        proc.send_signal(signal.SIGTERM)
+        rc = proc.wait(timeout=10)
+        took_s = time.monotonic() - t0
+        client.close()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert rc == 0
+    assert took_s <= 0.5, f"{device} {where}: {took_s:.3f} s from SIGTERM to exit"

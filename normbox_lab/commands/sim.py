@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import signal
 import sys
 
 SERVE_EPILOG = """\
@@ -33,6 +32,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     where.add_argument("--tcp", metavar="127.0.0.1:PORT",
                        help="listen on a loopback TCP port: 127.0.0.1, localhost or ::1 "
                             "(PORT 0 picks a free one); reach it with socket://HOST:PORT")
+    s.add_argument("--rfc2217", action="store_true",
+                   help="with --tcp: speak RFC 2217 (reach it with rfc2217://HOST:PORT): "
+                        "in_waiting counts every byte, so read_all() clients such as "
+                        "colour-specio work; socket:// reports at most 1 byte")
     s.add_argument("--faults", default="", metavar="SPEC",
                    help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7'")
     s.add_argument("--seed", type=int, default=0, help="seed of the emulator's randomness")
@@ -99,6 +102,8 @@ def _serve(args: argparse.Namespace) -> int:
             return _fail(f"--option wants K=V, got {item!r}")
         options[key] = value
     endpoint = None
+    if args.rfc2217 and args.tcp is None:
+        return _fail("--rfc2217 goes with --tcp")
     if args.tcp is not None:
         try:
             endpoint = serve.parse_tcp_endpoint(args.tcp)
@@ -112,19 +117,11 @@ def _serve(args: argparse.Namespace) -> int:
     emulator.prepare()
     try:
         server = serve.PtyServer(emulator) if endpoint is None else \
-            serve.TcpServer(emulator, *endpoint)
+            serve.TcpServer(emulator, *endpoint, rfc2217=args.rfc2217)
     except serve.EndpointError as exc:
         return _fail(str(exc))
-
-    def _stop(signum, frame):
-        raise SystemExit(0)
-
-    signal.signal(signal.SIGTERM, _stop)
     print(server.endpoint, flush=True)
-    try:
-        server.serve()
-    except KeyboardInterrupt:
-        pass
+    serve.serve_until_signalled(server)       # SIGTERM/SIGINT: the process ends there
     return 0
 
 
