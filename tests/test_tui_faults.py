@@ -212,3 +212,23 @@ def test_relaunch_shows_the_interrupted_runs_parameters(lab_env):
     again.session.close()
     with Store(lab_env / "tui.sqlite") as s:
         assert [r.status for r in s.runs()] == ["paused"]
+
+
+def test_image_panel_titles_wrap_instead_of_being_cut_at_80_columns():
+    import numpy as np
+    from rich.console import Console
+
+    from normbox_lab.images.terminal import figure_renderable
+
+    label = "prediction (fast renderer, fitted Cook-Torrance materials)"
+    image = np.full((8, 8, 3), 0.5)
+    figure = figure_renderable("virtual camera — patch 19 at 30°",
+                               [("truth (Mitsuba, truth materials)", image, None, ""),
+                                (label, image, None, ""), ("ΔE00", image[..., 0], 5.0, "ΔE00")],
+                               76)
+    console = Console(width=80, record=True, color_system=None)
+    console.print(figure)
+    lines = console.export_text().splitlines()
+    each = (76 - 2) // 3 + 1                     # a panel's columns and the space after it
+    middle = " ".join(line[each:2 * each].strip() for line in lines[1:4])
+    assert " ".join(middle.split()) == label                 # whole, wrapped, not "…"-cut

@@ -173,10 +173,16 @@ def scenario(seed: int, steps: int, tmp_path: Any) -> dict[str, Any]:
                 text = screen_text(app)
                 if "E-STOP" not in text:
                     fail("the E-STOP key is not on screen")
-                if isinstance(app.screen, PromptScreen):
-                    message = str(app.screen.query_one("#prompt-message", Static).render())
-                    if "".join(message.split()) not in "".join(text.split()):
-                        fail(f"the prompt's text is cut: {message!r}")
+                if isinstance(app.screen, PromptScreen) \
+                        and app.screen.query("#prompt-message"):
+                    await pilot.pause(0.05)              # laid out at the next refresh
+                    widget = app.screen.query_one("#prompt-message", Static)
+                    message = str(widget.render())
+                    box = widget.content_region
+                    lines = screen_text(app).splitlines()[box.y:box.y + box.height]
+                    shown = "".join(line[box.x:box.x + box.width] for line in lines)
+                    if "".join(message.split()) != "".join(shown.split()):
+                        fail(f"the prompt's text is cut: {message!r}\n{screen_text(app)}")
                 if app.lab_ready and not session.busy and app.panes_built \
                         and rng.random() < 0.3:
                     await quiet(pilot, app)

@@ -72,8 +72,9 @@ def figure_renderable(title: str, panels: list[tuple[str, Any, float | None, str
     each = max(8, (int(width_cells) - (n - 1)) // n)
     grid = Table.grid(padding=(0, 1))
     for _ in panels:
-        grid.add_column(width=each, no_wrap=True)
-    grid.add_row(*[Text(_panel_label(label, vmax, unit), overflow="ellipsis", no_wrap=True)
+        grid.add_column(width=each)        # image rows are `each` wide: only titles wrap
+    # the panel titles wrap (at 80 columns a third of the width cut them)
+    grid.add_row(*[Text(_panel_label(label, vmax, unit), overflow="fold")
                    for label, _data, vmax, unit in panels])
     grid.add_row(*[half_block_text(data, each, vmax) for _label, data, vmax, _unit in panels])
     if any(np.asarray(data).ndim == 2 for _l, data, _v, _u in panels):
