@@ -178,7 +178,7 @@ class SerialRadiometer:
         try:
             return self._read_line(timeout_s, watch_abort=watch_abort)
         except InstrumentTimeout:
-            self._mark_suspect()
+            self._count_line_fault()
             try:
                 return self._read_line(self._late_window_s(), watch_abort=watch_abort)
             except InstrumentTimeout:
@@ -191,7 +191,7 @@ class SerialRadiometer:
     # --- recovery -------------------------------------------------------------------------------
     def _reconnect(self) -> None:
         """Wait for the link to come back (bounded), reopen the port, re-enter remote mode."""
-        self._mark_suspect()
+        self._count_line_fault()
         self.remote = False
 
         def attempt() -> None:
@@ -259,7 +259,7 @@ class SerialRadiometer:
                     raise
         raise AssertionError("unreachable")
 
-    def _mark_suspect(self) -> None:
+    def _count_line_fault(self) -> None:
         self.line_faults += 1
 
     def _resync(self, *, late: bool = False) -> bool:
@@ -268,7 +268,7 @@ class SerialRadiometer:
         may still be on its way: send the model's sync query and read until its reply comes
         (the line is first in, first out, so whatever came before it answered earlier
         commands and is dropped).  True when the line is known to be in step."""
-        self._mark_suspect()
+        self._count_line_fault()
         deadline_s = self.clock.now_s() + self.resync_max_s
         try:
             while self.clock.now_s() < deadline_s:
@@ -370,7 +370,7 @@ class SerialRadiometer:
             unsettled = self.line_faults != faults and not drained
         missing = [i for i, a in enumerate(agreed) if a is None]
         if missing:
-            self._mark_suspect()
+            self._count_line_fault()
             raw = next((r for i in missing for r in seen[i]), b"")
             raise self._protocol(f"{what}: no two of {self.block_reads} reads of block "
                                  f"{missing[0] + 1} agree (garbled, late or stray replies on "
@@ -646,7 +646,7 @@ class KonicaMinoltaRadiometer(SerialRadiometer):
                                  undefined_to_nan(data.colorimetry_values[6]))
             if not why:
                 return data
-            self._mark_suspect()
+            self._count_line_fault()
         assert data is not None
         raise ImplausibleData(f"implausible data: {why}", raw=data.raw[:200],
                               instrument=self.instrument_id)
