@@ -22,7 +22,6 @@ from textual.widget import Widget
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.core.clock import Clock, RealClock
-from normbox_lab.core.types import BrdfReading, SpectralReading
 from normbox_lab.tui.controller import Session, fault_text
 from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
@@ -529,6 +528,8 @@ class NormboxConsole(App):
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":
+            from normbox_lab.core.types import BrdfReading, SpectralReading   # numpy: lazy
+
             r = d.get("reading")
             if isinstance(r, SpectralReading):
                 self.pane(SpectrumPane).add_reading(ev.key, r.wavelength_nm,

@@ -22,7 +22,6 @@ from pathlib import Path
 from typing import Any, ClassVar
 
 from normbox_lab.core.errors import NormboxError, OperatorAbort
-from normbox_lab.core.types import BrdfReading, SpectralReading
 
 log = logging.getLogger("normbox_lab.tui")
 
@@ -532,6 +531,8 @@ class Session:
             if req is not None and req.key == ev.key and req.data.get("action") == "place_patch":
                 live.patch = int(req.data["patch"])
         elif kind == "reading-stored":
+            from normbox_lab.core.types import BrdfReading      # numpy: after the first paint
+
             r = data.get("reading")
             live.last_key = ev.key
             step = self._step(ev.key)
@@ -545,6 +546,8 @@ class Session:
         self.post(ev)
 
     def _take_colorimetry(self, reading: Any) -> None:
+        from normbox_lab.core.types import SpectralReading
+
         if isinstance(reading, SpectralReading) and reading.colorimetry is not None:
             colo = reading.colorimetry
             self.live.last_Lv_cd_m2 = float(colo.Lv_cd_m2)
