@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import random
+import re
 import urllib.parse
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
@@ -105,6 +106,7 @@ class Scenario:
     faults: tuple[Fault, ...] = ()
     actions: tuple[Action, ...] = ()
     quality: str = "quick"
+    radiometer_format: str = "ascii"      # data transfer: ascii | binary (CS-1000A) | hex
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -147,7 +149,8 @@ class Scenario:
                           for k, v in sorted(self.params.items()))
         faults = " ".join(f"{f.role}:{f.spec()}" for f in self.faults) or "no faults"
         actions = " ".join(a.label() for a in self.actions) or "no actions"
-        return (f"{self.protocol} [{params}] world={self.world} {self.radiometer} "
+        fmt = "" if self.radiometer_format == "ascii" else f" ({self.radiometer_format})"
+        return (f"{self.protocol} [{params}] world={self.world} {self.radiometer}{fmt} "
                 f"{self.rotator} policy={self.policy}; {faults}; {actions}")
 
 
@@ -192,8 +195,11 @@ def draw(seed: int, index: int, *, normbox_share: float = 0.0,
     radiometer = rng.choice(("cs1000a", "cs2000a"))
     rotator = rng.choice(("rotator-apt", "rotator-zaber"))
     policy = rng.choices(("retry", "skip", "abort"), (0.6, 0.25, 0.15))[0]
+    data_format = ("binary" if radiometer == "cs1000a" else "hex") if rng.random() < 0.3 \
+        else "ascii"
     roles = GONIO_ROLES if gonio else SWEEP_ROLES
-    probe = Scenario(seed, index, protocol, params, world, radiometer, rotator, policy)
+    probe = Scenario(seed, index, protocol, params, world, radiometer, rotator, policy,
+                     radiometer_format=data_format)
     faults: dict[tuple[str, str], Fault] = {}
     for _ in range(rng.randint(0, max_faults)):
         role = rng.choice(roles)
@@ -224,8 +230,8 @@ def lab_toml(scenario: Scenario) -> str:
     text = SIM_CONFIG_TEMPLATE
     text = text.replace("seed = 1\n", f"seed = {scenario.device_seed('lab')}\n", 1)
     if scenario.radiometer == "cs2000a":
-        text = text.replace('driver = "cs1000a"      # cs1000a | cs2000a\nport = "sim://cs1000a"'
-                            '\nbaud = 9600', 'driver = "cs2000a"\nport = "sim://cs2000a"', 1)
+        text = re.sub(r'driver = "cs1000a" .*\nport = "sim://cs1000a"\nbaud = 9600[^\n]*',
+                      'driver = "cs2000a"\nport = "sim://cs2000a"', text, count=1)
     if scenario.rotator == "rotator-zaber":
         text = text.replace('driver = "apt-k10cr1"   # apt-k10cr1 | zaber\n'
                             'port = "sim://rotator-apt"',
@@ -240,6 +246,9 @@ def lab_toml(scenario: Scenario) -> str:
         if old not in text:
             raise ValueError(f"the simulated template has no port line {old!r} for {role}")
         text = text.replace(old, f'port = "{port_url(scenario, role, base)}"', 1)
+    if scenario.radiometer_format != "ascii":
+        line = f'port = "{port_url(scenario, "radiometer", ports["radiometer"])}"'
+        text = text.replace(line, f'{line}\ndata_format = "{scenario.radiometer_format}"', 1)
     text = text.replace('quality = "default"', f'quality = "{scenario.quality}"', 1)
     return text
 

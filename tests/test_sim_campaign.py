@@ -58,6 +58,10 @@ def test_lab_config_carries_each_roles_faults_and_seed():
 
     config = parse_config(text, "<scenario>")
     assert config.instruments["radiometer"].driver == "cs2000a"
+    assert "baud" not in text.split("[instruments.radiometer]")[1].split("[")[0]
+    binary = lab_toml(small_sweep(radiometer_format="binary"))
+    assert 'port = "sim://cs1000a?seed=' in binary and '\ndata_format = "binary"\n' in binary
+    assert {draw(3, i).radiometer_format for i in range(80)} == {"ascii", "binary", "hex"}
 
 
 # --- the oracle ---------------------------------------------------------------------------------

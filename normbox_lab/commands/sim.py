@@ -72,9 +72,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="keep every scenario's lab, store, output and journals under DIR")
     camp.add_argument("--replay", metavar="JSON",
                       help="run one scenario given as JSON (what a failure prints)")
-    camp.add_argument("--normbox-share", type=float, default=0.0, metavar="P",
-                      help="share of radiometer scenarios on the Mitsuba world (default 0: "
-                           "the analytic world)")
+    camp.add_argument("--normbox-share", type=float, default=0.1, metavar="P",
+                      help="share of radiometer scenarios on the Mitsuba world, the others "
+                           "on the analytic world (default 0.1)")
     camp.add_argument("--no-shrink", dest="shrink", action="store_false",
                       help="report failing scenarios without shrinking them")
     camp.add_argument("--quiet", action="store_true",
