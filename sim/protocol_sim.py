@@ -17,7 +17,32 @@ from normbox_lab.core.clock import VirtualClock
 from normbox_lab.sim import core
 
 
-class Serial(SerialBase):
+class ModemLinesOn:
+    """Control lines of an emulated link: RTS, DTR and break accepted and ignored; CTS, DSR
+    and CD read on, RI off (a pyserial `SerialBase` mixin; also the RFC 2217 server's)."""
+
+    def _update_rts_state(self) -> None: ...
+    def _update_dtr_state(self) -> None: ...
+    def _update_break_state(self) -> None: ...
+
+    @property
+    def cts(self) -> bool:
+        return True
+
+    @property
+    def dsr(self) -> bool:
+        return True
+
+    @property
+    def ri(self) -> bool:
+        return False
+
+    @property
+    def cd(self) -> bool:
+        return True
+
+
+class Serial(ModemLinesOn, SerialBase):
     """A pyserial port whose other end is an in-process emulator."""
 
     emulator: core.Emulator
@@ -128,26 +153,6 @@ class Serial(SerialBase):
         if not self.is_open:
             raise PortNotOpenError()
 
-    # control lines: accepted and ignored
-    def _update_rts_state(self) -> None: ...
-    def _update_dtr_state(self) -> None: ...
-    def _update_break_state(self) -> None: ...
-
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
 
 
 __all__ = ["Serial"]

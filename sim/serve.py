@@ -40,6 +40,7 @@ import serial
 from serial.rfc2217 import PortManager
 
 from normbox_lab.sim import core
+from normbox_lab.sim.protocol_sim import ModemLinesOn
 
 LOOPBACK_FAMILIES = {"127.0.0.1": socket.AF_INET, "localhost": socket.AF_INET,
                      "::1": socket.AF_INET6}
@@ -72,29 +73,13 @@ def _timeout_s(emulator: core.Emulator) -> float:
     return max(0.0, min(POLL_S, nxt - emulator.clock.now_s()))
 
 
-class _LineSettings(serial.SerialBase):
+class _LineSettings(ModemLinesOn, serial.SerialBase):
     """The serial settings an RFC 2217 client sets (baud rate, framing, flow control, RTS/DTR,
     break): kept and read back, as `PortManager` needs; the emulator ignores them (as over
     USB).  Modem inputs read CTS, DSR and CD on, RI off."""
 
     def __init__(self) -> None:
         super().__init__()                       # no port: never "opened"
-
-    @property
-    def cts(self) -> bool:
-        return True
-
-    @property
-    def dsr(self) -> bool:
-        return True
-
-    @property
-    def ri(self) -> bool:
-        return False
-
-    @property
-    def cd(self) -> bool:
-        return True
 
     def reset_input_buffer(self) -> None: ...
     def reset_output_buffer(self) -> None: ...
