@@ -58,6 +58,8 @@ class _LinkDown(InstrumentError):
 
 
 ERR_REPLY = re.compile(rb"^ERR[ \t]+([+-]?\d{1,6})$")
+#: a drain after a lost reply stops after this long even if bytes keep coming
+RESYNC_MAX_S = 5.0
 
 
 class SphereLightSource:
@@ -157,7 +159,8 @@ class SphereLightSource:
         """Drain until quiet, then ``*IDN?`` until the identification comes back (lines
         before it are late replies to earlier commands)."""
         try:
-            while True:
+            deadline_s = self.clock.now_s() + RESYNC_MAX_S
+            while self.clock.now_s() < deadline_s:      # bytes that never stop: bounded
                 self.port.timeout = self.resync_quiet_s
                 if not self.port.read(65536):
                     break

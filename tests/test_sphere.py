@@ -284,3 +284,40 @@ def test_garbage_replies_are_protocol_errors():
     d, _ = scripted([Exchange(b"MEAS:SPEC?\n", [(0.0, b"380,-1,3,rel\n"), (0.0, b"1,2,3\n")])])
     with pytest.raises(ProtocolError, match="step"):
         d.internal_spectrum()
+
+
+class _Babbling:
+    """A line that never answers a command and never goes quiet: a byte every 0.1 s."""
+
+    port = "babbling://"
+    is_open = True
+
+    def __init__(self, clock: VirtualClock) -> None:
+        self.clock = clock
+        self.timeout = 0.05
+        self.reads = 0
+
+    def write(self, data: bytes) -> int:
+        return len(data)
+
+    def read(self, size: int = 1) -> bytes:
+        self.reads += 1
+        assert self.reads < 10_000, "the drain never ended"
+        self.clock.sleep(0.1)
+        return b"~"
+
+    def read_until(self, expected: bytes = b"\n", size: int | None = None) -> bytes:
+        return self.read()
+
+    def reset_input_buffer(self) -> None: ...
+    def open(self) -> None: ...
+    def close(self) -> None: ...
+
+
+def test_a_line_that_never_goes_quiet_is_a_bounded_timeout():
+    """The drain after a lost reply stops after RESYNC_MAX_S even if bytes keep coming."""
+    clock = VirtualClock()
+    lamp = SphereLightSource(_Babbling(clock), clock, attempts=2, command_timeout_s=1.0)
+    with pytest.raises(InstrumentError):
+        lamp.identify()
+    assert clock.now_s() < 60.0
