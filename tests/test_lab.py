@@ -231,6 +231,9 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
     common = ["--world", "analytic", "--store", store, "--param", "angles_deg=[30,90]",
               "--param", "patches=1,19"]
     assert main(["run", "reference-sweep", "--dry-run", *common]) == 0
+    from pathlib import Path
+
+    assert not Path(store).exists()          # a dry run only reads: no store is created
     out, err = capsys.readouterr()
     assert "using the simulated lab template" in err
     assert "4 readings" in out and "a90/p19" in out and out.strip().splitlines()[-1].startswith("ETA")

@@ -117,13 +117,19 @@ def _run(args: argparse.Namespace) -> int:
         print(f"protocol file {args.protocol}: Python code, run with your rights because you "
               "named it here (shipped protocols and files named on the command line are the "
               "only protocols normbox-lab runs)", file=sys.stderr)
-    with open_run(args.protocol, store=args.store or DEFAULT_STORE, config=config,
+    from normbox_lab.acquire.store import Store
+
+    store_path = args.store or DEFAULT_STORE
+    # a dry run only reads: it never creates or changes the store
+    store = Store(store_path, read_only=True) if args.dry_run else store_path
+    with open_run(args.protocol, store=store, config=config,
                   params=overrides, resume=args.resume, world=args.world,
                   virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
                   make_operator=terminal_operator) as opened:
         if args.dry_run:
             for line in opened.dry_run().lines():
                 print(line)
+            store.close()
             return 0
         return _execute(opened.engine, opened.lab, opened.store, opened.resume, args,
                         progress_ref, signal)
