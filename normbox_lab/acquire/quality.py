@@ -273,6 +273,8 @@ class RunGates:
         self.lamp_first: tuple[str, float] | None = None
         self.lamp_steps: list[float] = []          # the last LAMP_WINDOW monitor steps
         self.found: list[FlagSpec] = []
+        #: reading keys with a flag in the store (earlier segments) or recorded since
+        self._flagged = {row["key"] for row in store.flag_rows(run_id=run_id)}
         for r in store.readings(run_id):
             mon = r.metadata.get("lamp_monitor_cd_m2")
             if mon is not None and self.lamp_first is None:
@@ -287,6 +289,7 @@ class RunGates:
                                 severity=f.severity, value=f.value, limit=f.limit,
                                 message=f.message)
         self.found += specs
+        self._flagged.update(f.key for f in specs)
         return specs
 
     def reading(self, key: str, kind: str, metadata: Mapping[str, Any],
@@ -336,8 +339,9 @@ class RunGates:
         return out
 
     def attempt(self, key: str) -> int:
-        """A reading is about to be taken: the mark `superseded` needs (the newest flag id)."""
-        return int(self.store.last_flag_id())
+        """A reading is about to be taken: the mark `superseded` needs (the newest flag id;
+        0 — nothing to supersede, no query — when `key` has no flag)."""
+        return int(self.store.last_flag_id()) if key in self._flagged else 0
 
     def superseded(self, key: str, mark: int) -> None:
         """Reading `key` was committed: the flags of earlier attempts at it (a skip in an
