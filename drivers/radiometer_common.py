@@ -86,7 +86,7 @@ class SerialRadiometer:
     #: repeated
     late_window_s: float | None = None
     #: passes over a data transfer before disagreeing reads are a ProtocolError
-    block_reads = 6
+    block_reads = 10
     #: a query whose reply no other command gives (`is_sync_reply`): sent after a timeout to
     #: find where the line stands
     sync_command = b""

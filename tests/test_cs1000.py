@@ -204,7 +204,7 @@ def test_silence_is_a_bounded_timeout():
 
 def test_short_spectral_block_is_rejected_never_partial():
     """A block with 27 values instead of 28 never agrees with anything: the spectrum is read
-    in passes (all blocks twice, then up to the block in doubt) and after six a
+    in passes (all blocks twice, then up to the block in doubt) and after ten a
     ProtocolError names it."""
     bad = spectral_lines(SPECTRUM)
     bad[3] = bad[3].rsplit(b",", 1)[0] + b"\n"
@@ -213,7 +213,7 @@ def test_short_spectral_block_is_rejected_never_partial():
     upto_bad = [select] + [Exchange(b"&\n", x) for x in bad[:4]]
     colour = [Exchange(b"BDR,1,0,0\n", b"OK\n"), Exchange(b"&\n", COLOUR_LINE)]
     d, port = scripted([Exchange(b"RMT,1\n", b"OK\n"), *measure_script()[:1], *colour * 2,
-                        *whole * 2, *upto_bad * 4])
+                        *whole * 2, *upto_bad * 8])
     with pytest.raises(ProtocolError, match="block 4 agree"):
         d.measure()
     port.assert_done()

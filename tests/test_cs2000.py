@@ -194,10 +194,10 @@ def test_unknown_reply_is_protocol_error_with_raw():
 
 def test_wrong_value_count_is_rejected():
     """Block 1 with 99 values, every time: each pass ends there, the line is checked with
-    IDDR (the sync query), and after six passes it is a ProtocolError naming the block."""
+    IDDR (the sync query), and after ten passes it is a ProtocolError naming the block."""
     script = measure_script()
     bad = Exchange(b"MEDR,1,0,1\n", block_reply(0, 99))
-    d, port = scripted([*remote_script(), script[0], *[bad, IDDR] * 6])
+    d, port = scripted([*remote_script(), script[0], *[bad, IDDR] * 10])
     with pytest.raises(ProtocolError, match="block 1 agree"):
         d.measure()
     port.assert_done()
@@ -399,7 +399,7 @@ def test_hex_field_with_blanks_is_a_protocol_error_never_a_struct_error():
     fields = [fmt_hex(v) for v in SPECTRUM[0:100]]
     fields[17] = "12 34 56"
     bad = Exchange(b"MEDR,1,1,1\n", ("OK00," + ",".join(fields) + "\n").encode())
-    d, port = scripted([*remote_script(), measure_script(hexfmt=True)[0], *[bad, IDDR] * 6],
+    d, port = scripted([*remote_script(), measure_script(hexfmt=True)[0], *[bad, IDDR] * 10],
                        data_format="hex")
     with pytest.raises(ProtocolError, match="block 1 agree"):
         d.measure()
