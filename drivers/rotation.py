@@ -115,8 +115,9 @@ class RotationStageBase:
         self._require_homed()
         start = self.position_deg()
         self._move_start_deg = start
-        self._commanded_deg = angle_deg
+        self._commanded_deg = None          # a refused move leaves nothing to check
         self._begin_move(angle_deg)
+        self._commanded_deg = angle_deg
         self._move_started_s = self.clock.now_s()
         self._move_timeout_s = self._timeout_for(self.estimate_move_time_s(start, angle_deg))
         if wait:

@@ -193,24 +193,26 @@ class ZaberRotationStage(RotationStageBase):
                               flag.decode("ascii"), data.decode("ascii").strip())
 
     def _ensure_link(self) -> None:
+        """After a lost link: reopen and re-read the device (`core.transport.recover_link`
+        within `reconnect_timeout_s`), or raise InstrumentError."""
         if not self._lost:
             return
-        deadline = self.clock.now_s() + self.reconnect_timeout_s
-        last: Exception | None = None
-        while self.clock.now_s() < deadline:
-            try:
-                if hasattr(self.port, "is_open") and not self.port.is_open:
-                    self.port.open()
-                self.port.reset_input_buffer()
-                self._lost = False
-                self.connect()
-                return
-            except (SerialException, OSError, InstrumentError) as exc:
-                last = exc
-                self._lost = True
-                self.clock.sleep(0.5)
-        raise InstrumentError(f"cannot reconnect within {self.reconnect_timeout_s:g} s: {last}",
-                              instrument=self.instrument_id)
+
+        def attempt() -> None:
+            self._lost = True
+            if not self.port.is_open:
+                self.port.open()
+            self.port.reset_input_buffer()
+            self._lost = False
+            self.connect()
+
+        def lost(_exc: BaseException) -> None:
+            self._lost = True
+
+        transport.recover_link(self.clock, self.reconnect_timeout_s, attempt,
+                               retry_on=(SerialException, OSError, InstrumentError),
+                               instrument_id=self.instrument_id, what="Zaber link lost",
+                               on_failure=lost)
 
     def _int(self, reply: ZaberReply) -> int:
         text = reply.data.split()[0] if reply.data.split() else ""
@@ -327,8 +329,17 @@ class ZaberRotationStage(RotationStageBase):
             raise DeviceError(reply.flag, FLAGS[reply.flag], instrument=self.instrument_id)
 
     def stop(self) -> None:
+        """``stop`` decelerates at the axis's acceleration: wait until it is at rest."""
         self._command("stop")
         self._commanded_deg = None
+        self._expected_end_s = 0.0
+        deadline = self.clock.now_s() + self.command_timeout_s + \
+            self.max_velocity_deg_s / self.acceleration_deg_s2
+        while self._command("").busy:
+            if self.clock.now_s() >= deadline:
+                raise InstrumentTimeout("still moving after stop",
+                                        instrument=self.instrument_id)
+            self.clock.sleep(self.poll_s)
 
 
 Zaber = ZaberRotationStage

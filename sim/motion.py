@@ -285,3 +285,30 @@ class Axis:
             self.encoder_zero_deg = self._physical_deg
             self.homed = True
         return MotionEnd(m.kind, m.reason, m.end_s)
+
+
+class PowerCycled:
+    """The ``power-blip`` fault both rotator emulators share: the supply dips, the controller
+    resets (reference lost, parameters back to their power-up values) and the link drops for
+    the fault's parameter in seconds (default `blip_s`).  A pulled cable (a plain disconnect)
+    keeps the controller's state.  Subclasses (`core.Emulator`s) implement `restart()`."""
+
+    blip_s = 1.0
+    _powered_down = False
+
+    def power_blip(self, duration_s: float | None = None) -> None:
+        self._powered_down = True
+        self.disconnect(duration_s if duration_s is not None   # type: ignore[attr-defined]
+                        else self.faults.parameter("power-blip",  # type: ignore[attr-defined]
+                                                   self.blip_s))
+
+    def on_disconnect(self) -> None:
+        self._inbuf.clear()                                      # type: ignore[attr-defined]
+        if not self._powered_down:
+            return
+        self._powered_down = False
+        self.restart()
+
+    def restart(self) -> None:  # pragma: no cover - abstract
+        raise NotImplementedError
+

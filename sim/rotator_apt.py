@@ -87,7 +87,7 @@ import struct
 from typing import Any, ClassVar
 
 from normbox_lab.sim import core
-from normbox_lab.sim.motion import Axis, Trapezoid
+from normbox_lab.sim.motion import Axis, PowerCycled, Trapezoid
 
 HOST = 0x01
 CONTROLLER = 0x50
@@ -129,7 +129,7 @@ def long_frame(msg_id: int, data: bytes) -> bytes:
     return struct.pack("<HHBB", msg_id, len(data), HOST | 0x80, CONTROLLER) + data
 
 
-class AptRotatorEmulator(core.Emulator):
+class AptRotatorEmulator(PowerCycled, core.Emulator):
     device_name = "rotator-apt"
     device_faults = ("stall", "power-blip")
 
@@ -153,7 +153,6 @@ class AptRotatorEmulator(core.Emulator):
         self.next_update_s: float | None = None
         self.last_ack_s = 0.0
         self.identify_count = 0
-        self.blip_s = 1.0
         self.motion_kind = ""                 # "move", "velocity", "jog" (status bits)
         self._inbuf = bytearray()
         self._power_up_parameters()
@@ -375,18 +374,9 @@ class AptRotatorEmulator(core.Emulator):
         times = [t for t in (self.axis.next_event_s(), self.next_update_s) if t is not None]
         return min(times) if times else None
 
-    def power_blip(self, duration_s: float | None = None) -> None:
-        """The supply dips: the controller resets (reference lost) and the link drops."""
-        self._powered_down = True
-        self.disconnect(duration_s if duration_s is not None
-                        else self.faults.parameter("power-blip", self.blip_s))
-
-    def on_disconnect(self) -> None:
-        """A pulled cable keeps the controller's state; a power blip resets it."""
-        self._inbuf.clear()
-        if not getattr(self, "_powered_down", False):
-            return
-        self._powered_down = False
+    def restart(self) -> None:
+        """After a power blip (`PowerCycled`): pushes off, motion gone, reference lost,
+        parameters at their power-up values."""
         self.updates_on = False
         self.next_update_s = None
         self.axis.stop(self.clock.now_s())

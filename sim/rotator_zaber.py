@@ -23,8 +23,10 @@ Commands (reply data in brackets; BUSY while the axis moves):
     move max | move min              to limit.max / limit.min (needs a reference)
     move vel V                       constant velocity V (native speed units, signed, |V| ≤
                                      maxspeed) until stop / a limit; allowed before homing
-    stop | estop                     stop now (deceleration not modelled); NI when it
+    stop                             decelerates at accel (BUSY until at rest); NI when it
                                      interrupted a motion
+    estop                            stops at once; NI when it interrupted a motion
+    identify                         OK (the device flashes its LEDs)
     warnings [clear]                 [count two digits, flags…]; clear drops all but WR
     get SETTING | set SETTING V      see SETTINGS below; unknown setting → RJ BADCOMMAND,
                                      read-only or bad value → RJ BADDATA
@@ -36,10 +38,17 @@ Flag in every reply: the highest-priority warning, faults (F…) before warnings
 notices (N…), ``--`` when none.  An axis-scope ``get`` at axis 0 answers the single axis'
 value, as for a one-axis device.
 
+Settings answered besides the motion ones: ``comm.packet.size.max`` 80, ``system.current``
+0.32 A, ``driver.current.run`` 25 and ``driver.current.hold`` 10 (the manual's current units,
+*assumed* values), ``knob.enable`` (0/1, settable) — what zaber-motion asks when it opens a
+device.
+
 Mechanics (`sim.motion.Axis`): 0.000234375 °/µstep (resolution 64 µsteps per step); maxspeed
 native = µsteps/s × 1.6384, accel native = µsteps/s² × 1.6384/10000; default 10 °/s,
-20 °/s²; homing at maxspeed.  Firmware travel range ±180°, hardware limit switches (the holder's
-cable stop) at ±170°: a move beyond them trips the switch → WL.  A stall stops the axis (closed
+20 °/s²; homing at maxspeed, then the switch approach.  Hardware limit switches (the holder's
+cable stop) at ±170°, and the firmware travel range ``limit.min`` / ``limit.max`` ends there
+(``move min`` / ``move max`` reach them); a ``set limit.max`` beyond a switch lets a move trip
+it → WL.  A stall stops the axis (closed
 loop): FS.  Power-up: not homed (WR), position 0 wherever the rotor is.
 
 Device faults: ``stall`` (next move stalls at the fraction given, default 0.5),
@@ -51,7 +60,7 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.sim import core
-from normbox_lab.sim.motion import Axis, Trapezoid
+from normbox_lab.sim.motion import Axis, PowerCycled, Trapezoid
 
 STEPS_PER_DEG = 1.0 / 0.000234375
 SPEED_NATIVE = 1.6384
@@ -71,7 +80,7 @@ def lrc(text: str) -> str:
     return f"{(-sum(text.encode('ascii'))) & 0xFF:02X}"
 
 
-class ZaberRotatorEmulator(core.LineEmulator):
+class ZaberRotatorEmulator(PowerCycled, core.LineEmulator):
     device_name = "rotator-zaber"
     device_faults = ("stall", "power-blip")
     terminators = (b"\n", b"\r")
@@ -79,12 +88,16 @@ class ZaberRotatorEmulator(core.LineEmulator):
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
                  serial_number: int = 33456, power_up_angle_deg: float = 0.0,
                  limit_min_deg: float = -170.0, limit_max_deg: float = 170.0,
-                 travel_min_deg: float = -180.0, travel_max_deg: float = 180.0,
+                 travel_min_deg: float | None = None, travel_max_deg: float | None = None,
                  max_velocity_deg_s: float = 10.0, acceleration_deg_s2: float = 20.0) -> None:
         super().__init__(clock, faults, seed)
         self.serial_number = int(serial_number)
         self.maxspeed = round(max_velocity_deg_s * STEPS_PER_DEG * SPEED_NATIVE)
         self.accel = round(acceleration_deg_s2 * STEPS_PER_DEG * ACCEL_NATIVE)
+        # the firmware's travel range (limit.min / limit.max) ends where the limit switches
+        # are, unless given otherwise: move min / move max reach the switches' positions
+        travel_min_deg = limit_min_deg if travel_min_deg is None else travel_min_deg
+        travel_max_deg = limit_max_deg if travel_max_deg is None else travel_max_deg
         self.travel_min = self.limit_min = round(travel_min_deg * STEPS_PER_DEG)
         self.travel_max = self.limit_max = round(travel_max_deg * STEPS_PER_DEG)
         self.axis = Axis(self._trapezoid(), limit_min_deg=limit_min_deg,
@@ -93,7 +106,7 @@ class ZaberRotatorEmulator(core.LineEmulator):
         self.flags: set[str] = set()
         self.comm_alert = 0
         self.comm_checksum = 0
-        self.blip_s = 1.0
+        self.knob_enable = 1
 
     def _trapezoid(self, speed_native: int | None = None) -> Trapezoid:
         speed = self.maxspeed if speed_native is None else abs(speed_native)
@@ -135,21 +148,8 @@ class ZaberRotatorEmulator(core.LineEmulator):
     def next_state_s(self) -> float | None:
         return self.axis.next_event_s()
 
-    def power_blip(self, duration_s: float | None = None) -> None:
-        """The supply dips: the controller resets (reference lost) and the link drops."""
-        self._powered_down = True
-        self.disconnect(duration_s if duration_s is not None
-                        else self.faults.parameter("power-blip", self.blip_s))
-
-    def on_disconnect(self) -> None:
-        """A pulled cable keeps the controller's state; a power blip resets it."""
-        self._inbuf.clear()
-        if not getattr(self, "_powered_down", False):
-            return
-        self._powered_down = False
-        self._restart()
-
-    def _restart(self) -> None:
+    def restart(self) -> None:
+        """After a power blip (`PowerCycled`) or ``system reset``."""
         self.axis.stop(self.clock.now_s())
         self.axis.power_up()
         self.axis.trapezoid = self._trapezoid()
@@ -210,7 +210,13 @@ class ZaberRotatorEmulator(core.LineEmulator):
             self._reply(axis, True)
         elif words[0] == "move" and len(words) >= 2:
             self._move(axis, words[1:], now)
-        elif words in (["stop"], ["estop"]):
+        elif words == ["stop"]:
+            # decelerates at accel: BUSY until at rest (the alert, if on, comes then)
+            if self.axis.moving:
+                self.flags.add("NI")
+                self.axis.stop(now, profiled=True)
+            self._reply(axis, True)
+        elif words == ["estop"]:
             stopped = self.axis.stop(now) is not None
             if stopped:
                 self.flags.add("NI")
@@ -218,6 +224,8 @@ class ZaberRotatorEmulator(core.LineEmulator):
             self._reply(axis, True)
             if stopped and self.comm_alert:
                 self._send(f"!01 1 IDLE {self._flag()}", reply=False)
+        elif words == ["identify"]:
+            self._reply(axis, True)                  # the device flashes its LEDs
         elif words[0] == "warnings" and words[1:] in ([], ["clear"]):
             flags = self._all_flags()
             self._reply(axis, True, " ".join([f"{len(flags):02d}", *flags]))
@@ -235,7 +243,7 @@ class ZaberRotatorEmulator(core.LineEmulator):
             self._reply(axis, True, " ".join(parts[2:]) or 0)
         elif words == ["system", "reset"]:
             self._reply(axis, True)
-            self._restart()
+            self.restart()
         else:
             self._reply(axis, False, "BADCOMMAND")
 
@@ -345,6 +353,11 @@ class ZaberRotatorEmulator(core.LineEmulator):
             "limit.cycle.dist": (lambda: round(360 * STEPS_PER_DEG), None),
             "motion.index.dist": (lambda: round(360 * STEPS_PER_DEG), None),
             "limit.approach.maxspeed": (lambda: self.maxspeed, None),
+            "comm.packet.size.max": (lambda: 80, None),
+            "system.current": (lambda: "0.32", None),
+            "driver.current.run": (lambda: 25, None),
+            "driver.current.hold": (lambda: 10, None),
+            "knob.enable": (lambda: self.knob_enable, flag("knob_enable")),
         }
 
     def _get(self, name: str, now: float) -> str | int | None:

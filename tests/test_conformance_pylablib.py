@@ -52,6 +52,5 @@ def test_pylablib_rehomes_for_real_and_jogs_the_documented_way(transport):
 
 
 def test_pylablib_on_a_pty_fails_on_the_rts_pulse():
-    with served("rotator-apt", "pty", **FAST) as server:
-        with pytest.raises(OSError):
-            kinesis.KinesisMotor(("serial", server.path), scale="K10CR1")
+    with served("rotator-apt", "pty", **FAST) as server, pytest.raises(OSError):
+        kinesis.KinesisMotor(("serial", server.path), scale="K10CR1")

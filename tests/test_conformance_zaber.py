@@ -38,6 +38,7 @@ def test_ordinary_workflow(transport):
                 three_alerts.set()
 
         conn.alert.subscribe(on_alert)
+        # (identify_devices=True needs Zaber's online device database: not reachable here)
         devices = conn.detect_devices(identify_devices=False)
         assert [d.device_address for d in devices] == [1]
         device = devices[0]
@@ -48,6 +49,12 @@ def test_ordinary_workflow(transport):
         assert device.generic_command("get system.axiscount").data == "1"
         assert axis.settings.get("resolution") == 64
         assert axis.settings.get("peripheralid") == 0
+        # what the library and Zaber Launcher ask besides: answered, never BADCOMMAND
+        assert device.generic_command("get comm.packet.size.max").data == "80"
+        assert float(device.generic_command("get system.current").data) > 0
+        assert axis.settings.get("driver.current.run") == 25
+        assert axis.settings.get("knob.enable") == 1
+        assert device.generic_command("identify").reply_flag == "OK"
 
         assert not axis.is_homed()
         axis.home()
@@ -61,20 +68,22 @@ def test_ordinary_workflow(transport):
         # checksummed replies from now on, and alerts at the end of every motion
         device.generic_command("set comm.checksum 1")
         device.generic_command("set comm.alert 1")
-        axis.settings.set("limit.max", round(160 * STEPS_PER_DEG), Units.NATIVE)
-        axis.settings.set("limit.min", round(-160 * STEPS_PER_DEG), Units.NATIVE)
+        # the travel range as the device reports it ends at the limit switches (±170°)
+        assert axis.settings.get("limit.max", Units.NATIVE) == round(170 * STEPS_PER_DEG)
         axis.move_max()
-        assert axis.get_position(Units.NATIVE) == round(160 * STEPS_PER_DEG)
+        assert axis.get_position(Units.NATIVE) == round(170 * STEPS_PER_DEG)
+        assert server.emulator.angle_deg() == pytest.approx(170.0, abs=1e-3)
         axis.move_min()
-        assert axis.get_position(Units.NATIVE) == round(-160 * STEPS_PER_DEG)
-        assert server.emulator.angle_deg() == pytest.approx(-160.0, abs=1e-3)
+        assert axis.get_position(Units.NATIVE) == round(-170 * STEPS_PER_DEG)
+        assert server.emulator.angle_deg() == pytest.approx(-170.0, abs=1e-3)
+        assert axis.warnings.get_flags() == set()                      # no WL on the way
 
         speed = round(axis.settings.get("maxspeed", Units.NATIVE) / 10)
         axis.move_velocity(speed, Units.NATIVE)
         assert axis.is_busy()
         axis.stop()
         assert not axis.is_busy()
-        assert axis.get_position(Units.NATIVE) > round(-160 * STEPS_PER_DEG)
+        assert axis.get_position(Units.NATIVE) > round(-170 * STEPS_PER_DEG)
         assert three_alerts.wait(timeout=5.0)
         assert [(a.device_address, a.axis_number, a.status) for a in alerts[:3]] == \
             [(1, 1, "IDLE")] * 3

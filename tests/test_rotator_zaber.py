@@ -80,6 +80,7 @@ def test_home_stop_status_lines():
         Exchange(b"/1 1\n", ok(0)),
         Exchange(b"/1 1 get encoder.pos\n", ok(0)),
         Exchange(b"/1 1 stop\n", ok(0, flag="NI")),
+        Exchange(b"/1 1\n", ok(0)),                    # stop waits until at rest
         Exchange(b"/1 1\n", ok(0)),
         Exchange(b"/1 1 warnings\n", ok("00")),
         Exchange(b"/1 1 get pos\n", ok(-4267)),
@@ -191,8 +192,23 @@ def test_driver_against_emulator_eta_homing_and_world_angle():
         assert emu.angle_deg() == pytest.approx(b, abs=1e-3)
 
 
+def test_travel_range_ends_at_the_switches():
+    stage, emu = sim_stage("z-range", max_angle_deg=179.0)
+    stage.home()
+    assert stage._command("get limit.max").data == str(round(170 / 0.000234375))
+    with pytest.raises(DeviceError) as err:
+        stage.move_to(175.0)                          # beyond limit.max: refused, no motion
+    assert err.value.code == "BADDATA" and emu.angle_deg() == pytest.approx(0.0)
+    reply = stage._command("move max")
+    assert reply.ok
+    stage.wait_idle(60.0)
+    assert emu.angle_deg() == pytest.approx(170.0, abs=1e-3)      # at the switch, no WL
+    assert stage._command("").flag == "--"
+
+
 def test_limit_switch_trips_wl():
-    stage, emu = sim_stage("z-lim", max_angle_deg=179.0)
+    # the firmware range set beyond the switch (limit.max 180°): a move trips it
+    stage, emu = sim_stage("z-lim", "&travel_max_deg=180", max_angle_deg=179.0)
     stage.home()
     with pytest.raises(DeviceError) as err:
         stage.move_to(175.0)
@@ -231,10 +247,14 @@ def test_stop_interrupts_a_move():
     stage.move_to(90.0, wait=False)
     stage.clock.sleep(1.0)
     assert stage.is_moving()
-    stage.stop()
+    angle_at_stop = emu.angle_deg()
+    t0 = stage.clock.now_s()
+    stage.stop()                                  # decelerates: 10 °/s at 20 °/s², 0.5 s
     assert not stage.is_moving()
+    assert 0.45 <= stage.clock.now_s() - t0 <= 0.7
+    # then v²/2a = 2.5° more (the stop reaches the device a serial line-time after the read)
+    assert emu.angle_deg() - angle_at_stop == pytest.approx(10.0 ** 2 / (2 * 20.0), abs=0.05)
     assert stage.position_deg() == pytest.approx(emu.angle_deg(), abs=1e-3)
-    assert 0.0 < emu.angle_deg() < 90.0
 
 
 def test_served_on_tcp_a_plain_socket_client_and_the_driver_drive_it():
