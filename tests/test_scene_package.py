@@ -91,7 +91,7 @@ def exported(tmp_path_factory):
 
 
 def test_package_holds_everything_a_renderer_needs(exported):
-    store, ref, _, pkg = exported
+    store, _ref, _, pkg = exported
     names = {p.relative_to(pkg).as_posix() for p in pkg.rglob("*") if p.is_file()}
     for a in ANGLES:
         assert f"geometry/normbox_s{a:g}.obj" in names
@@ -185,8 +185,8 @@ BROKEN = {
                                    if r.startswith("19,30,")],
               "1 configuration not in run {ref}: patch 5 at 30°"),
     "micrometres": (lambda rows: [_scale_wl(r, 1e-3) for r in rows],
-                    "wavelength_nm 0.38–0.78 does not cover the reference's 380–780 nm "
-                    "(µm? wavelengths must be in nm)"),
+                    ("wavelength_nm 0.38–0.78 does not cover the reference's 380–780 nm "
+                    "(µm? wavelengths must be in nm)")),
     "short-range": (lambda rows: [r for r in rows if float(r.split(",")[2]) >= 400],
                     "wavelength_nm 400–780 does not cover the reference's 380–780 nm"),
     "negative": (lambda rows: [_set(r, "19,30,400,", "-1e-06") for r in rows],
@@ -247,7 +247,7 @@ def test_exr_directory_is_read_as_pixel_means(exported, tmp_path):
     from normbox_lab.images.exr import write_spectral_exr
     from normbox_lab.predict.renderers import read_prediction
 
-    store, ref, _, _ = exported
+    _store, _ref, _, _ = exported
     wl = np.arange(380.0, 781.0, 5.0)
     img = np.ones((2, 3, wl.size)) * np.linspace(1, 2, wl.size) * 1e-3
     img[0, 0] *= 3.0                          # one pixel brighter: the mean counts it

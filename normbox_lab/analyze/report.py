@@ -396,12 +396,13 @@ def _renderers_section(doc: _Doc, d: ReportData, c: ComparisonResult | None) -> 
                   "it (NSE in the paper's sign: reference − prediction).")
     for e in d.rendering_errors:
         hdr = ["patch", *[f"{a:g}°" for a in e.angle_deg], "mean"]
+        mean_col = len(hdr) - 1                  # the mean column: not a rating colour
         doc.table(f"tab-rgb-{e.rgb}", f"Spectral vs RGB rendering: ΔE00 between {e.rgb} and "
                   f"{e.spectral}, per patch and sample angle",
                   hdr, [[n, *map(float, e.delta_e00[p]), float(np.nanmean(e.delta_e00[p]))]
                         for p, n in enumerate(e.patch_names)],
-                  cell_class=lambda i, j, v, n=len(hdr): _rating_class(i, j, v)
-                  if j < n - 1 else "",
+                  cell_class=lambda i, j, v, last=mean_col:
+                  _rating_class(i, j, v) if j < last else "",
                   caption="The colour error an RGB (triplet) rendering of the same scene "
                   "adds: ΔE00 between the two renderers' predictions (XYZ normalised by the "
                   "spectral renderer's white at the white angle, Lab D65). Against the "

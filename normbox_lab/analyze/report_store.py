@@ -140,7 +140,7 @@ def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str |
     methods = {f"software: {k}": v for k, v in software_versions().items()}
     methods.update(prediction_methods(store, run_id))
     instruments = campaign_instruments(store, run_ids)
-    from normbox_lab.analyze.report_renderers import rendering_error, renderer_rows
+    from normbox_lab.analyze.report_renderers import renderer_rows, rendering_error
 
     rows = renderer_rows(store, run_id)
     rgb = [r.renderer for r in rows if "rgb" in (r.renderer + r.version).lower()]

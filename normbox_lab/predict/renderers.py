@@ -108,8 +108,8 @@ def read_csv(path: str | Path) -> PredictionFile:
     missing = [c for c in CSV_COLUMNS if c not in cols]
     if missing:
         raise PredictionFileError(str(path), [
-            f"columns {', '.join(missing)} missing: the header must be "
-            f"{','.join(CSV_COLUMNS)}[,std_error] (got {','.join(cols) or 'nothing'})"])
+            (f"columns {', '.join(missing)} missing: the header must be "
+            f"{','.join(CSV_COLUMNS)}[,std_error] (got {','.join(cols) or 'nothing'})")])
     idx = {c: cols.index(c) for c in cols}
     has_se = "std_error" in idx
     for n, rec in enumerate(reader, start=2):

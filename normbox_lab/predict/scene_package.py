@@ -196,10 +196,10 @@ _CUBE_F = [(0, 2, 3), (0, 3, 1), (4, 5, 7), (4, 7, 6), (0, 1, 5), (0, 5, 4),
 
 def _obj_text(shapes: dict[str, tuple[dict[str, Any], str]], angle_deg: float,
               geometry: Any) -> str:
-    lines = [f"# Normbox at sample angle s = {float(angle_deg):g} deg (0 = sample faces the light,"
-             " 90 = faces the radiometer)",
-             "# units: metres; x along the sample's rotation axis, y into the box (open side at"
-             " y = -L/2), z up (floor z = 0)",
+    lines = [(f"# Normbox at sample angle s = {float(angle_deg):g} deg (0 = sample faces the light,"
+             " 90 = faces the radiometer)"),
+             ("# units: metres; x along the sample's rotation axis, y into the box (open side at"
+             " y = -L/2), z up (floor z = 0)"),
              "# faces are counter-clockwise seen from the side they reflect (normals into the box)",
              f"# geometry (mm / deg): {json.dumps(asdict(geometry), sort_keys=True)}",
              "mtllib materials.mtl"]
@@ -219,8 +219,7 @@ def _obj_text(shapes: dict[str, tuple[dict[str, Any], str]], angle_deg: float,
 
 def _csv(path: Path, header: list[str], rows: list[list[Any]], comments: list[str]) -> None:
     with open(path, "w", newline="", encoding="utf-8") as f:
-        for c in comments:
-            f.write(f"# {c}\n")
+        f.writelines(f"# {c}\n" for c in comments)
         w = csv.writer(f)
         w.writerow(header)
         for r in rows:
@@ -262,8 +261,8 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
     import mitsuba as mi
 
     from normbox_lab.analyze.queries import fit_key, latest_fits, reference_data
-    from normbox_lab.core.spectral import WHITE_PATCH
     from normbox_lab.core.errors import StoreError
+    from normbox_lab.core.spectral import WHITE_PATCH
     from normbox_lab.predict.materials import Material, holder_material
     from normbox_lab.predict.render import BAND_CENTRES_NM, BAND_WIDTH_NM, LAMP_GRID_NM
     from normbox_lab.predict.scene import (
@@ -319,11 +318,11 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
                                .startswith("light-map run") else None))
     header = ["wavelength_nm", "radiance_W_sr_m2_nm"]
     rows: list[list[Any]] = [[float(w), float(v)] for w, v in zip(lamp_wl, lamp_values)]
-    comments = ["the opal panel's mean spectral radiance, W·sr⁻¹·m⁻²·nm⁻¹, as the scene uses "
+    comments = [("the opal panel's mean spectral radiance, W·sr⁻¹·m⁻²·nm⁻¹, as the scene uses "
                 "it (linear between the rows); each of the 25 panel cells emits it times its "
-                "map factor (panel_map.csv)",
-                f"lamp: Planckian {lamp.cct_K:g} K scaled to a mean panel luminance of "
-                f"{lamp.luminance_cd_m2 * lamp.relative_output:.6g} cd/m² ({prov['lamp_from']})"]
+                "map factor (panel_map.csv)"),
+                (f"lamp: Planckian {lamp.cct_K:g} K scaled to a mean panel luminance of "
+                f"{lamp.luminance_cd_m2 * lamp.relative_output:.6g} cd/m² ({prov['lamp_from']})")]
     if measured is not None:
         header.append("measured_radiance_W_sr_m2_nm")
         m_at = np.interp(lamp_wl, measured[0], measured[1], left=np.nan, right=np.nan)
@@ -343,10 +342,10 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
     _csv(out / "light" / "panel_map.csv",
          ["row_j", "column_i", "centre_x_mm", "centre_y_mm", "size_x_mm", "size_y_mm",
           "relative_radiance"], prow,
-         ["the opal panel (the ceiling aperture, emitting downwards at z = "
+         [("the opal panel (the ceiling aperture, emitting downwards at z = "
           f"{(geometry.box_inner_mm + geometry.ceiling_thickness_mm) / 1000:g} m) as 5×5 "
           "cells; centres in mm from the aperture centre (x along the rotation axis, y into "
-          "the box); radiance = relative_radiance × spectrum.csv (mean factor 1)"])
+          "the box); radiance = relative_radiance × spectrum.csv (mean factor 1)")])
     files.append("light/panel_map.csv")
     # the radiometer
     origin = radiometer_position_m(geometry)
@@ -382,13 +381,13 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
                     lamp_grid_nm=lamp_wl, film=film, max_depth=max_depth, post_bsdf="holder")
     fixed = [k for k in d0 if k not in ("type", "integrator", "sensor", "patch", "holder_plate")]
     common = ['<?xml version="1.0" encoding="utf-8"?>',
-              "<!-- The Normbox without the sample: walls, ceiling with aperture, the opal panel "
+              ("<!-- The Normbox without the sample: walls, ceiling with aperture, the opal panel "
               "(25 emitting cells), the holder post; the integrator. Units: metres, "
-              "W·sr⁻¹·m⁻²·nm⁻¹. Included by every configuration's scene. -->",
+              "W·sr⁻¹·m⁻²·nm⁻¹. Included by every configuration's scene. -->"),
               '<scene version="3.0.0">',
-              f'    <integrator type="path">\n        <integer name="max_depth" value="'
+              (f'    <integrator type="path">\n        <integer name="max_depth" value="'
               f'{int(max_depth)}"/>\n        <integer name="rr_depth" value="6"/>\n'
-              '        <boolean name="hide_emitters" value="false"/>\n    </integrator>',
+              '        <boolean name="hide_emitters" value="false"/>\n    </integrator>'),
               _bsdf_xml("wall", wall).rstrip("\n"), _bsdf_xml("holder", holder).rstrip("\n")]
     for k in fixed:
         shape = d0[k]
@@ -447,10 +446,10 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
             k = fit_key(p)
             name = config_name(p, float(a))
             text = ['<?xml version="1.0" encoding="utf-8"?>',
-                    f"<!-- patch {p} ({ref.patch_names[ref.patches.index(p)]}) at sample angle "
+                    (f"<!-- patch {p} ({ref.patch_names[ref.patches.index(p)]}) at sample angle "
                     f"{float(a):g}°: the radiometer sees it at {90 - float(a):g}° from its "
                     "normal. Render with the normbox_fit BSDF registered (normbox_bsdf.py); "
-                    "sensor=sensor_rgb for an RGB variant. -->",
+                    "sensor=sensor_rgb for an RGB variant. -->"),
                     '<scene version="3.0.0">',
                     '    <default name="sensor" value="sensor_spectral"/>',
                     '    <include filename="common/box.xml"/>',
@@ -463,8 +462,8 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
             configs.append((int(p), float(a), f"scenes/{name}.xml"))
     _csv(out / "configurations.csv", ["patch", "angle_deg", "scene"],
          [[p, a, s] for p, a, s in configs],
-         ["one row per patch × sample angle of the reference run; a renderer returns the "
-          "band radiance of each (README.md)"])
+         [("one row per patch × sample angle of the reference run; a renderer returns the "
+          "band radiance of each (README.md)")])
     files.append("configurations.csv")
     write("normbox_bsdf.py", _package_source("standalone_bsdf"))
     write("render_mitsuba.py", _package_source("standalone_render"))
