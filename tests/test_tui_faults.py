@@ -49,6 +49,9 @@ def test_p_while_pausing_cancels_the_pause(lab_env):
             assert "pause cancelled" in " ".join(app.toasts_shown)
             for _ in range(6):
                 await enter_at_prompt(pilot, app)
+                # the answered prompt's focus goes nowhere: the Run tab stays (the first
+                # focusable widget was a hidden pane's table, and focusing it switched tabs)
+                assert app.query_one("#tabs").active == "run"
             await until(pilot, lambda: app.run_status == "done", "the end")
             assert "paused" not in app.events_seen
     asyncio.run(scenario())

@@ -50,7 +50,7 @@ for _ in 1 2 3 4 5 6; do answer; done
 waitfor "run finished: done"; grab 05-run-done
 tmux send-keys -t "$S" 1; sleep 1; grab 06-instruments
 tmux send-keys -t "$S" 3; waitfor "wavelength nm"; grab 07-spectrum
-tmux send-keys -t "$S" 4; waitfor "a90/p19"; grab 08-runs
+tmux send-keys -t "$S" 4; waitfor "created"; sleep 0.5; grab 08-runs
 sleep 0.5; tmux send-keys -t "$S" Enter; waitfor "event log"; grab 16-event-log
 tmux send-keys -t "$S" Escape; sleep 0.5
 tmux send-keys -t "$S" Tab Enter; waitfor "Esc / Enter: close"; grab 17-reading-spectrum

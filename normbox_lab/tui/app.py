@@ -63,6 +63,10 @@ class NormboxConsole(App):
 
     TITLE = "normbox-lab"
     ENABLE_COMMAND_PALETTE = False
+    #: no automatic focus on the tabs' screen: with the tab bar no Tab stop, Textual's "first
+    #: focusable widget" after a prompt closed was a table of a hidden pane, and focusing it
+    #: switched the tabs (the modal screens focus their own first widget: AUTO_FOCUS there)
+    AUTO_FOCUS = None
     CSS = """
     #status { height: 1; background: $boost; padding: 0 1; }
     TabbedContent { height: 1fr; }
@@ -514,6 +518,7 @@ class NormboxConsole(App):
             self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
             self.progress.started(d["done"], d["planned"], float(d["eta_s"]))
+            self.progress.step = "preparing the instruments (remote mode, homing)"
             self._bar(d["done"], d["planned"])
             self._update_run_info()
             self._log(f"run {d['run_uuid'][:8]} segment {d['segment']}: {d['done']}/"

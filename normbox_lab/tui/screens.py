@@ -19,6 +19,8 @@ HIDDEN = "<hidden>"
 class PromptScreen(ModalScreen[str]):
     """An operator or fault prompt.  Enter = the first choice (ok / retry)."""
 
+    AUTO_FOCUS = "*"
+
     BINDINGS: ClassVar = [Binding("enter", "choose(0)", "answer", show=True),
                           Binding("r", "pick('retry')", "retry", show=False),
                           Binding("s", "pick('skip')", "skip", show=False),
@@ -100,6 +102,8 @@ def prompt_text(req: Any) -> str:
 class ResumeScreen(ModalScreen[int | None]):
     """Offered at start when the store holds runs that are not done."""
 
+    AUTO_FOCUS = "*"
+
     BINDINGS: ClassVar = [Binding("enter", "resume", "resume"), Binding("escape,n", "later", "not now")]
     DEFAULT_CSS = """
     ResumeScreen { align: center middle; }
@@ -144,6 +148,8 @@ class DrillScreen(ModalScreen[None]):
     """Lines of text in a scrollable box: the Results heat map's per-patch drill-down, a
     run's event log."""
 
+    AUTO_FOCUS = "*"
+
     BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
     DEFAULT_CSS = """
     DrillScreen { align: center middle; }
@@ -166,6 +172,8 @@ class DrillScreen(ModalScreen[None]):
 
 class SpectrumScreen(ModalScreen[None]):
     """One stored reading: its spectrum (radiance or BRDF) with what it is and its flags."""
+
+    AUTO_FOCUS = "*"
 
     BINDINGS: ClassVar = [Binding("escape,enter,q", "close", "close")]
     DEFAULT_CSS = """
@@ -205,6 +213,8 @@ class SpectrumScreen(ModalScreen[None]):
 class NumberScreen(ModalScreen[float | None]):
     """Ask for one number (go to angle, lamp level): Enter takes it, Esc cancels; a value that
     is not a number or out of range is refused in place, naming the range."""
+
+    AUTO_FOCUS = "*"
 
     BINDINGS: ClassVar = [Binding("escape", "cancel", "cancel")]
     DEFAULT_CSS = """

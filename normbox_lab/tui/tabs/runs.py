@@ -90,7 +90,8 @@ class RunsPane(TabPane):
 
     @on(DataTable.RowHighlighted, "#runs-table")
     def _run_highlighted(self, event: DataTable.RowHighlighted) -> None:
-        if event.row_key.value is not None:
+        # an empty table highlights no row (row_key None): the random operator's find
+        if event.row_key is not None and event.row_key.value is not None:
             self.show_readings(int(str(event.row_key.value)))
 
     def show_readings(self, run_id: int) -> None:
@@ -116,7 +117,7 @@ class RunsPane(TabPane):
         from normbox_lab.tui.screens import DrillScreen
         from normbox_lab.tui.views import event_lines
 
-        if event.row_key.value is None:
+        if event.row_key is None or event.row_key.value is None:
             return
         run = self.store.get_run(int(str(event.row_key.value)))
         lines = [(f"run {run.id} {run.uuid[:8]} {run.protocol}: {run.status}, "
@@ -131,7 +132,7 @@ class RunsPane(TabPane):
         from normbox_lab.tui.views import geometry_text, luminance_text
 
         run_id = self.shown_run_id
-        if run_id is None or event.row_key.value is None:
+        if run_id is None or event.row_key is None or event.row_key.value is None:
             return
         key = str(event.row_key.value)
         r = self.store.reading(run_id, key)
