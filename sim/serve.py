@@ -98,7 +98,25 @@ class _SocketWriter:
             pass                                 # the client left: the step notices
 
 
-class TcpServer:
+class _Server:
+    """Serves until `stop` is set: `step()` moves bytes (at most POLL_S), `close()` ends."""
+
+    def serve(self, stop: threading.Event | None = None) -> None:
+        stop = stop or threading.Event()
+        try:
+            while not stop.is_set():
+                self.step()
+        finally:
+            self.close()
+
+    def step(self) -> None:  # pragma: no cover - per endpoint
+        raise NotImplementedError
+
+    def close(self) -> None:  # pragma: no cover - per endpoint
+        raise NotImplementedError
+
+
+class TcpServer(_Server):
     def __init__(self, emulator: core.Emulator, host: str, port: int, *,
                  rfc2217: bool = False) -> None:
         self.emulator = emulator
@@ -124,14 +142,9 @@ class TcpServer:
             self.client = None
             self._manager = None
 
-    def serve(self, stop: threading.Event | None = None) -> None:
-        stop = stop or threading.Event()
-        try:
-            while not stop.is_set():
-                self.step()
-        finally:
-            self._drop_client()
-            self.listener.close()
+    def close(self) -> None:
+        self._drop_client()
+        self.listener.close()
 
     def step(self) -> None:
         """Wait for bytes or the emulator's next event (at most POLL_S), then move bytes."""
@@ -169,7 +182,7 @@ class TcpServer:
                 self._drop_client()
 
 
-class PtyServer:
+class PtyServer(_Server):
     """A pseudo-terminal whose slave end is left to the client: while nobody has it open, the
     master reads EIO, and what the emulator says is lost; a client that opens it starts from a
     clean line."""
@@ -185,13 +198,8 @@ class PtyServer:
         self.endpoint = f"pty: {self.path}"
         self.client_present = False
 
-    def serve(self, stop: threading.Event | None = None) -> None:
-        stop = stop or threading.Event()
-        try:
-            while not stop.is_set():
-                self.step()
-        finally:
-            os.close(self.master)
+    def close(self) -> None:
+        os.close(self.master)
 
     def step(self) -> None:
         emu = self.emulator
