@@ -12,8 +12,8 @@ Linux ptys cannot carry modem lines (RTS/DTR ioctls fail on them), so clients th
 pulse RTS/DTR (Thorlabs APT clients do) should use the TCP endpoint through pyserial's
 ``socket://HOST:PORT`` URL.  pyserial's ``socket://`` port reports at most 1 byte in
 `in_waiting`, so a client that empties its input with ``read_all()`` (colour-specio does)
-leaves the rest of a line behind; with ``rfc2217=True`` the port speaks RFC 2217 (Telnet COM
-port control, pyserial's own `serial.rfc2217.PortManager` on this side) and clients use
+leaves the rest of a line behind; with ``rfc2217=True`` the port speaks RFC 2217 (*Telnet Com
+Port Control Option*, IETF 1997; pyserial's own `serial.rfc2217.PortManager` on this side) and clients use
 ``rfc2217://HOST:PORT``, whose `in_waiting` counts every byte, and whose baud rate, framing and
 modem-line settings are accepted (and, as over USB, do not matter to the emulator).
 
