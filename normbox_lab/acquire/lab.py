@@ -23,6 +23,7 @@
 from __future__ import annotations
 
 import dataclasses
+import logging
 from collections.abc import Mapping
 from typing import Any
 
@@ -36,6 +37,7 @@ GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
 WORLDS = ("normbox", "analytic", "none")
 #: a real lab's expected luminance of a reading when its step declares none (ETA only)
 REAL_LAB_LUMINANCE_CD_M2 = 20.0
+log = logging.getLogger("normbox_lab.acquire.lab")
 
 
 def driver_class(name: str) -> type:
@@ -80,8 +82,16 @@ class Lab:
     def light_sources(self) -> tuple[str, ...]:
         """The roles whose driver is a light source (`Settling`), from the driver classes of
         the registry: nothing is opened to answer."""
-        return tuple(role for role, cfg in self.config.instruments.items()
-                     if issubclass(driver_class(cfg.driver), Settling))
+        out = []
+        for role, cfg in self.config.instruments.items():
+            try:
+                cls = driver_class(cfg.driver)
+            except (ImportError, NormboxError) as exc:   # (then it cannot be opened either)
+                log.warning("%s: driver %s not importable: %s", role, cfg.driver, exc)
+                continue
+            if issubclass(cls, Settling):
+                out.append(role)
+        return tuple(out)
 
     def instrument(self, role: str) -> Any:
         inst = self._open.get(role)
