@@ -279,9 +279,11 @@ class WhiteStandardSlide:
     """The simulated gonio's reference slide: puts the Spectralon in the sample plane (a
     motorised slide: the gonio may bracket readings with lamp checks)."""
 
-    motorised = True
-
-    def __init__(self, device: SimulatedQEProDevice, reflectance: float = 0.99) -> None:
+    def __init__(self, device: SimulatedQEProDevice, reflectance: float = 0.99, *,
+                 motorised: bool = True) -> None:
+        #: False: a slide moved only for the calibration (like a standard placed by hand), so
+        #: the gonio does not bracket readings with lamp checks (``sim://qepro?slide=manual``)
+        self.motorised = bool(motorised)
         self.device = device
         device.white_reflectance = float(reflectance)
 

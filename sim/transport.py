@@ -31,7 +31,8 @@ def open_port(url: str, **kwargs) -> serial.SerialBase:
 
 def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
                                 **_: Any) -> transport.SpectrometerLink:
-    """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…`` → the simulated
+    """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…&slide=manual`` → the
+    simulated
     QE Pro behind the gonio's emulated arms, plugged into the emulated USB bus
     (`normbox_lab.sim.usb`); the driver opens it with seabreeze's pyseabreeze backend through
     that bus.  A bad option or fault spec is a `ValueError`."""
@@ -54,6 +55,9 @@ def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
                      **dev_opts)
     if world is not None:
         dev.world = world
+    slide = q.pop("slide", "motorised")
+    if slide not in ("motorised", "manual"):
+        raise ValueError(f"slide={slide!r}: motorised or manual")
     if q:
         raise ValueError(f"unknown sim://qepro option(s): {', '.join(sorted(q))}")
     backend = getattr(dev, "usb_backend", None)
@@ -62,5 +66,7 @@ def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
         backend = usb.plug_qepro(dev, alive=lambda: core.CONTEXT.instances.get(key) is dev)
         dev.usb_backend = backend
     return transport.SpectrometerLink(dev.serial_number, "pyseabreeze", str(backend),
-                                      simulated=True, white_standard=sim.WhiteStandardSlide(dev))
+                                      simulated=True,
+                                      white_standard=sim.WhiteStandardSlide(
+                                          dev, motorised=slide == "motorised"))
 

@@ -166,7 +166,9 @@ def test_lamp_dimming_after_the_white_reference_is_caught_and_re_referenced():
     assert r.metadata["recalibrations"] == 1 and r.metadata["lamp_drift_limit_percent"] == 2.0
 
 
-def test_a_lamp_still_drifting_after_re_referencing_is_a_device_error():
+def test_a_lamp_still_drifting_after_re_referencing_is_flagged_as_an_error():
+    from normbox_lab.acquire.quality import QualityLimits, brdf_flags
+
     gonio, dev = build()
     gonio.calibrate()
     level = {"x": 1.0}
@@ -177,9 +179,15 @@ def test_a_lamp_still_drifting_after_re_referencing_is_a_device_error():
         return base(wl) * level["x"]
 
     dev.lamp_irradiance = fading
-    with pytest.raises(DeviceError) as err:
-        gonio.measure_brdf(-30, 30)
-    assert err.value.code == "LAMP-DRIFT" and gonio.recalibrations == 1
+    r = gonio.measure_brdf(-30, 30)
+    assert gonio.recalibrations == 1 and r.metadata["lamp_ratio"] < 0.98
+    flags = brdf_flags("k", {**r.metadata, "blocked": r.blocked},
+                       {"brdf_per_sr": r.brdf_per_sr}, QualityLimits())
+    lamp = [f for f in flags if f.gate == "lamp-drift"]
+    assert len(lamp) == 1 and lamp[0].severity == "error" and lamp[0].limit == 2.0
+    ok = brdf_flags("k", {"lamp_ratio": 0.99, "lamp_drift_limit_percent": 2.0},
+                    {"brdf_per_sr": r.brdf_per_sr}, QualityLimits())
+    assert not [f for f in ok if f.gate == "lamp-drift"]
 
 
 def test_operator_placed_white_has_no_per_reading_lamp_check():

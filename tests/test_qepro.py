@@ -132,7 +132,7 @@ def test_driver_runs_the_seabreeze_path_and_fills_the_pyseabreeze_gaps():
 
 def test_bad_fault_spec_and_unknown_option_are_instrument_errors():
     for url in ("sim://qepro?faults=disconnect@x", "sim://qepro?faults=meltdown",
-                "sim://qepro?colour=blue"):
+                "sim://qepro?colour=blue", "sim://qepro?slide=sideways"):
         core.CONTEXT.reset(clock=VirtualClock())
         with pytest.raises(InstrumentError):
             QEPro.open(url, core.CONTEXT.clock)

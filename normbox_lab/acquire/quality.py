@@ -24,7 +24,9 @@ tec-off-setpoint       error     |TEC − set point| > `tec_tolerance_c` during 
 lamp-drift             error     lamp monitor (the light source's own, e.g. MEAS:LUM?) off
                                  the reference by more than `lamp_drift_percent`: the lab's
                                  `lamp_reference_cd_m2` when configured, else the run's
-                                 first reading (docs/quality.md: why flag, not correct)
+                                 first reading (docs/quality.md: why flag, not correct);
+                                 gonio: the lamp check (`lamp_ratio`) beyond the gonio's
+                                 `lamp_drift_limit_percent` even after re-referencing
 lamp-unstable          error     the lamp's output noise, from monitor samples taken just
                                  before and after each reading (rms of their relative
                                  difference / √2 over the last `LAMP_WINDOW` readings),
@@ -224,6 +226,14 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
         out.append(FlagSpec(key, "tec-off-setpoint", "error", d, limits.tec_tolerance_c,
                             f"detector at {float(tec):.2f} °C, {d:+.2f} °C off its set point "
                             f"{float(sp):.1f} °C (limit ±{limits.tec_tolerance_c:g})"))
+    ratio, lamp_limit = metadata.get("lamp_ratio"), metadata.get("lamp_drift_limit_percent")
+    if ratio is not None and lamp_limit is not None and not (
+            math.isfinite(float(ratio)) and abs(100.0 * (float(ratio) - 1.0)) <= float(lamp_limit)):
+        change = 100.0 * (float(ratio) - 1.0)
+        out.append(FlagSpec(key, "lamp-drift", "error", change, float(lamp_limit),
+                            f"gonio lamp {change:+.1f} % from its output at the white reference, "
+                            f"still after the references were taken again (limit "
+                            f"±{float(lamp_limit):g} %, drivers/gonio.py lamp check)"))
     return out
 
 
