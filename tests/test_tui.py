@@ -42,6 +42,7 @@ async def until(pilot, condition, what: str, timeout_s: float = 30.0) -> None:
 async def answer_prompt(pilot, app, expect: str | None = None) -> str:
     """Wait for the operator prompt modal, check its text, press Enter; returns the text."""
     await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                and bool(app.screen.query("#prompt-message"))       # composed
                 and app.session.operator is not None and app.session.operator.pending is not None,
                 "an operator prompt")
     screen = app.screen

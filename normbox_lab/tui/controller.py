@@ -164,6 +164,7 @@ class Session:
         self.last_seen: dict[str, float] = {}
         self.last_rows: list[dict[str, Any]] = []     # the latest health poll
         self.stopped = threading.Event()               # an emergency stop (ends a manual wait)
+        self.halted_at_s: float | None = None          # lab time the last stop had halted
         self._step_index: tuple[Any, dict[str, Any]] | None = None
         self._prompt: Any = None                       # the latest operator prompt asked
         self._lock = threading.Lock()
@@ -349,6 +350,9 @@ class Session:
                     inst.set_output(False)
             except (NormboxError, OSError) as exc:
                 failed.append(f"{role}: {exc}")
+        #: lab time when the axes and lamps had been told to stop (the poll that follows moves
+        #: a virtual clock on with its own exchanges)
+        self.halted_at_s = lab.clock.now_s() if lab is not None else None
         # axes and lamps first and at once; an instrument busy with a manual reading (its
         # port held for seconds) is told to abort from a thread of its own
         if others:
