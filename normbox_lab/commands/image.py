@@ -127,7 +127,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _render_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=_size, default=(320, 240), help="WIDTHxHEIGHT (default 320x240)")
     p.add_argument("--spp", type=int, default=None,
-                   help="samples per pixel (default 128: ~35 s at 320×240 on 2 cores)")
+                   help="samples per pixel (default 96)")
     p.add_argument("--seed", type=int, default=1)
     p.add_argument("--w", type=_w, default=2.0, help="W&W 1−Chroma exponent, 1…4 (default 2)")
     p.add_argument("-o", "--out", metavar="DIR", default="images",

@@ -92,16 +92,18 @@ class SpectralImage:
     `radiance` (None for spp < 2); `luminance_se_cd_m2` likewise for the luminance.
     `depth_m` (H, W): +inf where the pixel-centre ray misses; `normal` (H, W, 3): face normal
     towards the camera, zeros where it misses; `slot_id` (H, W): index into `slot_names`, −1 miss.
+    The layers and CWNI/NWCI are None for a radiance-only render (`CameraTracer.render(...,
+    layers=False)`).
     """
 
     wavelength_nm: np.ndarray
     radiance: np.ndarray
-    emission: np.ndarray
-    diffuse: np.ndarray
-    specular: np.ndarray
-    indirect: np.ndarray
-    cwni: np.ndarray
-    nwci: np.ndarray
+    emission: np.ndarray | None
+    diffuse: np.ndarray | None
+    specular: np.ndarray | None
+    indirect: np.ndarray | None
+    cwni: np.ndarray | None
+    nwci: np.ndarray | None
     std_error: np.ndarray | None
     luminance_se_cd_m2: np.ndarray | None
     depth_m: np.ndarray
@@ -112,6 +114,46 @@ class SpectralImage:
     spp: int
     time_s: float
     info: dict[str, Any] = field(default_factory=dict)
+
+    @classmethod
+    def mean_of(cls, images: list[SpectralImage]) -> SpectralImage:
+        """The image of all paths of `images`: renders of one view with the same spp and
+        independent seeds, averaged (layers kept only when every image has them); standard
+        errors combine as those of a mean of independent estimates."""
+        if not images:
+            raise ValueError("no images to average")
+        first = images[0]
+        if any(im.spp != first.spp or im.radiance.shape != first.radiance.shape
+               for im in images):
+            raise ValueError("images of different sizes or spp cannot be averaged")
+        k = len(images)
+
+        def mean(name: str) -> np.ndarray | None:
+            arrays = [getattr(im, name) for im in images]
+            if any(a is None for a in arrays):
+                return None
+            return (np.sum([np.asarray(a, np.float64) for a in arrays], axis=0) / k
+                    ).astype(np.float32)
+
+        def se(name: str) -> np.ndarray | None:
+            arrays = [getattr(im, name) for im in images]
+            if any(a is None for a in arrays):
+                return None
+            return (np.sqrt(np.sum([np.asarray(a, np.float64) ** 2 for a in arrays], axis=0))
+                    / k).astype(np.float32)
+
+        info = dict(first.info)
+        info["n_paths"] = int(sum(int(im.info.get("n_paths", 0)) for im in images))
+        info["seeds"] = [im.info.get("seed") for im in images]
+        return cls(wavelength_nm=first.wavelength_nm.copy(), radiance=mean("radiance"),
+                   emission=mean("emission"), diffuse=mean("diffuse"),
+                   specular=mean("specular"), indirect=mean("indirect"), cwni=mean("cwni"),
+                   nwci=mean("nwci"), std_error=se("std_error"),
+                   luminance_se_cd_m2=se("luminance_se_cd_m2"), depth_m=first.depth_m,
+                   normal=first.normal, slot_id=first.slot_id,
+                   slot_names=list(first.slot_names), camera=first.camera,
+                   spp=first.spp * k, time_s=float(sum(im.time_s for im in images)),
+                   info=info)
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -9,10 +9,16 @@ unbiased estimate of the region's mean radiance; nothing is smoothed across a ma
 The block size grows (2, 4, 8, 16 px) until the measured noise floor is below the target
 (0.3 ΔE00 at the 95th percentile over the box surfaces) or the largest block is reached.
 
-The noise floor is measured, not modelled: the truth rendered a second time with an
-independent seed, and the same block ΔE00 between the two truth renders — what noise alone
-produces between two images of identical materials.  The truth-vs-fitted map uses common
-random numbers, so its noise is at most that.
+The noise floor is measured, not modelled: what noise alone produces between two images of
+identical materials, the same block ΔE00 between the truth and a second, independent truth.
+That second truth costs no render of its own: the truth is rendered as two halves of spp/2
+paths per pixel with independent seeds, A and B; the truth image is their mean T = (A + B)/2,
+and the second truth is N = T + (A − B)/√2.  A − B is independent noise (uncorrelated with
+A + B, the halves being i.i.d.) with variance 2·σ²/(spp/2), so N − T has exactly the
+variance 2·σ²/spp of the difference of two independent spp renders.  The fitted image is
+rendered the same way with the same two seeds (common random numbers), radiance only, so the
+truth-vs-fitted map's noise is at most the floor's.  (Odd spp: a third render, independent
+seed, as before.)
 
 Public API: figure1(truth, fitted, angle_deg, ...) -> Figure1; region_block_means(...)
 """
@@ -175,11 +181,19 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map
 
     nc = normbox_camera_renderer(geometry)
-    kw = {"angle_deg": angle_deg, "lamp": lamp, "width": width, "height": height, "spp": spp,
-          "seed": seed}
-    img_t = nc.render(patch=truth["patch"], wall=truth["wall"], holder=truth.get("holder"), **kw)
-    img_f = nc.render(patch=fitted["patch"], wall=fitted["wall"], holder=fitted.get("holder"),
-                      **kw)
+    halves = bool(noise_floor) and int(spp) >= 2 and int(spp) % 2 == 0
+    kw = {"angle_deg": angle_deg, "lamp": lamp, "width": width, "height": height,
+          "spp": int(spp) // 2 if halves else int(spp)}
+    seeds = (int(seed), int(seed) + 7919) if halves else (int(seed),)
+
+    def render(mats: Mapping[str, Any], layers: bool) -> list[SpectralImage]:
+        return [nc.render(patch=mats["patch"], wall=mats["wall"], holder=mats.get("holder"),
+                          seed=s, layers=layers, **kw) for s in seeds]
+
+    parts_t = render(truth, True)
+    parts_f = render(fitted, False)
+    img_t = SpectralImage.mean_of(parts_t)
+    img_f = SpectralImage.mean_of(parts_f)
     if white_XYZ is None:
         if white_patch is None:
             white_patch = truth.get("white") or _white_patch_like(truth["patch"])
@@ -199,10 +213,12 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
                   delta_e00_map(xyz_t, xyz_f, white), white, source, scene_mask,
                   target_noise_delta_e=float(target_noise_delta_e))
     if noise_floor:
-        kw_noise = {**kw, "seed": int(seed) + 7919}          # an independent stream
-        img_n = nc.render(patch=truth["patch"], wall=truth["wall"],
-                          holder=truth.get("holder"), **kw_noise)
+        if halves:            # the second truth from the halves (module docstring)
+            xyz_n = xyz_t + (parts_t[0].XYZ() - parts_t[1].XYZ()) / np.sqrt(2.0)
+        else:
+            xyz_n = nc.render(patch=truth["patch"], wall=truth["wall"],
+                              holder=truth.get("holder"), seed=int(seed) + 7919, layers=False,
+                              **kw).XYZ()
         fig.block_px, fig.delta_e00_blocks, fig.noise_floor_blocks = converged_maps(
-            xyz_t, xyz_f, img_n.XYZ(), img_t.slot_id, scene_mask, white,
-            target_noise_delta_e)
+            xyz_t, xyz_f, xyz_n, img_t.slot_id, scene_mask, white, target_noise_delta_e)
     return fig

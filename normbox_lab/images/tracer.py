@@ -60,8 +60,29 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.images.camera import AUX_IMAGES, LAYERS, PinholeCamera, SpectralImage
-from normbox_lab.predict.bandpath import BandGrid, BandPathTracer, RectEmitter
+from normbox_lab.predict.bandpath import (
+    FIRST_BOUNCE_DRAWS,
+    BandGrid,
+    BandPathTracer,
+    RectEmitter,
+)
 from normbox_lab.predict.mitsuba_setup import jit_variant
+
+#: a path's random numbers taken from each pixel's quasi-random point set: the wavelength
+#: offset 2, the jitter in the pixel 2, the light sample 2 and the direction 3 at the first hit,
+#: then the continuation's first bounce (`bandpath.FIRST_BOUNCE_DRAWS`, the first unused)
+FIRST_HIT_DRAWS = 9
+QMC_DIMS = FIRST_HIT_DRAWS + FIRST_BOUNCE_DRAWS
+
+
+class _Draws:
+    """`next_float32()` from prepared arrays, in order."""
+
+    def __init__(self, values: Sequence[Any]) -> None:
+        self.values = list(values)
+
+    def next_float32(self) -> Any:
+        return self.values.pop(0)
 
 
 class CameraTracer(BandPathTracer):
@@ -88,6 +109,8 @@ class CameraTracer(BandPathTracer):
                          rr_depth=rr_depth, chunk_paths=chunk_paths, symbolic=True)
         self.camera = camera
         self._ybar: np.ndarray | None = None
+        #: a pixel's samples from a scrambled Sobol' net (randomised QMC, below)
+        self.qmc = True
 
     # ---- run-time constants (opaque: changing them never recompiles) ----------------------
     def _camera_consts(self, camera: PinholeCamera, spp: int) -> SimpleNamespace:
@@ -140,12 +163,33 @@ class CameraTracer(BandPathTracer):
         # seeded by the global path index (the constructor would add the chunk-local index)
         rng = m.PCG32(size=n)
         rng.seed(initstate=dr.opaque(m.UInt64, int(seed_state)) + gidx, initseq=gidx)
-        delta, k, frac = self._wavelength_offset(rng)
         pix = dr.opaque(m.UInt32, int(pix0)) + idx // c.spp
+        if self.qmc:
+            # the spp samples of a pixel are the first spp points of an Owen-scrambled Sobol'
+            # net, XORed with the pixel's own random digital shift (randomised QMC: every
+            # sample uniform, pixels independent; the per-sample variance then bounds the
+            # pixel's error from above)
+            from normbox_lab.predict.patchset import sobol_net
+
+            points = 1 << max(int(spp) - 1, 0).bit_length()
+            net = m.UInt32(sobol_net(points, QMC_DIMS).ravel())
+            shifter = m.PCG32(size=n)
+            pix64 = m.UInt64(pix)
+            shifter.seed(initstate=dr.opaque(m.UInt64, int(seed_state) ^ 0x51A7E5D) + pix64,
+                         initseq=pix64)
+            base = (idx - (idx // c.spp) * c.spp) * QMC_DIMS
+            draws = _Draws([m.Float((dr.gather(m.UInt32, net, base + d)
+                                     ^ shifter.next_uint32()) >> 8) * (1.0 / 16777216.0)
+                            for d in range(QMC_DIMS)])
+        else:
+            draws = _Draws([rng.next_float32() for _ in range(QMC_DIMS)])
+        later = draws.values[FIRST_HIT_DRAWS:]
+        draws.values = draws.values[:FIRST_HIT_DRAWS]
+        delta, k, frac = self._wavelength_offset(draws)
         row = pix // c.width
         col = pix - row * c.width
-        jx = rng.next_float32()
-        jy = rng.next_float32()
+        jx = draws.next_float32()
+        jy = draws.next_float32()
         ray = self._camera_ray(c, col, row, jx, jy)
         lookup = self._lookup(tab, k, frac)
         hit = self._intersect(c, ray, m.Bool(True))
@@ -153,9 +197,11 @@ class CameraTracer(BandPathTracer):
         active = hit.surf
         frame, wi, o = self._frame(hit, ray)
         vx = self._vertex(tab, lookup, delta, hit.slot, wi, active)
-        wl, wt, ok = self._nee(c, vx, frame, o, rng, active)
+        wl, wt, ok = self._nee(c, vx, frame, o, draws, active)
         nd, ns = self._lobes(vx, wl, wt, ok)
-        wo, bpdf, act = self._sample(vx, rng, active)
+        wo, bpdf, act = self._sample(vx, draws, active)
+        if draws.values:
+            raise AssertionError("FIRST_HIT_DRAWS does not match the first hit's draws")
         gd, gs = self._lobes(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), act)
         # the roulette probe of the full path (as BandPathTracer: bands 0, 8, 16, …)
         probe = dr.abs(gd[0] + gs[0])
@@ -163,9 +209,10 @@ class CameraTracer(BandPathTracer):
             probe = dr.fmax(probe, dr.abs(gd[b] + gs[b]))
         out = SimpleNamespace(nd=nd, ns=ns, gd=gd, gs=gs, e0=e0, delta=delta, k=k, frac=frac,
                               ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
-                              active=act & (1 < c.max_depth), rng=rng, probe=probe)
+                              active=act & (1 < c.max_depth), rng=rng, probe=probe,
+                              later=later)
         dr.eval(out.nd, out.ns, out.gd, out.gs, out.e0, out.delta, out.k, out.frac, out.ray.o,
-                out.ray.d, out.pdf, out.active, out.rng, out.probe)
+                out.ray.d, out.pdf, out.active, out.rng, out.probe, out.later)
         return out
 
     def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
@@ -176,14 +223,16 @@ class CameraTracer(BandPathTracer):
         dr, m = self.dr, self.m
         res = self._path_loop(tab, c, self._lookup(tab, fh.k, fh.frac), fh.delta, fh.ray,
                               fh.active, m.UInt32(1), fh.pdf, fh.rng, probe_scale=fh.probe,
-                              split_first=True)
+                              split_first=True, first_draws=fh.later)
         dr.eval(res.acc, res.e1)
         return res.acc, res.e1
 
     def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: list[Any], e1: Any,
-                 spp: int) -> np.ndarray:
+                 spp: int, layers: bool = True) -> np.ndarray:
         """Per-path layers, CWNI, NWCI, radiance² and luminance (and its square), summed over
-        each pixel's spp paths: (7·B + 2, n_pixels) float32."""
+        each pixel's spp paths: (8·B + 2, n_pixels) float32 (the radiance summed as its own
+        per-path value, so a render with and without layers gives the same radiance bits);
+        without `layers`, radiance, radiance² and the luminance terms only: (2·B + 2, n_pixels)."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         lookup = self._lookup(tab, fh.k, fh.frac)
@@ -197,7 +246,7 @@ class CameraTracer(BandPathTracer):
         avg_nee = _sum(nee) * inv_b
         avg_g = _sum(g) * inv_b
         ybar = self._luminance_weights()
-        emission, diffuse, specular, indirect, cwni, nwci, rad2 = ([] for _ in range(7))
+        emission, diffuse, specular, indirect, cwni, nwci, rad, rad2 = ([] for _ in range(8))
         y = m.Float(0.0)
         for b in range(n_b):
             em_b = fh.e0 * le[b]
@@ -211,9 +260,11 @@ class CameraTracer(BandPathTracer):
             indirect.append(in_b)
             cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
             nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
+            rad.append(rad_b)
             rad2.append(rad_b * rad_b)
             y = dr.fma(float(ybar[b]), rad_b, y)
-        outputs = emission + diffuse + specular + indirect + cwni + nwci + rad2 + [y, y * y]
+        outputs = (emission + diffuse + specular + indirect + cwni + nwci if layers else []) \
+            + rad + rad2 + [y, y * y]
         dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
         sums = dr.block_sum(outputs, int(spp), mode="evaluated")
         return np.stack([np.asarray(s, dtype=np.float32) for s in sums])
@@ -250,10 +301,12 @@ class CameraTracer(BandPathTracer):
     # ---- public ------------------------------------------------------------------------
     def render(self, materials: Mapping[str, Any], emitter_wavelength_nm: Any,
                emitter_radiance: Any, *, spp: int, seed: int = 0,
-               camera: PinholeCamera | None = None) -> SpectralImage:
+               camera: PinholeCamera | None = None, layers: bool = True) -> SpectralImage:
         """The spectral image of the scene with `materials` (slot name → `Material`) and the
         emitter's spectral radiance (W·sr⁻¹·m⁻²·nm⁻¹ on `emitter_wavelength_nm`), `spp` jittered
-        paths per pixel.  `camera` overrides the tracer's camera for this render."""
+        paths per pixel.  `camera` overrides the tracer's camera for this render.  Without
+        `layers` only the radiance (and its errors) is summed: the layers and CWNI/NWCI are
+        None, and the per-pixel sums cost about a third."""
         spp = int(spp)
         if spp < 1:
             raise ValueError(f"spp must be ≥ 1, got {spp}")
@@ -266,33 +319,32 @@ class CameraTracer(BandPathTracer):
         n_b = self.grid.n_bands
         # per-pixel sums over the spp paths (float32 as Dr.Jit reduced them), then the means
         # one (H, W, B) image at a time, to keep the peak memory low
-        sums = np.zeros((7 * n_b + 2, n_pix), dtype=np.float32)
+        n_img = 8 if layers else 2        # B-wide images: [layers, aux,] radiance, radiance²
+        sums = np.zeros((n_img * n_b + 2, n_pix), dtype=np.float32)
         seed_state = _seed_state(seed)
         chunk_pix = max(1, self.chunk_paths // spp)
         for p0 in range(0, n_pix, chunk_pix):
             npx = min(chunk_pix, n_pix - p0)
             fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state)
             acc, e1 = self._continue(tab, c, fh)
-            sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp)
+            sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp, layers)
             del fh, acc, e1
         depth, normal, slot = self._geometry(c, cam)
 
         def mean_image(k: int) -> np.ndarray:
             return (sums[k * n_b:(k + 1) * n_b].T.astype(np.float64) / spp).reshape(h, w, n_b)
 
-        f32: dict[str, np.ndarray] = {}
-        radiance = np.zeros((h, w, n_b))
+        f32: dict[str, np.ndarray | None] = {}
         for k, name in enumerate(LAYERS + AUX_IMAGES):
-            f32[name] = mean_image(k).astype(np.float32)
-            if name in LAYERS:
-                radiance += f32[name]
+            f32[name] = mean_image(k).astype(np.float32) if layers else None
+        radiance = mean_image(n_img - 2)
         std_error = luminance_se = None
         if spp > 1:
-            rad_var = np.maximum(mean_image(6) - radiance ** 2, 0.0) * spp / (spp - 1)
+            rad_var = np.maximum(mean_image(n_img - 1) - radiance ** 2, 0.0) * spp / (spp - 1)
             std_error = np.sqrt(rad_var / spp).astype(np.float32)
             del rad_var
-            y_mean = sums[7 * n_b].astype(np.float64) / spp
-            y2_mean = sums[7 * n_b + 1].astype(np.float64) / spp
+            y_mean = sums[n_img * n_b].astype(np.float64) / spp
+            y2_mean = sums[n_img * n_b + 1].astype(np.float64) / spp
             y_se = np.sqrt(np.maximum(y2_mean - y_mean ** 2, 0.0) / (spp - 1)).reshape(h, w)
             luminance_se = y_se.astype(np.float32)
         image = SpectralImage(
