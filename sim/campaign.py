@@ -131,9 +131,10 @@ def replay_command(s: Scenario) -> str:
 
 
 # --- the campaign ---------------------------------------------------------------------------
-def _worker(args: tuple[int, int, str, bool, float]) -> Result:
-    seed, index, root, keep, normbox_share = args
-    return run_one(draw(seed, index, normbox_share=normbox_share), Path(root), keep=keep)
+def _worker(args: tuple[int, int, str, bool, float, int]) -> Result:
+    seed, index, root, keep, normbox_share, max_faults = args
+    return run_one(draw(seed, index, normbox_share=normbox_share, max_faults=max_faults),
+                   Path(root), keep=keep)
 
 
 def _format(r: Result) -> str:
@@ -144,6 +145,7 @@ def _format(r: Result) -> str:
 
 def run_campaign(scenarios: int = 30, seed: int = 0, jobs: int = 1, keep: str | None = None,
                  *, shrink_failures: bool = True, normbox_share: float = 0.0,
+                 max_faults: int = 3,
                  replay: str | None = None, out: TextIO | None = None,
                  verbose: bool = True) -> list[Result]:
     """Run the campaign; prints as it goes; the last line is "N scenarios: V violations"."""
@@ -159,9 +161,10 @@ def run_campaign(scenarios: int = 30, seed: int = 0, jobs: int = 1, keep: str | 
             results = [run_one(chosen[0], root, keep=keep is not None)]
         else:
             print(f"campaign seed {seed}: {scenarios} scenarios, {jobs} job(s), world analytic"
-                  f"{f' (normbox share {normbox_share:g})' if normbox_share else ''}",
+                  f"{f' (normbox share {normbox_share:g})' if normbox_share else ''}"
+                  f"{f', up to {max_faults} faults' if max_faults != 3 else ''}",
                   file=out, flush=True)
-            tasks = [(seed, i, str(root), keep is not None, normbox_share)
+            tasks = [(seed, i, str(root), keep is not None, normbox_share, max_faults)
                      for i in range(scenarios)]
             results = []
             if jobs > 1:

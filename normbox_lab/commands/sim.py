@@ -75,6 +75,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     camp.add_argument("--normbox-share", type=float, default=0.1, metavar="P",
                       help="share of radiometer scenarios on the Mitsuba world, the others "
                            "on the analytic world (default 0.1)")
+    camp.add_argument("--max-faults", type=int, default=3, metavar="K",
+                      help="at most K fault rules per scenario (default 3)")
     camp.add_argument("--no-shrink", dest="shrink", action="store_false",
                       help="report failing scenarios without shrinking them")
     camp.add_argument("--quiet", action="store_true",
@@ -128,8 +130,8 @@ def _serve(args: argparse.Namespace) -> int:
 def _campaign(args: argparse.Namespace) -> int:
     from normbox_lab.sim.campaign import run_campaign
 
-    if args.scenarios < 1 or args.jobs < 1:
-        return _fail("--scenarios and --jobs must be at least 1")
+    if args.scenarios < 1 or args.jobs < 1 or args.max_faults < 0:
+        return _fail("--scenarios and --jobs must be at least 1, --max-faults at least 0")
     if not 0.0 <= args.normbox_share <= 1.0:
         return _fail("--normbox-share must be within [0, 1]")
     if args.replay is not None:
@@ -141,7 +143,8 @@ def _campaign(args: argparse.Namespace) -> int:
             return _fail(f"--replay wants a scenario as printed by a campaign: {exc}")
     results = run_campaign(args.scenarios, args.seed, args.jobs, args.keep,
                            shrink_failures=args.shrink, normbox_share=args.normbox_share,
-                           replay=args.replay, verbose=not args.quiet)
+                           replay=args.replay, verbose=not args.quiet,
+                           max_faults=args.max_faults)
     return 1 if any(r.violations for r in results) else 0
 
 
