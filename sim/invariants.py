@@ -249,17 +249,19 @@ def typed_failures(ex: Execution, complete: bool, missing_unflagged: list[str]) 
             if not (typed or status or resume):
                 out.append(Violation("b", "b:untyped-exit",
                                      f"segment {i} exited {seg.rc} without a typed line"))
-        elif i == len(ex.segments) - 1 or seg.action is None or not seg.fired:
-            if not complete:
+        else:
+            # exit 0: the run as this segment left it must be complete (or, for the last one,
+            # every missing reading flagged as an error)
+            finished = [e["d"] for e in seg.journal if e.get("ev") == "run-finished"]
+            status = finished[-1].get("status") if finished else None
+            last = i == len(ex.segments) - 1
+            if (status is not None and status != "done" and not (last and complete)) or (
+                    status is None and last and not complete):
                 out.append(Violation(
                     "b", "b:exit-0-incomplete",
-                    f"segment {i} exited 0 but the run lacks {len(missing_unflagged)} "
-                    f"readings without an error flag ({', '.join(missing_unflagged[:3])})"))
-        elif not complete:
-            out.append(Violation(
-                "b", "b:exit-0-incomplete",
-                f"segment {i} ({seg.action.label()}) exited 0 with the run incomplete and "
-                f"unflagged ({', '.join(missing_unflagged[:3])})"))
+                    f"segment {i}{f' ({seg.action.label()})' if seg.fired else ''} exited 0 "
+                    f"with the run {status or 'unfinished'}"
+                    f"{'' if complete else f'; missing {len(missing_unflagged)} readings without an error flag'}"))
     return out
 
 
