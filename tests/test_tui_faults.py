@@ -235,3 +235,40 @@ def test_image_panel_titles_wrap_instead_of_being_cut_at_80_columns():
     each = (76 - 2) // 3 + 1                     # a panel's columns and the space after it
     middle = " ".join(line[each:2 * each].strip() for line in lines[1:4])
     assert " ".join(middle.split()) == label                 # whole, wrapped, not "…"-cut
+
+
+def test_an_emergency_stop_ends_a_manual_go_to_at_once_with_the_real_angle(lab_env,
+                                                                          monkeypatch):
+    """x during a manual go-to: the worker no longer waits out the motion's timeout ("motion
+    not finished after 18.0 s", no word of the stop); it says the stop halted the rotator and
+    where it is."""
+    from engine_fakes import FakeStage
+
+    session = new_session(lab_env)
+    polls: list[int] = []
+
+    def move_to(self, angle_deg: float, wait: bool = True) -> None:
+        self.target, self.moving = float(angle_deg), True
+
+    def is_moving(self) -> bool:
+        if getattr(self, "moving", False):
+            self.pos += 1.0                        # one degree per look
+            polls.append(1)
+            if len(polls) == 15:
+                session.emergency_stop()           # the operator presses x (another thread)
+        return getattr(self, "moving", False)
+
+    def stop(self) -> None:
+        self.stops += 1
+        self.moving = False
+
+    monkeypatch.setattr(FakeStage, "move_to", move_to)
+    monkeypatch.setattr(FakeStage, "is_moving", is_moving)
+    monkeypatch.setattr(FakeStage, "stop", stop)
+    session.ensure_lab()
+    session.lab.instrument("rotator").homed = True
+    text, _ = session.manual("goto", 90.0)
+    assert text == ("go to 90° stopped by the emergency stop: rotator halted at 15.00°")
+    assert session.live.angle_deg == 15.0
+    assert session.live.run_state["rotator"] == "halted at 15.00° (emergency stop)"
+    session.close()
