@@ -17,8 +17,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 #: the column names over `format_run_line`
-RUNS_HEADER = (f"{id:>4}  {uuid:<8}  {protocol:<18} {status:<11} "
-               f"{done:>5}/{planned:<7} {updated:<19}  flags")
+RUNS_HEADER = (f"{'id':>4}  {'uuid':<8}  {'protocol':<18} {'status':<11} "
+               f"{'done':>5}/{'planned':<5} {'updated':<19}  flags")
 
 
 def format_run_line(run, flags=None, status: str | None = None) -> str:
