@@ -272,3 +272,45 @@ def test_an_emergency_stop_ends_a_manual_go_to_at_once_with_the_real_angle(lab_e
     assert session.live.angle_deg == 15.0
     assert session.live.run_state["rotator"] == "halted at 15.00° (emergency stop)"
     session.close()
+
+
+def test_the_instruments_table_during_a_run_is_the_instruments_state(lab_env):
+    """From the run's events: the lamp warming up, an instrument in error (a sphere lamp
+    failure), a move under way; roles the run does not use keep their polled state instead of
+    "in use by the run"."""
+    from types import SimpleNamespace
+
+    from normbox_lab.acquire import engine as eng
+    from normbox_lab.acquire.events import EngineEvent
+
+    session = new_session(lab_env)
+    session.poll_instruments()
+    plan = eng.build_plan("reference-sweep", {"angles_deg": [30], "patches": [7]})
+    session.engine = SimpleNamespace(plan=plan, run_id=1)
+    session.thread = SimpleNamespace(is_alive=lambda: True)        # a run owns the lab
+    seen = []
+    session.post = seen.append
+
+    def event(event_kind: str, key: str = "", **data) -> None:
+        session._on_event(EngineEvent(event_kind, 1, key, 0.0, data))
+
+    def states() -> dict[str, str]:
+        return {r["role"]: r["state"] for r in session.instrument_rows()}
+
+    event("run-started", run_uuid="u", segment=1, planned=1, done=0, eta_s=10.0)
+    event("step-started", "lamp", kind="wait-stable", label="wait until sphere is stable")
+    assert states()["sphere"] == "on, warming up (the run waits)"
+    assert session.live.lamp == "warming up"
+    assert states()["radiometer"] == "in use by the run"
+    assert states()["gonio_light_arm"].endswith("unhomed")           # not used: as polled
+    event("fault", "lamp", role="sphere", attempt=1, transient=False,
+          error="DeviceError('sphere: device error 201: Lamp failure')")
+    assert states()["sphere"] == "ERROR: device error 201: Lamp failure (DeviceError)"
+    assert session.live.lamp == "error"
+    event("step-started", "a30/move", kind="move", label="set the sample angle to 30°")
+    assert states()["rotator"] == "moving to 30°"
+    event("step-finished", "a30/move", kind="move", duration_s=3.0)
+    assert states()["rotator"] == "30.00° (homed)"
+    session.thread = None
+    session.engine = None
+    session.close()
