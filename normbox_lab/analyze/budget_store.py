@@ -30,10 +30,12 @@ def _virtual_run(lab_config_text: str) -> bool:
 
 def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
                       with_geometry: bool = True,
-                      progress: Callable[[str, int, int], None] | None = None
+                      progress: Callable[[str, int, int], None] | None = None,
+                      renderer: str | None = None
                       ) -> tuple[BudgetInputs, dict[str, float]]:
     """Reference, prediction, fit error model and the renderer's derivatives of a stored
-    reference sweep (after `predict` and `compare`)."""
+    reference sweep (after `predict` and `compare`); `renderer`: an imported renderer's
+    prediction (`predict.renderers`) and its error model instead of ours."""
     import time
 
     from normbox_lab.acquire.config import parse_config
@@ -48,16 +50,18 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     )
     from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.materials import Material
+    from normbox_lab.predict.renderers import artifact_name
 
     run = store.get_run(ref_run)
     ref = reference_data(store, run.id)
+    name = artifact_name(run.id, renderer)
     try:
-        pred = store.latest_artifact("prediction", f"ref-run-{run.id}").arrays
+        pred = store.latest_artifact("prediction", name).arrays
     except (KeyError, LookupError, StoreError) as exc:
         raise StoreError(f"run {run.id} has no prediction: run `normbox-lab predict` "
                          f"first ({exc})") from exc
     try:
-        fit_nse = store.latest_artifact("error-model", f"ref-run-{run.id}").arrays[
+        fit_nse = store.latest_artifact("error-model", name).arrays[
             "simulated_nse"]
         fit_nse = np.broadcast_to(fit_nse, ref.radiance.shape).copy()
     except (KeyError, LookupError, StoreError):
@@ -84,11 +88,14 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
 
 def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
                n_paths: int = 1 << 14, n_draws: int = 64,
-               progress: Callable[[str, int, int], None] | None = None) -> BudgetResult:
-    """The error budget of a stored reference sweep; stored as artifact "error-budget"."""
+               progress: Callable[[str, int, int], None] | None = None,
+               renderer: str | None = None) -> BudgetResult:
+    """The error budget of a stored reference sweep; stored as artifact "error-budget"
+    (``ref-run-<id>@<renderer>`` for an imported renderer's prediction)."""
     import time
 
     from normbox_lab.analyze.angles import estimate_angle_offsets
+    from normbox_lab.predict.renderers import artifact_name
 
     run = store.get_run(ref_run)
     errors = errors_for_run(run.lab_config, sources)
@@ -97,13 +104,14 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
         names = [n for n in BUDGET_SOURCES if n in {s.strip() for s in sources.split(",")}]
     need_geometry = any(errors.is_on(n) for n in ("geometry", "homogeneity"))
     x, timings = budget_inputs_run(store, run.id, n_paths=n_paths,
-                                   with_geometry=need_geometry, progress=progress)
+                                   with_geometry=need_geometry, progress=progress,
+                                   renderer=renderer)
     t0 = time.perf_counter()
     offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
     result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
     timings["propagation"] = time.perf_counter() - t0
     result.timings_s = timings
-    result.store(store, f"ref-run-{run.id}", run_ref=run.id)
+    result.store(store, artifact_name(run.id, renderer), run_ref=run.id)
     return result
 
 

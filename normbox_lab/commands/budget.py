@@ -25,6 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--paths", type=int, default=1 << 14,
                    help="paths per derivative render (default 16384)")
     p.add_argument("--draws", type=int, default=64, help="draws per source (default 64)")
+    p.add_argument("--renderer", metavar="NAME",
+                   help="the budget of an imported renderer's prediction (`normbox-lab import "
+                        "prediction`; compare it first); default: ours")
     p.add_argument("--paper-table", action="store_true",
                    help="print the paper-scenario table (markdown: observation | paper | ours) "
                         "of the compared run instead of computing a budget")
@@ -47,7 +50,7 @@ def _budget(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     with Store(args.store) as store:
         r = budget_run(store, args.run, sources=args.sources, n_paths=args.paths,
-                       n_draws=args.draws)
+                       n_draws=args.draws, renderer=args.renderer)
     print(f"error budget of run {args.run}: {len(r.patches)} patches × {r.angle_deg.size} "
           f"angles; sources: {r.spec}")
     print("NRMSE contribution per source and angle (%, RMS over patches):")
