@@ -2,9 +2,9 @@
 
 The fixed-seed campaign below is the one `make test` runs (40 scenarios, two processes); the
 slow one (`make test-slow`) runs 1000.  Both demand zero violations.  The other tests show the
-campaign is able to fail: a radiometer that reports 5 % high, a driver that raises a raw
-`ValueError`, a garbled band are each caught, and the shrinker keeps exactly the fault that
-matters.
+campaign is able to fail: a radiometer that reports 5 % high (through the forked command
+line), a garbled band, a traceback, a paused process that exits 0 are each caught, and the
+shrinker keeps exactly the fault that matters.
 """
 
 from __future__ import annotations
@@ -150,15 +150,36 @@ def test_a_radiometer_that_reads_5_percent_high_is_caught(tmp_path, monkeypatch)
     assert all("×1.0" in v.message for v in r.violations if v.cls == "a:spectral")
 
 
-def test_a_raw_exception_is_a_traceback_violation(tmp_path, monkeypatch):
-    from normbox_lab.drivers import cs1000
+def test_typed_failure_checks_judge_each_process_by_what_it_printed_and_left():
+    def ex(*segments):
+        return harness.Execution(small_sweep(), Path("."), Path("s"), Path("l"),
+                                 list(segments), "u", 0.0)
 
-    def broken(self, *a, **k):
-        raise ValueError("not a typed error")
+    def seg(rc, stdout="", stderr="", status=None, action=None):
+        s = harness.Segment(["run"], action, rc=rc, stdout=stdout, stderr=stderr,
+                            fired=action is not None)
+        if status is not None:
+            s.journal.append({"ev": "run-finished", "key": "", "t": 0.0,
+                              "d": {"status": status}})
+        return s
 
-    monkeypatch.setattr(cs1000.CS1000A, "measure", broken)
-    r = campaign.run_one(small_sweep(), tmp_path)
-    assert "b:traceback:ValueError" in r.classes
+    tb = ("Traceback (most recent call last):\n  File \"x.py\", line 1, in <module>\n"
+          "struct.error: unpack requires a buffer of 4 bytes\n")
+    [v] = invariants.typed_failures(ex(seg(1, stderr=tb)), True, [])
+    assert v.cls == "b:traceback:struct.error"
+    [v] = invariants.typed_failures(ex(seg(2, stderr="something odd\n")), True, [])
+    assert v.cls == "b:untyped-exit"
+    assert invariants.typed_failures(ex(seg(1, stderr="normbox-lab: error: x\n")), True, []) == []
+    pause = Action("pause", "reading-stored", 1)
+    # a process that left the run paused must not exit 0, even if a later resume completes it
+    [v] = invariants.typed_failures(ex(seg(0, status="paused", action=pause),
+                                       seg(0, status="done")), True, [])
+    assert v.cls == "b:exit-0-incomplete" and "paused" in v.message
+    assert invariants.typed_failures(ex(seg(130, stdout="resume with: x\n", status="paused",
+                                            action=pause), seg(0, status="done")), True, []) == []
+    [v] = invariants.typed_failures(ex(seg(1, stderr="normbox-lab: error: operator answered "
+                                              "'skip'; expected one of retry, abort\n")), True, [])
+    assert v.cls == "b:answer-not-offered"
 
 
 def test_shrinker_keeps_only_the_fault_that_fails(tmp_path, monkeypatch):
