@@ -301,3 +301,32 @@ def test_the_demos_reference_run_renders_from_its_package(tmp_path):
         stock = compare_run(s, ref, renderer="mitsuba-spectral")
     assert abs(z.mean()) < 0.35 and 0.8 < z.std() < 1.3, (z.mean(), z.std())
     assert abs(np.nanmean(stock.delta_e00) - np.nanmean(ours.delta_e00)) < 0.15
+
+
+def test_budget_and_report_work_on_an_imported_prediction(exported, tmp_path, capsys):
+    """A renderer that returns exactly our spectra: compare, budget and report treat it as
+    ours (same observed NRMSE), under its own artifact names."""
+    store, ref, brdf, _ = exported
+    f = tmp_path / "copy.csv"
+    f.write_text("# renderer_version: copy 1\npatch,angle_deg,wavelength_nm,"
+                 "radiance_W_sr_m2_nm,std_error\n"
+                 + "\n".join(_synthetic_csv(store, ref)) + "\n")
+    assert main(["import", "prediction", str(f), "--ref-run", str(ref), "--renderer", "copy",
+                 "--store", str(store)]) == 0
+    assert main(["compare", str(ref), "--brdf-run", str(brdf), "--store", str(store)]) == 0
+    assert main(["compare", str(ref), "--brdf-run", str(brdf), "--renderer", "copy",
+                 "--store", str(store)]) == 0
+    for renderer in (None, "copy"):
+        args = ["budget", str(ref), "--paths", "1024", "--draws", "8", "--store", str(store)]
+        assert main(args + (["--renderer", renderer] if renderer else [])) == 0
+    with Store(store) as s:
+        ours = s.latest_artifact("error-budget", artifact_name(ref)).arrays
+        copy = s.latest_artifact("error-budget", artifact_name(ref, "copy")).arrays
+        assert s.latest_artifact("error-model", artifact_name(ref, "copy"))
+    # the CSV holds the 5 nm band values, ours the 1 nm grid: equal at the band centres
+    np.testing.assert_allclose(copy["observed_nrmse"], ours["observed_nrmse"], rtol=0.05)
+    out = tmp_path / "r.html"
+    assert main(["report", str(ref), "--renderer", "copy", "--brdf-run", str(brdf), "-o",
+                 str(out), "--store", str(store)]) == 0
+    html = out.read_text()
+    assert "renderer copy" in html and "<th>copy</th>" in html
