@@ -87,6 +87,9 @@ OFFSET_PIXELS = 8
 TEC_TOLERANCE_C = 0.5
 TEC_STABLE_S = 30.0
 TEC_TIMEOUT_S = 600.0
+#: the cooler's time constant for ETAs (*assumed*: the QE Pro data sheet gives none; the
+#: emulator cools with 30 s)
+TEC_TAU_S = 30.0
 DARK_TEC_TOLERANCE_C = 0.2
 DARK_MAX_AGE_S = 600.0
 #: lamp check: the largest change of the lamp's output since the white reference, in percent
@@ -469,7 +472,20 @@ class Gonioreflectometer:
         ti0, to0 = self._geometry
         move = max(self.light_arm.estimate_move_time_s(ti0, ti),
                    self.detector_arm.estimate_move_time_s(to0, to))
-        return move + 3 * 0.1 + (self.tec_stable_s if self._cal is None else 0.0)
+        return move + 3 * 0.1 + (self._tec_settle_estimate_s() + self.tec_stable_s
+                                  if self._cal is None else 0.0)
+
+    def _tec_settle_estimate_s(self) -> float:
+        """Time for the detector to come within `tec_tolerance_c` of its set point, from its
+        temperature now: a first-order cooler with `TEC_TAU_S` (*assumed*)."""
+        sp = self.spectrometer
+        if not (isinstance(sp, TecCooled) and sp.has_tec):
+            return 0.0
+        setpoint = float(getattr(sp, "tec_setpoint_c", float("nan")))
+        off = abs(float(sp.tec_temperature_c()) - setpoint)
+        if not math.isfinite(off) or off <= self.tec_tolerance_c:
+            return 0.0
+        return TEC_TAU_S * math.log(off / self.tec_tolerance_c)
 
     def stop(self) -> None:
         """Stop both arms (abort)."""

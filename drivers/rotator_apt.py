@@ -17,8 +17,9 @@ docs/references.md.  Frames are encoded with `thorlabs-apt-protocol`
     move      MOT_MOVE_ABSOLUTE 0x0453 (chan, position) → MOT_MOVE_COMPLETED 0x0464
               (long form with the status block), or MOT_MOVE_STOPPED 0x0466 when a limit
               switch or a stop ended it
-    stop      MOT_MOVE_STOP 0x0465 (chan, 0x02 profiled) → MOT_MOVE_STOPPED 0x0466 once the
-              rotor has decelerated (up to v/a later)
+    stop      MOT_MOVE_STOP 0x0465 (chan, 0x01 immediate; 0x02 profiled with
+              ``stop(profiled=True)``) → MOT_MOVE_STOPPED 0x0466 (profiled: once the rotor has
+              decelerated, up to v/a later)
     push      with HW_START_UPDATEMSGS the controller pushes 0x0481 every 100 ms; the host
               sends MOT_ACK_DCSTATUSUPDATE 0x0492 at least every 0.9 s as keep-alive
     close     HW_STOP_UPDATEMSGS 0x0012 (push mode), HW_DISCONNECT 0x0002
@@ -54,6 +55,7 @@ CHANNEL = 1
 K10CR1_STEPS_PER_DEG = 409600.0 / 3.0
 VELOCITY_SCALE = 53.68          # APT velocity units per µstep/s (K10CR1 / KST101)
 ACCELERATION_SCALE = 1.0 / 90.9  # APT acceleration units per µstep/s²
+STOP_IMMEDIATE = 0x01
 STOP_PROFILED = 0x02
 UPDATE_PERIOD_S = 0.1
 KEEPALIVE_S = 0.9
@@ -354,15 +356,17 @@ class AptRotationStage(RotationStageBase):
                                   instrument=self.instrument_id)
             self._commanded_deg = None        # stopped on request: no position check
 
-    def stop(self) -> None:
+    def stop(self, profiled: bool = False) -> None:
+        """Halt now (MOT_MOVE_STOP immediate: the emergency stop and aborts), or with
+        `profiled` decelerate first (MOVE_STOPPED up to v/a later)."""
         self._ensure_link()
         self._waiting_for = (MSG_STOPPED,)
         self._done_msg = None
-        self._send(apt.mot_move_stop(DEVICE, HOST, CHANNEL, STOP_PROFILED))
+        mode = STOP_PROFILED if profiled else STOP_IMMEDIATE
+        self._send(apt.mot_move_stop(DEVICE, HOST, CHANNEL, mode))
         try:
-            # a profiled stop decelerates first: v/a at most, then MOVE_STOPPED
-            self._expect(MSG_STOPPED, self.command_timeout_s
-                         + self.max_velocity_deg_s / self.acceleration_deg_s2)
+            slack = self.max_velocity_deg_s / self.acceleration_deg_s2 if profiled else 0.0
+            self._expect(MSG_STOPPED, self.command_timeout_s + slack)
         finally:
             self._waiting_for = ()
             self._done_msg = None

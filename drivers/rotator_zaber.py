@@ -328,11 +328,14 @@ class ZaberRotationStage(RotationStageBase):
             self._commanded_deg = None
             raise DeviceError(reply.flag, FLAGS[reply.flag], instrument=self.instrument_id)
 
-    def stop(self) -> None:
-        """``stop`` decelerates at the axis's acceleration: wait until it is at rest."""
-        self._command("stop")
+    def stop(self, profiled: bool = False) -> None:
+        """Halt now (``estop``: the emergency stop and aborts), or with `profiled` the
+        ``stop`` command, which decelerates at the axis's acceleration: wait until at rest."""
+        self._command("stop" if profiled else "estop")
         self._commanded_deg = None
         self._expected_end_s = 0.0
+        if not profiled:
+            return
         deadline = self.clock.now_s() + self.command_timeout_s + \
             self.max_velocity_deg_s / self.acceleration_deg_s2
         while self._command("").busy:

@@ -21,6 +21,7 @@ REQ_VEL = bytes.fromhex("140401005001")
 REQ_STATUS = bytes.fromhex("800401005001")
 HOME = bytes.fromhex("430401005001")
 STOP = bytes.fromhex("650401025001")
+STOP_NOW = bytes.fromhex("650401015001")
 IDENTIFY = bytes.fromhex("230201005001")
 START_UPDATES = bytes.fromhex("110000005001")
 STOP_UPDATES = bytes.fromhex("120000005001")
@@ -94,9 +95,12 @@ def test_home_frames():
 
 
 def test_stop_and_close_frames():
-    stage, port = scripted([Exchange(STOP, status(1000, msg_id=0x0466)),
+    # stop() halts at once (immediate, 0x01: the emergency stop); stop(profiled=True) sends 0x02
+    stage, port = scripted([Exchange(STOP_NOW, status(1000, msg_id=0x0466)),
+                            Exchange(STOP, status(1000, msg_id=0x0466)),
                             Exchange(DISCONNECT)])
     stage.stop()
+    stage.stop(profiled=True)
     stage.close()
     port.assert_done()
 
@@ -283,7 +287,7 @@ def test_stop_while_moving():
     clock.advance(2.0)
     assert stage.is_moving()
     t0 = clock.now_s()
-    stage.stop()                                               # profiled: decelerates
+    stage.stop(profiled=True)                                  # decelerates
     assert not stage.is_moving()
     assert clock.now_s() - t0 == pytest.approx(1.0, abs=0.06)  # 10 °/s at 10 °/s²: 1 s
     # 5° + 10 °/s · 1 s at the stop, then v²/2a = 5° more

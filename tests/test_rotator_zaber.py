@@ -86,7 +86,7 @@ def test_home_stop_status_lines():
         Exchange(b"/1 1 get pos\n", ok(-4267)),
     ])
     stage.home()
-    stage.stop()
+    stage.stop(profiled=True)
     st = stage.status()
     assert st["homed"] and not st["moving"] and st["position_deg"] == pytest.approx(-4267 / STEPS)
     port.assert_done()
@@ -249,7 +249,7 @@ def test_stop_interrupts_a_move():
     assert stage.is_moving()
     angle_at_stop = emu.angle_deg()
     t0 = stage.clock.now_s()
-    stage.stop()                                  # decelerates: 10 °/s at 20 °/s², 0.5 s
+    stage.stop(profiled=True)                     # decelerates: 10 °/s at 20 °/s², 0.5 s
     assert not stage.is_moving()
     assert 0.45 <= stage.clock.now_s() - t0 <= 0.7
     # then v²/2a = 2.5° more (the stop reaches the device a serial line-time after the read)
