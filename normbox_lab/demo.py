@@ -96,18 +96,27 @@ def demo_config(opts: DemoOptions, quality: str, cache_dir: Path) -> Any:
             instruments[role] = replace(inst, port=_with_query(inst.port, noise="off"))
     render = {**base.render, "quality": quality, "truth": opts.truth,
               "cache_dir": str(cache_dir)}
+    if opts.renderer == "fast":
+        from normbox_lab.sim.fast_world import TRUTH_REL_SE
+
+        # the truth's own Monte-Carlo noise (independent of the prediction's): the budget reads it
+        render["truth_rel_se"] = TRUTH_REL_SE[quality]
     if spec is not None:
         render["errors"] = spec
     return replace(base, seed=opts.seed, instruments=instruments, render=render)
 
 
-def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Callable | None]:
+def make_world(config: Any, opts: DemoOptions, quality: str, *,
+               truth_rel_se: float | None = None,
+               prediction_rel_se: float | None = None) -> tuple[Any, Callable | None]:
     """The virtual Normbox, and the render function the prediction should use.
 
     Fast renderer: the world renders the truth with its own random numbers
-    (`sim.fast_world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`, both at the
-    quality's target standard error: the comparison sees both Monte-Carlo errors, as a
-    measurement would."""
+    (`sim.fast_world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`: the
+    comparison sees both Monte-Carlo errors, as a measurement would.  Their targets (largest
+    relative standard error per band): `truth_rel_se` (default: the lab config's ``[render]
+    truth_rel_se``, which `demo_config` sets from `sim.fast_world.TRUTH_REL_SE`) and
+    `prediction_rel_se` (default `FAST_TARGET_REL_SE[quality]`)."""
     from normbox_lab.sim.world import VirtualNormbox
 
     if opts.renderer == "stock":
@@ -115,8 +124,8 @@ def make_world(config: Any, opts: DemoOptions, quality: str) -> tuple[Any, Calla
     from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox, config_seed
     from normbox_lab.sim.fast_world import PREDICTION_SEED, FastVirtualNormbox
 
-    target = FAST_TARGET_REL_SE[quality]
-    world = FastVirtualNormbox(config=config, target_rel_se=target)
+    target = prediction_rel_se if prediction_rel_se is not None else FAST_TARGET_REL_SE[quality]
+    world = FastVirtualNormbox(config=config, target_rel_se=truth_rel_se)
     # the truth geometry (perturbed by the `geometry`/`homogeneity` error sources, if on)
     fast = world.fast if world.geometry == config.geometry else FastNormbox(config.geometry)
 

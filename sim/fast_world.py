@@ -12,8 +12,10 @@ rendering's.  Passing ``render_seed=PREDICTION_SEED`` makes the truth share the 
 random numbers (common random numbers): only for checks that want to isolate other effects,
 such as `virtual_sweep`'s validation of the error budget's linearisation.
 
-The truth's target relative standard error per band: the `render` error source's value when it
-is on, else `target_rel_se` (the render quality's, `FAST_TARGET_REL_SE`).
+The truth's target relative standard error per band (largest band): the `render` error
+source's value when it is on, else `target_rel_se`: given, else the lab config's ``[render]
+truth_rel_se``, else `TRUTH_REL_SE` of the render quality.  The demo writes ``truth_rel_se``
+into the lab config, so the error budget of a stored run knows the truth's render noise.
 """
 
 from __future__ import annotations
@@ -32,6 +34,8 @@ from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG, VirtualNormbox
 PREDICTION_SEED = 1
 #: seed base of the world's (truth) renders: a stream independent of the prediction's
 TRUTH_RENDER_SEED = 7919
+#: the world's (truth's) target largest relative standard error per band, per render quality
+TRUTH_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
 #: first pass of the adaptive render (paths): the world's default, and a smaller one when the
 #: `render` source sets a larger target (so the render does not overshoot it)
 PILOT_PATHS = 1 << 14
@@ -45,8 +49,11 @@ class FastVirtualNormbox(VirtualNormbox):
                  render_seed: int | None = None, fast: FastNormbox | None = None,
                  **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
-        self.target_rel_se = float(target_rel_se if target_rel_se is not None
-                                   else FAST_TARGET_REL_SE.get(self.quality, 0.004))
+        if target_rel_se is None:
+            render_cfg = dict(getattr(config, "render", None) or {})
+            target_rel_se = render_cfg.get("truth_rel_se") or TRUTH_REL_SE.get(
+                self.quality, FAST_TARGET_REL_SE["default"])
+        self.target_rel_se = float(target_rel_se)
         self.render_seed = int(render_seed if render_seed is not None
                                else TRUTH_RENDER_SEED + self.errors.seed)
         self._fast = fast

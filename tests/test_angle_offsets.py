@@ -77,3 +77,73 @@ def test_the_paper_spec_gives_the_papers_nse_pattern():
         dev = nse_paper[:, i] - 0.5 * (nse_paper[:, i - 1] + nse_paper[:, i + 1])
         assert np.all(sign * dev > 0), (a, dev)
         assert np.all(np.abs(dev) < 0.03), (a, dev)            # "slightly"
+
+
+# --- the null test: no misadjustment, errors common to all patches at one angle ---------------
+#: a relative error pattern over (angle, λ) that every patch shares and that is not smooth in
+#: the angle (as a panel map that is off, or a box length, leaves it): per campaign, u times it
+COMMON_PATTERN_REL = 0.004 * np.sin(1.7 * ANGLES[:, None] ** 1.3 / 10.0) * np.ones((1, 401))
+
+
+_NOMINAL: dict = {}
+
+
+def nominal():
+    """The analytic world's prediction and its angle derivative, computed once."""
+    if not _NOMINAL:
+        world = AnalyticWorld()
+
+        def radiance(angle):
+            return np.array([world.radiance_at(p, angle) for p in range(1, 25)])
+        _NOMINAL["P"] = np.stack([radiance(a) for a in ANGLES], axis=1)
+        _NOMINAL["D"] = finite_difference_derivative(radiance, ANGLES)
+    return _NOMINAL["P"], _NOMINAL["D"]
+
+
+def null_campaign(rng, *, noise=0.002, gain=0.01):
+    """One campaign without any misadjustment: the common error drawn, per-reading radiometer
+    gain and band noise; and draws of the common error for the interval."""
+    P, D = nominal()
+    u = rng.uniform(-1.0, 1.0)
+    R = P * (1 + u * COMMON_PATTERN_REL[None])
+    R = R * (1 + rng.uniform(-gain, gain, R.shape[:2]))[..., None]
+    R = R * (1 + rng.normal(0, noise, R.shape))
+    draws = rng.uniform(-1.0, 1.0, (64, 1, 1, 1)) * COMMON_PATTERN_REL[None, None] * P[None]
+    return R, P, D, draws
+
+
+def test_null_campaigns_raise_at_most_5_percent_false_alarms_per_angle():
+    """200 independent campaigns, no misadjustment: with the common errors' draws in the
+    interval, the false-alarm rate is at most 5 % pooled over the angles, and at every angle
+    within the binomial scatter of 5 % (99 % quantile); the jackknife over patches alone (the
+    interval before) flags the common pattern as offsets in a third of the cases and more."""
+    from scipy.stats import binom
+
+    rng = np.random.default_rng(2026)
+    n = 200
+    with_common = np.zeros(ANGLES.size)
+    jackknife_only = np.zeros(ANGLES.size)
+    for _ in range(n):
+        R, P, D, draws = null_campaign(rng)
+        with_common += estimate_angle_offsets(R, P, D, ANGLES, common=draws).significant()
+        jackknife_only += estimate_angle_offsets(R, P, D, ANGLES).significant()
+    assert np.sum(with_common) / (n * ANGLES.size) <= 0.05, with_common / n
+    assert np.max(with_common) <= binom.ppf(0.99, n, 0.05), with_common / n
+    assert np.mean(jackknife_only / n) > 0.25, jackknife_only / n
+
+
+def test_common_errors_widen_the_interval_by_their_projection():
+    rng = np.random.default_rng(5)
+    R, P, D, draws = null_campaign(rng)
+    plain = estimate_angle_offsets(R, P, D, ANGLES)
+    wide = estimate_angle_offsets(R, P, D, ANGLES, common=draws)
+    np.testing.assert_allclose(wide.offset_deg, plain.offset_deg)     # the estimate is the same
+    np.testing.assert_allclose(wide.jackknife_sd_deg, plain.jackknife_sd_deg)
+    assert np.all(wide.ci95_deg >= 1.96 * np.hypot(wide.jackknife_sd_deg, wide.common_rms_deg))
+    assert np.all(wide.ci95_deg > plain.ci95_deg)
+    # the common error's draws, pushed through the estimator one by one, give that RMS
+    one = [estimate_angle_offsets(P + d, P, D, ANGLES).offset_deg for d in draws[:8]]
+    direct = estimate_angle_offsets(P, P, D, ANGLES, common=draws[:8]).common_rms_deg
+    np.testing.assert_allclose(direct, np.sqrt(np.mean(np.square(one), axis=0)), rtol=1e-9)
+    with pytest.raises(ValueError, match="common draws"):
+        estimate_angle_offsets(R, P, D, ANGLES, common=draws[:, :, :-1])

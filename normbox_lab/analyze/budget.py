@@ -16,7 +16,7 @@ per sweep angle, per campaign), linearised where that is accurate:
 | gonio-cal | u · P (the fitted BRDFs scale with the calibration) | — |
 | qepro-nonlin | −x · P / 2 (mean of the residual compression over a reading, fixed sign) | linear model |
 | qepro-snr | P · N(0, 1/(SNR·√n_geometries)) per material (noise averaged by the fit) | linear model |
-| render | N(0, SE_pred) (+ the truth's, SE_pred scaled to a worst band of x, with the `render` switch; none on a virtual run with shared seeds) | the prediction's standard errors |
+| render | N(0, SE_pred) + the truth's own: SE_pred scaled to a worst band of x (the `render` switch, else the virtual run's `truth_rel_se`; none for a measured truth) | the prediction's standard errors |
 | fit | R · (d·err_d + (1 − d)·err_i) (the paper's error model, Fig. 12) | the fits' residuals |
 
 A source's contribution is the RMS over its draws of NRMSE(R, R + δ) (and the mean ΔE00(R, R + δ)):
@@ -64,12 +64,17 @@ class BudgetInputs:
     prediction: np.ndarray
     prediction_se: np.ndarray
     d_angle: np.ndarray | None = None                      # ∂P/∂s, per degree
-    d_geometry_rel: dict[str, np.ndarray] = field(default_factory=dict)  # [angle, λ] per mm
-    d_homogeneity_rel: np.ndarray | None = None            # [angle, λ] per unit fraction
+    #: relative derivatives, [patch, angle, λ] (or [angle, λ]: one for every patch)
+    d_geometry_rel: dict[str, np.ndarray] = field(default_factory=dict)  # per mm
+    d_homogeneity_rel: np.ndarray | None = None            # per unit fraction
     fit_nse: np.ndarray | None = None                      # error model's simulated NSE
     white_patch_index: int = 0
-    #: the virtual Normbox renders truth and prediction with the same seeds: their Monte-Carlo
-    #: noise cancels unless the `render` source gives the truth its own
+    #: the truth's own Monte-Carlo noise, as the largest band's relative standard error: the
+    #: virtual Normbox renders the truth independently of the prediction (its lab config's
+    #: ``[render] truth_rel_se``); 0 for a measured truth
+    truth_rel_se: float = 0.0
+    #: truth and prediction rendered with common random numbers (a validation that wants the
+    #: sources alone): their Monte-Carlo noise cancels unless the `render` source is on
     shared_noise: bool = False
 
 
@@ -145,7 +150,7 @@ class BudgetResult:
         return "\n".join(lines)
 
 
-# --- perturbations ---------------------------------------------------------------------------------
+# --- perturbations ------------------------------------------------------------------------------
 def _draws(m: Any, rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
     return np.asarray(m.draw(rng, shape), dtype=float).reshape(shape)
 
@@ -163,11 +168,12 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
         if x.shared_noise and not errors.render_rel_se:
             return None            # truth and prediction share their random numbers
         se = x.prediction_se[None] * _band_noise(rng, K, R.shape, x.wavelength_nm)
-        if errors.render_rel_se:
+        truth_rel_se = errors.render_rel_se or (0.0 if x.shared_noise else x.truth_rel_se)
+        if truth_rel_se:
             # the truth rendered to a largest band error x: the prediction's SE spectrum scaled
             with np.errstate(divide="ignore", invalid="ignore"):
                 worst = np.nanmax(np.where(P > 0, x.prediction_se / P, 0.0), axis=-1)
-            scale = errors.render_rel_se / np.maximum(worst, 1e-12)
+            scale = truth_rel_se / np.maximum(worst, 1e-12)
             se = se + (x.prediction_se * scale[..., None])[None] * _band_noise(
                 rng, K, R.shape, x.wavelength_nm)
         return se
@@ -192,13 +198,13 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
         for f in GEOMETRY_FIELDS:
             if f in x.d_geometry_rel:
                 u = _draws(errors.geometry_mm, rng, (K, 1, 1, 1))
-                d += u * x.d_geometry_rel[f][None, None] * P[None]
+                d += u * _per_patch(x.d_geometry_rel[f])[None] * P[None]
         return d
     if name == "homogeneity":
         if x.d_homogeneity_rel is None:
             return None
         u = _draws(errors.homogeneity, rng, (K, 1, 1, 1))
-        return u * x.d_homogeneity_rel[None, None] * P[None]
+        return u * _per_patch(x.d_homogeneity_rel)[None] * P[None]
     if name == "cs1000":
         return _draws(errors.cs1000_gain, rng, (K, n_p, n_a))[..., None] * R[None]
     if name == "cs1000-wl":
@@ -215,6 +221,36 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
         sigma = 1.0 / (errors.qepro_snr * np.sqrt(N_GONIO_GEOMETRIES))
         return rng.normal(0.0, sigma, (K, n_p, 1, 1)) * P[None]
     raise ValueError(f"unknown budget source {name!r}")
+
+
+def _per_patch(rel: np.ndarray) -> np.ndarray:
+    """A relative derivative as [patch, angle, λ] (an [angle, λ] one holds for every patch)."""
+    rel = np.asarray(rel, dtype=float)
+    return rel if rel.ndim == 3 else rel[None]
+
+
+#: the sources whose errors every patch at one sweep angle shares (campaign-wide light,
+#: geometry, gonio calibration, and the fit's error model): the second part of the
+#: angle-offset intervals (`analyze.angles`)
+COMMON_SOURCES = ("geometry", "homogeneity", "diffusivity", "lamp", "gonio-cal",
+                  "qepro-nonlin", "fit")
+
+
+def common_draws(x: BudgetInputs, errors: ErrorSources, *,
+                 sources: Sequence[str] = BUDGET_SOURCES, n_draws: int = 64,
+                 seed: int = 1) -> np.ndarray | None:
+    """Draws [draw, patch, angle, λ] of the reference-minus-prediction error that all patches
+    share (`COMMON_SOURCES` among `sources`, random ones drawn, fixed ones in every draw);
+    None when none is on."""
+    rng = np.random.default_rng(seed)
+    total = None
+    for name in COMMON_SOURCES:
+        if name not in sources:
+            continue
+        d = perturbations(name, errors, x, n_draws, rng)
+        if d is not None:
+            total = d if total is None else total + d
+    return None if total is None else np.broadcast_to(total, (n_draws,) + x.reference.shape)
 
 
 def _band_noise(rng: np.random.Generator, n_draws: int, shape: tuple[int, ...],

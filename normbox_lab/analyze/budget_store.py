@@ -13,19 +13,25 @@ from normbox_lab.analyze.budget import (
     BUDGET_SOURCES,
     BudgetInputs,
     BudgetResult,
+    common_draws,
     compute_budget,
     errors_for_run,
 )
 
 
-def _virtual_run(lab_config_text: str) -> bool:
-    """A run of the demo's virtual Normbox with an error spec (fast renderer, shared seeds)."""
+def truth_render_rel_se(lab_config_text: str, errors: Any = None) -> float:
+    """The truth's own Monte-Carlo noise (largest band relative SE) of a virtual run: the
+    `render` source if on, else the lab config's ``[render] truth_rel_se`` (the demo writes
+    it); 0 for a measured truth."""
     import tomllib
 
+    if errors is not None and errors.render_rel_se:
+        return float(errors.render_rel_se)
     try:
-        return bool(tomllib.loads(lab_config_text or "").get("render", {}).get("errors"))
+        render_cfg = tomllib.loads(lab_config_text or "").get("render", {})
     except tomllib.TOMLDecodeError:
-        return False
+        return 0.0
+    return float(render_cfg.get("truth_rel_se", 0.0) or 0.0)
 
 
 def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
@@ -82,7 +88,7 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     x = BudgetInputs(ref.wavelength_nm, ref.angle_deg, list(ref.patches), ref.radiance,
                      pred["radiance"], pred["std_error"], der["d_angle"],
                      der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
-                     white, shared_noise=_virtual_run(run.lab_config))
+                     white, truth_rel_se=truth_render_rel_se(run.lab_config))
     return x, timings
 
 
@@ -107,7 +113,8 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
                                    with_geometry=need_geometry, progress=progress,
                                    renderer=renderer)
     t0 = time.perf_counter()
-    offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
+    offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg,
+                                     common=common_draws(x, errors, sources=names))
     result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
     timings["propagation"] = time.perf_counter() - t0
     result.timings_s = timings
