@@ -314,3 +314,27 @@ def test_the_instruments_table_during_a_run_is_the_instruments_state(lab_env):
     session.thread = None
     session.engine = None
     session.close()
+
+
+def test_the_console_asks_capabilities_not_attributes_or_the_role_sphere():
+    """No getattr/hasattr probe in the console's controller and app (typed readings, declared
+    attributes), and no "sphere" literal in the controller (the lab's light sources)."""
+    import ast
+    from pathlib import Path
+
+    import normbox_lab.tui as tui
+
+    root = Path(tui.__file__).parent
+    for name in ("controller.py", "app.py"):
+        tree = ast.parse((root / name).read_text(encoding="utf-8"))
+        probes = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
+                  and isinstance(n.func, ast.Name) and n.func.id in ("getattr", "hasattr")]
+        assert probes == [], (name, probes)
+    tree = ast.parse((root / "controller.py").read_text(encoding="utf-8"))
+    docstrings = {id(n.body[0].value) for n in ast.walk(tree)
+                  if isinstance(n, (ast.Module, ast.ClassDef, ast.FunctionDef))
+                  and n.body and isinstance(n.body[0], ast.Expr)}
+    literals = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Constant)
+                and isinstance(n.value, str) and "sphere" in n.value
+                and id(n) not in docstrings]
+    assert literals == []
