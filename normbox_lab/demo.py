@@ -112,7 +112,7 @@ def make_world(config: Any, opts: DemoOptions, quality: str, *,
     """The virtual Normbox, and the render function the prediction should use.
 
     Fast renderer: the world renders the truth with its own random numbers
-    (`sim.fast_world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`: the
+    (`sim.world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`: the
     comparison sees both Monte-Carlo errors, as a measurement would.  Their targets (largest
     relative standard error per band): `truth_rel_se` (default: the lab config's ``[render]
     truth_rel_se``, which `demo_config` sets from `sim.fast_world.TRUTH_REL_SE`) and

@@ -5,8 +5,8 @@ shared `FastNormbox` scene (seconds for a whole sweep) instead of Mitsuba's stoc
 tracer.  The demo's default world, the closure test's and the error budget's validation use it.
 
 Random numbers: each configuration's render has its own seed, ``config_seed(render_seed,
-"patch-N@ANGLE")``.  By default the world's seed base is `TRUTH_RENDER_SEED` (+ the error
-sources' seed), a stream of its own: the truth's Monte-Carlo noise is independent of the
+"patch-N@ANGLE")``.  By default the world's seed base is `sim.world.TRUTH_RENDER_SEED` (+
+the error sources' seed), a stream of its own: the truth's Monte-Carlo noise is independent of the
 prediction's (which uses `PREDICTION_SEED`), as a measurement's noise is independent of a
 rendering's.  Passing ``render_seed=PREDICTION_SEED`` makes the truth share the prediction's
 random numbers (common random numbers): only for checks that want to isolate other effects,
@@ -32,8 +32,6 @@ from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG, VirtualNormbox
 
 #: seed base of the prediction's per-configuration renders (`demo`, `pipeline.predict_run`)
 PREDICTION_SEED = 1
-#: seed base of the world's (truth) renders: a stream independent of the prediction's
-TRUTH_RENDER_SEED = 7919
 #: the world's (truth's) target largest relative standard error per band, per render quality
 TRUTH_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
 #: first pass of the adaptive render (paths): the world's default, and a smaller one when the
@@ -54,8 +52,8 @@ class FastVirtualNormbox(VirtualNormbox):
             target_rel_se = render_cfg.get("truth_rel_se") or TRUTH_REL_SE.get(
                 self.quality, FAST_TARGET_REL_SE["default"])
         self.target_rel_se = float(target_rel_se)
-        self.render_seed = int(render_seed if render_seed is not None
-                               else TRUTH_RENDER_SEED + self.errors.seed)
+        if render_seed is not None:
+            self.render_seed = int(render_seed)
         self._fast = fast
 
     @property

@@ -43,6 +43,9 @@ from normbox_lab.predict.render import Lamp, RenderResult, luminance_cd_m2, rend
 from normbox_lab.predict.scene import as_geometry, panel_map_at
 from normbox_lab.sim.world_state import WorldState
 
+#: seed base of the world's (truth's) renders: a stream of its own, independent of the
+#: prediction's (which renders with seed 0 through `render_view`, or `fast_world.PREDICTION_SEED`)
+TRUTH_RENDER_SEED = 7919
 #: render angles are rounded to this (rotator encoder noise must not defeat the cache)
 ANGLE_RESOLUTION_DEG = 0.001
 
@@ -66,6 +69,8 @@ class VirtualNormbox(WorldState):
         self.nominal_geometry = as_geometry(geometry if geometry is not None else config)
         self.geometry = self.errors.perturbed_geometry(self.nominal_geometry)
         self.box_light_gain = self.errors.box_light_gain()
+        #: the seed (base) of the truth's renders: independent of the prediction's
+        self.render_seed = TRUTH_RENDER_SEED + int(self.errors.seed)
         self.readings_per_config: dict[tuple[int | None, float], int] = {}
         self.last_angle_error_deg = 0.0
         self.truth = truth or render_cfg.get("truth", "default")
@@ -104,7 +109,8 @@ class VirtualNormbox(WorldState):
         return render_view(self.geometry, patch=self.patch_material(patch), wall=self.wall,
                            holder=self.holder, angle_deg=angle, lamp=self.lamp,
                            quality=quality or self.quality, direct_only=direct_only,
-                           cache_dir=self.cache_dir, variant=self.variant)
+                           seed=self.render_seed, cache_dir=self.cache_dir,
+                           variant=self.variant)
 
     def panel_radiance(self, x_mm: float, y_mm: float) -> np.ndarray:
         """Spectral radiance of the opal panel at a point (mm from its centre), closed form."""

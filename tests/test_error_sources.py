@@ -190,11 +190,8 @@ def test_gonio_calibration_nonlinearity_noise(off):
 
 def test_fast_world_renders_with_its_own_random_numbers():
     from normbox_lab.predict.fastrender import config_seed
-    from normbox_lab.sim.fast_world import (
-        PREDICTION_SEED,
-        TRUTH_RENDER_SEED,
-        FastVirtualNormbox,
-    )
+    from normbox_lab.sim.fast_world import PREDICTION_SEED, FastVirtualNormbox
+    from normbox_lab.sim.world import TRUTH_RENDER_SEED
 
     calls = []
 
