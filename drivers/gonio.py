@@ -20,8 +20,13 @@ Calibration (`calibrate`, once per mounted material):
 Measurement (`measure_brdf(θi, θo)`): arms to (θi, θo); integration time t_s auto-ranged
 (starting at t_w / max(cos θi, 0.1), divided by 4 while saturated, multiplied by 4 while the
 peak is below 5 % of full scale, within 8 ms … 64·t_w); counts C_s; a dark D_s at t_s.
-A dark frame is valid only for its integration time, for the TEC temperature it was taken at
-(± `dark_tec_tolerance_c`) and for `dark_max_age_s`; a stale one is taken again, never reused.
+Every reading takes its own dark D_s right after C_s (`dark_every_reading`, default on): a
+dark current that changes with the TEC at its set point (a light leak, a drifting detector) is
+subtracted, not carried over from an older dark; the ``dark-drift`` gate still reports the
+change.  Without it (``dark_every_reading=False``) a dark frame is reused while it is valid:
+for its integration time, for the TEC temperature it was taken at (± `dark_tec_tolerance_c`)
+and for `dark_max_age_s`; a stale one is taken again.  The calibration and the lamp checks
+use the held darks under the same rules.
 Each reading records the TEC temperature and the ids of the dark and white references it used
 (``dark_id``, ``white_id`` in its metadata; the calibration artifact carries the same ids).  Then, per pixel λ:
 
@@ -177,7 +182,8 @@ class Gonioreflectometer:
                  tec_timeout_s: float = TEC_TIMEOUT_S,
                  dark_tec_tolerance_c: float = DARK_TEC_TOLERANCE_C,
                  dark_max_age_s: float = DARK_MAX_AGE_S,
-                 lamp_drift_limit_percent: float = LAMP_DRIFT_LIMIT_PERCENT) -> None:
+                 lamp_drift_limit_percent: float = LAMP_DRIFT_LIMIT_PERCENT,
+                 dark_every_reading: bool = True) -> None:
         self.light_arm = light_arm
         self.detector_arm = detector_arm
         self.spectrometer = spectrometer
@@ -196,6 +202,7 @@ class Gonioreflectometer:
         self.dark_tec_tolerance_c = float(dark_tec_tolerance_c)
         self.dark_max_age_s = float(dark_max_age_s)
         self.lamp_drift_limit_percent = float(lamp_drift_limit_percent)
+        self.dark_every_reading = bool(dark_every_reading)
         self.recalibrations = 0
         self._cal: dict[str, Any] | None = None
         self._darks: dict[float, DarkFrame] = {}
@@ -264,10 +271,12 @@ class Gonioreflectometer:
             return float(sp.tec_temperature_c())
         return float("nan")
 
-    def _dark(self, integration_time_s: float, tec_temperature_c: float) -> DarkFrame:
-        """A valid dark frame for these conditions: the held one, or a new one (shutter)."""
+    def _dark(self, integration_time_s: float, tec_temperature_c: float, *,
+              fresh: bool = False) -> DarkFrame:
+        """A valid dark frame for these conditions: the held one, or a new one (shutter);
+        `fresh`: always a new one."""
         key = round(integration_time_s, 6)
-        held = self._darks.get(key)
+        held = None if fresh else self._darks.get(key)
         if held is not None and held.valid_for(integration_time_s, tec_temperature_c,
                                                self.clock.now_s(), self.dark_tec_tolerance_c,
                                                self.dark_max_age_s):
@@ -425,7 +434,7 @@ class Gonioreflectometer:
             raise DeviceError("SATURATED", f"saturated even at {t:g} s",
                               instrument=self.instrument_id)
         darks_before = self.darks_taken
-        dark = self._dark(t, acq.tec_temperature_c)
+        dark = self._dark(t, acq.tec_temperature_c, fresh=self.dark_every_reading)
         white_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w
         sample_rate = (acq.counts - dark.counts) / t
         with np.errstate(divide="ignore", invalid="ignore"):

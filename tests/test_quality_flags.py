@@ -69,7 +69,9 @@ def test_clean_gonio_run_has_no_flags(tmp_path, capsys):
     ("saturation@8", "saturation", "error"),   # beyond the linearity correction
     ("tec-drift@8:2", "tec-off-setpoint", "error"),
     ("dark-drift@8:1000", "dark-drift", "warning"),      # seen when the next dark is taken
-    ("dark-drift@8:-30000&slide=manual", "brdf-negative", "error"),
+    # the dark current jumps between a reading's spectrum and its own dark (every reading
+    # takes its own dark, drivers/gonio.py): that one reading goes negative
+    ("dark-drift@9:30000&slide=manual", "brdf-negative", "error"),
     ("lamp-dim@8:0.0001&slide=manual", "noise-floor", "warning"),
 ])
 def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
@@ -92,7 +94,7 @@ def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
 def test_error_flags_refuse_the_fit_unless_accepted(tmp_path, capsys):
     from normbox_lab.analyze.pipeline import fit_run
 
-    store, run = brdf_run(tmp_path, lab_with(qepro="dark-drift@8:-30000&slide=manual"),
+    store, run = brdf_run(tmp_path, lab_with(qepro="dark-drift@11:30000&slide=manual"),
                           theta_i=(-60, -30, 0))
     with pytest.raises(DataError, match="error flag.*accept-flagged"):
         fit_run(store, run)
