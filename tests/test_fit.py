@@ -134,3 +134,36 @@ def test_fit_store_run_writes_artifacts(tmp_path):
     assert list(fits) == ["wall"]
     assert back.alpha == pytest.approx(0.3, rel=1e-5)
     assert back.w == 2.0 and back.fit_error_pct < 1e-4
+
+
+def test_fit_error_at_does_not_alternate_between_on_grid_and_between_grid_angles():
+    """The error model's fit term at the direct-light geometry (θi = −s, θo = 90 − s): at
+    s = 30°, 40°… that is a gonio grid point, at 35°, 45°… the middle of four.  Nearest samples
+    only (kernel 0) give one noisy sample against the mean of four, so the term alternates by
+    about 2× between adjacent angles; the Gaussian kernel weighs both alike."""
+    from normbox_lab.analyze.compare import direct_light_geometry
+    from normbox_lab.analyze.fit import BrdfData, fit_error_at, fit_material
+    from normbox_lab.core.error_sources import parse_error_spec
+    from normbox_lab.predict.brdf_model import gonio_geometry
+    from normbox_lab.predict.materials import truth_brdf_inplane, truth_material
+
+    noise = parse_error_spec("qepro-snr=1000")
+    ti, to = gonio_geometry()
+    angles = np.arange(30.0, 91.0, 5.0)
+    a_i, a_o = direct_light_geometry(angles)
+    terms = {0.0: [], 7.0: []}
+    for p in (7, 19):
+        f = truth_brdf_inplane(truth_material(p, "model"), ti, to, WL, 4.0)
+        f = np.array([noise.gonio(f[k], (p, k)) for k in range(ti.size)])
+        data = BrdfData.from_readings(f"p{p:02d}", [
+            BrdfReading(float(ti[k]), float(to[k]), 4.0, WL, f[k]) for k in range(ti.size)])
+        fit = fit_material(data, 2.0)
+        for kernel in terms:
+            terms[kernel].append([np.sqrt(np.nanmean(fit_error_at(
+                fit, data, float(i), float(o), kernel_deg=kernel) ** 2))
+                for i, o in zip(a_i, a_o)])
+    nearest, smooth = (np.mean(terms[k], axis=0)[:8] for k in (0.0, 7.0))   # 30…65°
+    on_grid, between = slice(0, None, 2), slice(1, None, 2)
+    assert np.mean(nearest[on_grid]) > 1.6 * np.mean(nearest[between]), nearest
+    ratio = np.mean(smooth[on_grid]) / np.mean(smooth[between])
+    assert 0.8 < ratio < 1.25, smooth
