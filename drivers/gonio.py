@@ -26,7 +26,11 @@ subtracted, not carried over from an older dark; the ``dark-drift`` gate still r
 change.  Without it (``dark_every_reading=False``) a dark frame is reused while it is valid:
 for its integration time, for the TEC temperature it was taken at (± `dark_tec_tolerance_c`)
 and for `dark_max_age_s`; a stale one is taken again.  The calibration and the lamp checks
-use the held darks under the same rules.
+use the held darks under the same rules.  A reading's dark that moved by more than
+`DARK_RETAKE_COUNTS_S` (+ 3σ) since the previous dark (the dark current may have jumped
+between the spectrum and its dark) is taken again together with the spectrum.  A white
+reference that needs more than `MAX_WHITE_INTEGRATION_S` is `DeviceError("WHITE")` (a lamp
+that is out, not dim).
 Each reading records the TEC temperature and the ids of the dark and white references it used
 (``dark_id``, ``white_id`` in its metadata; the calibration artifact carries the same ids).  Then, per pixel λ:
 
@@ -64,7 +68,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
@@ -99,6 +103,12 @@ DARK_TEC_TOLERANCE_C = 0.2
 DARK_MAX_AGE_S = 600.0
 #: lamp check: the largest change of the lamp's output since the white reference, in percent
 LAMP_DRIFT_LIMIT_PERCENT = 2.0
+#: a reading's dark that moved more than this (+ 3σ of the change) since the previous dark is
+#: taken again with the spectrum (the acquisition gate's dark_drift_counts_s default)
+DARK_RETAKE_COUNTS_S = 100.0
+#: a white reference that needs longer than this means the lamp is out (nominal t_w ≈ 0.1 s;
+#: *assumed* 100×)
+MAX_WHITE_INTEGRATION_S = 10.0
 
 
 @runtime_checkable
@@ -333,6 +343,12 @@ class Gonioreflectometer:
                     t = self._clamp_t(t * WHITE_TARGET_FRACTION * full / peak)
                     break
                 t = self._clamp_t(t / 4 if acq.saturated else t * 8)
+                if t > MAX_WHITE_INTEGRATION_S:
+                    break                  # a lamp this dark is out, not dim: stop ranging
+            if t > MAX_WHITE_INTEGRATION_S:
+                raise DeviceError("WHITE", f"the white reference needs {t:g} s (more than "
+                                  f"{MAX_WHITE_INTEGRATION_S:g} s): is the lamp on?",
+                                  instrument=self.instrument_id)
             white = self._acquire(t)
             if white.saturated or float(np.max(white.counts)) < 0.05 * full:
                 raise DeviceError("WHITE", "white reference saturated or too dark "
@@ -435,6 +451,18 @@ class Gonioreflectometer:
                               instrument=self.instrument_id)
         darks_before = self.darks_taken
         dark = self._dark(t, acq.tec_temperature_c, fresh=self.dark_every_reading)
+        if self.dark_every_reading and dark.drift_counts_s is not None and \
+                abs(dark.drift_counts_s) > DARK_RETAKE_COUNTS_S + 3.0 * float(
+                    dark.drift_sigma_counts_s or 0.0):
+            # the dark current moved since the last dark, maybe between this spectrum and its
+            # dark: take both again so they see the same dark current
+            first = dark
+            acq = self._acquire(t)
+            dark = self._dark(t, acq.tec_temperature_c, fresh=True)
+            # the change since the previous reading's dark stays on record (dark-drift gate)
+            dark = replace(dark, drift_counts_s=first.drift_counts_s + (dark.drift_counts_s or 0.0),
+                           drift_sigma_counts_s=math.hypot(first.drift_sigma_counts_s or 0.0,
+                                                           dark.drift_sigma_counts_s or 0.0))
         white_rate = (cal["white_counts"] - cal["dark_counts"]) / t_w
         sample_rate = (acq.counts - dark.counts) / t
         with np.errstate(divide="ignore", invalid="ignore"):

@@ -69,9 +69,9 @@ def test_clean_gonio_run_has_no_flags(tmp_path, capsys):
     ("saturation@8", "saturation", "error"),   # beyond the linearity correction
     ("tec-drift@8:2", "tec-off-setpoint", "error"),
     ("dark-drift@8:1000", "dark-drift", "warning"),      # seen when the next dark is taken
-    # the dark current jumps between a reading's spectrum and its own dark (every reading
-    # takes its own dark, drivers/gonio.py): that one reading goes negative
-    ("dark-drift@9:30000&slide=manual", "brdf-negative", "error"),
+    # a dark current that jumps (even between a reading's spectrum and its own dark) is
+    # measured and subtracted (drivers/gonio.py retakes both): reported, the reading right
+    ("dark-drift@9:30000&slide=manual", "dark-drift", "warning"),
     ("lamp-dim@8:0.0001&slide=manual", "noise-floor", "warning"),
 ])
 def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
@@ -94,18 +94,17 @@ def test_qepro_condition_is_flagged(tmp_path, capsys, fault, gate, severity):
 def test_error_flags_refuse_the_fit_unless_accepted(tmp_path, capsys):
     from normbox_lab.analyze.pipeline import fit_run
 
-    store, run = brdf_run(tmp_path, lab_with(qepro="dark-drift@11:30000&slide=manual"),
-                          theta_i=(-60, -30, 0))
+    store, run = brdf_run(tmp_path, lab_with(qepro="tec-drift@11:2"), theta_i=(-60, -30, 0))
     with pytest.raises(DataError, match="error flag.*accept-flagged"):
         fit_run(store, run)
     assert store.artifacts("fit") == []
     assert main(["fit", str(run), "--store", str(store.path)]) == 1
     err = capsys.readouterr().err
-    assert "brdf-negative" in err and "--accept-flagged" in err
+    assert "tec-off-setpoint" in err and "--accept-flagged" in err
     fits = fit_run(store, run, accept_flagged=True)
     art = store.latest_artifact("fit", "p01")
     accepted = art.metadata["accepted_flags"]
-    assert accepted and {a["gate"] for a in accepted} == {"brdf-negative"}
+    assert accepted and {a["gate"] for a in accepted} == {"tec-off-setpoint"}
     assert fits["p01"].fit_error_pct > 0
 
 
