@@ -67,8 +67,8 @@ def test_bad_import_reports_place(tmp_path, capsys, monkeypatch):
 @pytest.mark.parametrize("params, expect", [
     (["angles_deg=[30,Infinity]", "patches=[7]"], "angles_deg: Infinity is not a finite number"),
     (["angles_deg=[1e400]"], "angles_deg: Infinity is not a finite number"),
-    (["angles_deg=[-30,60]"], "angles_deg: -30° is outside 0…95° (the rotator's range, "
-                              "lab config)"),
+    (["angles_deg=[-30,60]"], ("angles_deg: -30° is outside 0…95° (the rotator's range, "
+                               "lab config)")),
     (["angles_deg=[30,400]"], "angles_deg: 400° is outside 0…95°"),
     (["patches=[]"], "patches: the list is empty; give at least one value"),
     (["patches=[25]"], "patches: 25 is not a patch number (1–24)"),

@@ -322,7 +322,7 @@ def test_the_console_asks_capabilities_not_attributes_or_the_role_sphere():
     import ast
     from pathlib import Path
 
-    import normbox_lab.tui as tui
+    from normbox_lab import tui
 
     root = Path(tui.__file__).parent
     for name in ("controller.py", "app.py"):

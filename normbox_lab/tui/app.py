@@ -533,7 +533,7 @@ class NormboxConsole(App):
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":
-            from normbox_lab.core.types import BrdfReading, SpectralReading   # numpy: lazy
+            from normbox_lab.core.types import BrdfReading, SpectralReading  # numpy: lazy
 
             r = d.get("reading")
             if isinstance(r, SpectralReading):

@@ -50,7 +50,7 @@ def fault_text(data: Mapping[str, Any]) -> str:
 
     error = str(data.get("message") or data.get("error") or "")
     kind = ""
-    match = re.fullmatch(r"(\w+)\((['\"])(.*)\2\)", error, flags=re.S)
+    match = re.fullmatch(r"(\w+)\((['\"])(.*)\2\)", error, flags=re.DOTALL)
     if match:
         kind, error = match.group(1), match.group(3).replace("\\'", "'")
     role = str(data.get("role", ""))
@@ -535,7 +535,7 @@ class Session:
             if req is not None and req.key == ev.key and req.data.get("action") == "place_patch":
                 live.patch = int(req.data["patch"])
         elif kind == "reading-stored":
-            from normbox_lab.core.types import BrdfReading      # numpy: after the first paint
+            from normbox_lab.core.types import BrdfReading  # numpy: after the first paint
 
             r = data.get("reading")
             live.last_key = ev.key
@@ -627,7 +627,6 @@ class Session:
             Switchable,
             TemperatureReadable,
         )
-
         from normbox_lab.core.clock import VirtualClock
 
         live = self.live

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from typing import Any
 
 from textual.app import ComposeResult
@@ -70,7 +71,7 @@ class RunProgress:
         previous_active_s = self.last_reading_active_s
         self.last_reading_active_s = self.active_s()
         model = None if model_remaining_s is None else float(model_remaining_s)
-        if model is not None and model != model:          # NaN: no model
+        if model is not None and math.isnan(model):       # NaN: no model
             model = None
         if model is not None and self.model_remaining_s is not None:
             self.samples.append((self.model_remaining_s - model,
@@ -165,7 +166,7 @@ class RunProgress:
         if self.status not in self.ACTIVE or self.ended:
             return ""
         remaining_s = self.remaining_s(lab_time_scale)
-        if remaining_s is None or remaining_s != remaining_s:      # None or NaN
+        if remaining_s is None or math.isnan(remaining_s):
             return ("remaining: measuring… (lamp warming up)" if self.warming
                     else "remaining: measuring…")
         finish = datetime.datetime.fromtimestamp(self.clock.wall_time_s() + remaining_s)

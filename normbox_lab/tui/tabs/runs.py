@@ -11,7 +11,6 @@ from textual.widgets import DataTable, TabPane
 
 from normbox_lab.tui.tabs.common import table
 
-
 #: the Runs table's (and the resume offer's) columns: `views.run_row`
 RUN_COLUMNS = ("id", "protocol", "status", "readings", "flags", "created")
 

@@ -74,7 +74,7 @@ class SpectrumPane(TabPane):
         plt.xlabel("wavelength nm")
         step = max(1, len(wl) // 100)
         if previous is not None:
-            pk, pwl, pvalues, _, _ = previous
+            _, pwl, pvalues, _, _ = previous
             plt.plot(list(pwl[::step]), list(pvalues[::step]), label=self.legend()[0],
                      marker="dot", color="gray")
         plt.plot(list(wl[::step]), list(values[::step]), label=self.legend()[-1],
