@@ -151,7 +151,7 @@ def run_campaign(scenarios: int = 30, seed: int = 0, jobs: int = 1, keep: str | 
     """Run the campaign; prints as it goes; the last line is "N scenarios: V violations"."""
     out = out or sys.stdout
     preload()
-    root = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="normbox-campaign-"))
+    root = Path(keep).resolve() if keep else Path(tempfile.mkdtemp(prefix="normbox-campaign-"))
     root.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     try:

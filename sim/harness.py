@@ -307,6 +307,7 @@ def execute(scenario: Scenario, workdir: Path, *, with_reference: bool = True) -
     """Run the scenario in `workdir` (created): its segments, and for a scenario with a kill
     the same scenario without actions (the uninterrupted run the resume must match)."""
     preload()
+    workdir = workdir.resolve()              # the segments run inside it
     workdir.mkdir(parents=True, exist_ok=True)
     lab = workdir / "lab.toml"
     lab.write_text(lab_toml(scenario), encoding="utf-8")
