@@ -176,6 +176,15 @@ def scenario(seed: int, steps: int, tmp_path: Any) -> dict[str, Any]:
                     text = screen_text(app)
                     if "E-STOP" not in text:
                         fail(f"the E-STOP key is not on screen\n{text}")
+                if app.screen is app.screen_stack[0] and app.panes_built \
+                        and app.query_one("#tabs").active == "run":
+                    # the Run tab's status line (status · done/planned · remaining) whole
+                    status = str(app.query_one("#run-info", Static).render()).split("\n")[0]
+                    if status.split(" · ")[0] not in text or (
+                            len(status) <= 78 and status not in text):
+                        await pilot.pause(0.1)
+                        if status not in screen_text(app) and len(status) <= 78:
+                            fail(f"the run status line is cut: {status!r}\n{text}")
                 if isinstance(app.screen, PromptScreen) \
                         and app.screen.query("#prompt-message"):
                     await pilot.pause(0.05)              # laid out at the next refresh
