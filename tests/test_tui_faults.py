@@ -338,3 +338,37 @@ def test_the_console_asks_capabilities_not_attributes_or_the_role_sphere():
                 and isinstance(n.value, str) and "sphere" in n.value
                 and id(n) not in docstrings]
     assert literals == []
+
+
+def test_the_heat_map_keeps_patch_names_when_scrolled_to_85_and_90_degrees(lab_env):
+    """13 angles × 24 patches do not fit 80 columns: scrolled right to 90°, the patch names
+    stay on screen (a fixed column)."""
+    import numpy as np
+
+    from normbox_lab.core.spectral import PATCH_NAMES
+    from normbox_lab.tui.views import HeatMap
+
+    angles = np.arange(30.0, 91.0, 5.0)
+    rng = np.random.default_rng(3)
+    hm = HeatMap(1, "ref-run-1", 1, list(PATCH_NAMES), angles,
+                 rng.uniform(0.2, 6.0, (24, angles.size)),
+                 rng.uniform(0.01, 0.3, (24, angles.size)), None, None, None)
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.press("5")
+            app.show_heatmap(hm)
+            await pilot.pause(0.2)
+            table = app.query_one("#heatmap", DataTable)
+            app.set_focus(table)
+            table.move_cursor(row=0, column=angles.size)            # the 90° column
+            await pilot.pause(0.3)
+            box = table.region
+            text = "\n".join(screen_text(app).splitlines()[box.y:box.y + box.height])
+            assert "90°" in text and "85°" in text, text
+            assert "dark skin" in text and "patch" in text, text
+    asyncio.run(scenario())
+    session.close()
