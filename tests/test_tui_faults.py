@@ -372,3 +372,26 @@ def test_the_heat_map_keeps_patch_names_when_scrolled_to_85_and_90_degrees(lab_e
             assert "dark skin" in text and "patch" in text, text
     asyncio.run(scenario())
     session.close()
+
+
+def test_the_dry_run_line_and_every_parameter_field_are_whole_at_80x24(lab_env):
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            text = screen_text(app)
+            for name in ("angles_deg", "patches", "rotator", "radiometer", "lamp",
+                         "lamp_timeout_s"):
+                assert f"│{name} " in text, (name, text)
+            await pilot.press("d")
+            await until(pilot, lambda: "dry-run reference-sweep" in info(app), "the dry run")
+            await pilot.pause(0.2)
+            widget = app.query_one("#run-info", Static)
+            box = widget.content_region
+            shown = " ".join(line[box.x:box.x + box.width].strip() for line in
+                             screen_text(app).splitlines()[box.y:box.y + box.height])
+            assert " ".join(info(app).split()) == " ".join(shown.split()), (info(app), shown)
+    asyncio.run(scenario())
+    session.close()
