@@ -1,6 +1,6 @@
 """The simulation campaign (`normbox-lab sim campaign`): scenarios, oracle, harness, shrinker.
 
-The fixed-seed campaign below is the one `make test` runs (40 scenarios, two processes); the
+The fixed-seed campaign below is the one `make test` runs (80 scenarios, two processes); the
 slow one (`make test-slow`) runs 1000.  Both demand zero violations.  The other tests show the
 campaign is able to fail: a radiometer that reports 5 % high (through the forked command
 line), a garbled band, a traceback, a paused process that exits 0 are each caught, and the
@@ -19,7 +19,7 @@ import pytest
 from normbox_lab.sim import campaign, harness, invariants
 from normbox_lab.sim.scenario import Action, Fault, Scenario, draw, lab_toml
 
-FAST_SEED, FAST_SCENARIOS = 2026, 40
+FAST_SEED, FAST_SCENARIOS = 2026, 80
 
 
 def small_sweep(**changes) -> Scenario:
