@@ -44,4 +44,20 @@ class RunResult:
     elapsed_s: float             # lab-clock seconds of this segment
 
 
-__all__ = ["EngineEvent", "Operator", "PromptRequest", "RunResult"]
+def fault_text(data: Mapping[str, Any]) -> str:
+    """A fault or warning event in words: "no answer to MES within 5 s (InstrumentTimeout)",
+    never a dict or a repr (a fault event carries the exception's repr,
+    "InstrumentTimeout('…')"); the role the message starts with is left out."""
+    import re
+
+    error = str(data.get("message") or data.get("error") or "")
+    kind = ""
+    match = re.fullmatch(r"(\w+)\((['\"])(.*)\2\)", error, flags=re.DOTALL)
+    if match:
+        kind, error = match.group(1), match.group(3).replace("\\'", "'")
+    role = str(data.get("role", ""))
+    error = error.removeprefix(f"{role}: ") if role else error
+    return f"{error} ({kind})" if kind else error
+
+
+__all__ = ["EngineEvent", "Operator", "PromptRequest", "RunResult", "fault_text"]

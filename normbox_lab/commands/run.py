@@ -137,6 +137,7 @@ def _run(args: argparse.Namespace) -> int:
 
 def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
     from normbox_lab.acquire.engine import format_duration
+    from normbox_lab.acquire.events import fault_text
 
     interrupts = {"n": 0}
 
@@ -167,7 +168,8 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
                     print(f"{ev.key} {ev.data['done']}/{ev.data['planned']} "
                           f"eta {ev.data['eta_s']:.0f}s", flush=True)
                 elif ev.kind in ("warning", "fault", "suspended"):
-                    print(f"{ev.kind}: {ev.key} {dict(ev.data)}", file=sys.stderr, flush=True)
+                    what = f"{ev.data.get('role', '')} {fault_text(ev.data)}".strip()
+                    print(f"{ev.kind}: {ev.key} {what}", file=sys.stderr, flush=True)
             engine.subscribe(plain)
             result = engine.run(resume=run_ref)
         else:
@@ -201,6 +203,7 @@ def _run_with_progress(engine, run_ref, progress_ref, clock_note):
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
 
     from normbox_lab.acquire.engine import format_duration
+    from normbox_lab.acquire.events import fault_text
 
     console = Console(stderr=True)
     progress = Progress(TextColumn("[bold]{task.description}"), BarColumn(),
@@ -222,7 +225,7 @@ def _run_with_progress(engine, run_ref, progress_ref, clock_note):
         elif ev.kind == "answer":
             progress.start()
         elif ev.kind in ("warning", "suspended", "fault"):
-            msg = ev.data.get("message") or ev.data.get("error") or ""
+            msg = fault_text(ev.data)
             console.print(f"[yellow]{ev.kind}[/] {ev.key} {msg}")
         elif ev.kind == "paused":
             console.print(f"paused before {ev.key or 'the end'}")

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
+from normbox_lab.acquire.events import fault_text
 from normbox_lab.core.errors import NormboxError, OperatorAbort
 
 log = logging.getLogger("normbox_lab.tui")
@@ -42,20 +43,6 @@ def poll_failure(exc: BaseException) -> str:
         return "port error"
     return "error"
 
-
-def fault_text(data: Mapping[str, Any]) -> str:
-    """A fault event in words: "ProtocolError: garbled reply …", never a dict or a repr —
-    the engine's event carries the exception's repr ("InstrumentTimeout('…')")."""
-    import re
-
-    error = str(data.get("message") or data.get("error") or "")
-    kind = ""
-    match = re.fullmatch(r"(\w+)\((['\"])(.*)\2\)", error, flags=re.DOTALL)
-    if match:
-        kind, error = match.group(1), match.group(3).replace("\\'", "'")
-    role = str(data.get("role", ""))
-    error = error.removeprefix(f"{role}: ") if role else error
-    return f"{error} ({kind})" if kind else error
 
 
 class _Quit(KeyboardInterrupt):
