@@ -133,6 +133,26 @@ def test_kill_9_then_resume_completes_the_run_and_every_invariant_holds(tmp_path
         assert store.keys(rec.id) == {"a30/p07", "a30/p19", "a60/p07", "a60/p19"}
 
 
+def test_a_scenario_replays_bit_for_bit(tmp_path):
+    """Deterministic simulation: the same scenario (faults, a kill, the resume) stores the
+    same bytes twice, so a printed reproducer reproduces."""
+    from normbox_lab.acquire.store import Store
+
+    s = small_sweep(faults=(Fault("radiometer", "garble", "=", 0.1),
+                            Fault("sphere", "flicker", "@", 2, 2.0)),
+                    actions=(Action("kill", "reading-stored", 2),))
+    stored = []
+    for k in range(2):
+        ex = harness.execute(s, tmp_path / f"run{k}", with_reference=False)
+        assert ex.segments[0].killed
+        with Store(ex.store) as store:
+            rec = store.get_run(ex.run_uuid)
+            stored.append({r.key: (r.arrays["radiance_W_sr_m2_nm"].tobytes(),
+                                   r.metadata.get("lamp_monitor_cd_m2"))
+                           for r in store.readings(rec.id)})
+    assert len(stored[0]) == 4 and stored[0] == stored[1]
+
+
 def test_a_radiometer_that_reads_5_percent_high_is_caught(tmp_path, monkeypatch):
     from normbox_lab.sim import radiometer_common
 
