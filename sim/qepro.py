@@ -68,7 +68,8 @@ block each other (in-plane separation < `arm_clearance_deg`) or no arm emulator 
 Counts per pixel: counts = offset + [S + I_dark·t]·(1 − 0.005·S/262143) + noise, with
 S = L·R(λ)·t (responsivity R peaking at 600 nm, scaled so the white standard at 0°/45° gives
 ≈ 150 000 counts in 100 ms), shot noise σ² = 0.262·S (SNR 1000:1 at full scale), read noise
-15 counts, electrical offset 1500 counts (the only thing the electrically dark pixels see),
+15 counts (``noise=False`` / ``sim://qepro?noise=off``: neither), electrical offset 1500 counts
+(the only thing the electrically dark pixels see),
 dark current 200 counts/s at −10 °C doubling every 6 °C, clipped at 262143.  The stored
 nonlinearity coefficients [1, −0.005/262143] undo the 0.5 % nonlinearity the seabreeze way
 (``counts / polyval(coeffs, counts)`` after the dark-pixel offset is removed).  TEC: first
@@ -150,7 +151,7 @@ class SimulatedQEProDevice:
     def __init__(self, clock: Clock | None = None, *, world: Any = None,
                  serial_number: str = "QEP-SIM-0001", light_arm: Any = None,
                  detector_arm: Any = None, tilt_deg: float = 4.0, arm_clearance_deg: float = 10.0,
-                 lamp: Any = None, faults: str = "", seed: int = 0) -> None:
+                 lamp: Any = None, faults: str = "", seed: int = 0, noise: bool = True) -> None:
         self.clock = clock if clock is not None else VirtualClock()
         self.world = world
         self.serial_number = serial_number
@@ -161,6 +162,7 @@ class SimulatedQEProDevice:
         self.faults = core.FaultInjector(faults, seed, ("disconnect", *CONDITION_FAULTS))
         self.conditions: dict[str, float] = {}      # latched condition faults → parameter
         self.rng = np.random.default_rng(seed)
+        self.noise = bool(noise)                    # False: no shot or read noise
         px = np.arange(PIXELS, dtype=float)
         c0, c1, c2 = WAVELENGTH_COEFFS
         self.wavelengths = c0 + c1 * px + c2 * px * px
@@ -266,12 +268,14 @@ class SimulatedQEProDevice:
         measured = optical * (1.0 - NONLINEARITY * optical / MAX_COUNTS)
         noise = self.rng.normal(0.0, 1.0, PIXELS) * np.sqrt(
             SHOT_VAR_PER_COUNT * np.maximum(measured, 0.0) + READ_NOISE_COUNTS ** 2)
+        if not self.noise:
+            noise = np.zeros(PIXELS)
         counts = OFFSET_COUNTS + measured + noise
         if "saturation" in self.conditions:
             counts[500:520] = np.maximum(counts[500:520],
                                          self.conditions["saturation"] * MAX_COUNTS)
         counts[DARK_PIXELS] = OFFSET_COUNTS + self.rng.normal(0.0, READ_NOISE_COUNTS,
-                                                              len(DARK_PIXELS))
+                                                              len(DARK_PIXELS)) * self.noise
         return np.clip(np.round(counts), 0, MAX_COUNTS)
 
 

@@ -31,9 +31,8 @@ def open_port(url: str, **kwargs) -> serial.SerialBase:
 
 def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
                                 **_: Any) -> transport.SpectrometerLink:
-    """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…&slide=manual`` → the
-    simulated
-    QE Pro behind the gonio's emulated arms, plugged into the emulated USB bus
+    """``sim`` / ``sim://qepro?seed=1&faults=disconnect@3&key=NAME&serial=…&slide=manual&noise=off``
+    → the simulated QE Pro behind the gonio's emulated arms, plugged into the emulated USB bus
     (`normbox_lab.sim.usb`); the driver opens it with seabreeze's pyseabreeze backend through
     that bus.  A bad option or fault spec is a `ValueError`."""
     from normbox_lab.sim import qepro as sim
@@ -43,6 +42,10 @@ def open_simulated_spectrometer(target: str, clock: Clock, *, world: Any = None,
     q = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
     key = q.pop("key", "qepro")
     dev_opts: dict[str, Any] = {"seed": int(q.pop("seed", "0")), "faults": q.pop("faults", "")}
+    noise = q.pop("noise", "on")
+    if noise not in ("on", "off"):
+        raise ValueError(f"noise={noise!r}: on or off")
+    dev_opts["noise"] = noise == "on"
     for name in ("light_arm", "detector_arm"):
         if name in q:
             dev_opts[name] = q.pop(name)

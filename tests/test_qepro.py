@@ -130,9 +130,18 @@ def test_driver_runs_the_seabreeze_path_and_fills_the_pyseabreeze_gaps():
     assert q.status()["nonlinearity_correction"] is True
 
 
+def test_noise_off_option_gives_noise_free_counts():
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    q = QEPro.open("sim://qepro?noise=off", clock)              # no arms: the dark alone
+    a, b = q.acquire(correct_nonlinearity=False), q.acquire(correct_nonlinearity=False)
+    assert np.array_equal(a.raw_counts, b.raw_counts) and a.raw_counts[:4].tolist() == [1500] * 4
+
+
 def test_bad_fault_spec_and_unknown_option_are_instrument_errors():
     for url in ("sim://qepro?faults=disconnect@x", "sim://qepro?faults=meltdown",
-                "sim://qepro?colour=blue", "sim://qepro?slide=sideways"):
+                "sim://qepro?colour=blue", "sim://qepro?slide=sideways",
+                "sim://qepro?noise=maybe"):
         core.CONTEXT.reset(clock=VirtualClock())
         with pytest.raises(InstrumentError):
             QEPro.open(url, core.CONTEXT.clock)
