@@ -134,6 +134,7 @@ def test_noise_off_option_gives_noise_free_counts():
     clock = VirtualClock()
     core.CONTEXT.reset(clock=clock)
     q = QEPro.open("sim://qepro?noise=off", clock)              # no arms: the dark alone
+    clock.sleep(900.0)                                           # the TEC has settled
     a, b = q.acquire(correct_nonlinearity=False), q.acquire(correct_nonlinearity=False)
     assert np.array_equal(a.raw_counts, b.raw_counts) and a.raw_counts[:4].tolist() == [1500] * 4
 
