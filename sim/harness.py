@@ -118,7 +118,10 @@ def _install_world_probes(notes: dict[str, Any]) -> None:
                     "aim": list(self.aim) if self.aim is not None else None,
                     "nominal_output": _nominal_output(self),
                     "output": None, "world": cls.__name__}
-            if cls is not AnalyticWorld and self.aim is None and self.patch is not None:
+            if self.aim is not None:             # the panel point, as this world models it
+                note["truth"] = [float(v) for v in self.panel_radiance(*self.aim)
+                                 * note["nominal_output"]]
+            elif cls is not AnalyticWorld and self.patch is not None:
                 r = self.render(self.patch, float(self.angle_deg())
                                 + float(getattr(self, "last_angle_error_deg", 0.0)))
                 _, full = r.to_1nm(self.wavelength_nm)

@@ -104,6 +104,8 @@ def spectral_truth(meta: dict[str, Any], view: dict[str, Any] | None,
             problems.append(f"claims panel point ({x:+.0f}, {y:+.0f}) mm, the world showed "
                             f"{'the sample' if aim is None else tuple(round(v) for v in aim)}")
         truth = world.panel_radiance(x, y) * nominal
+        if view is not None and view.get("truth") is not None:
+            truth = np.asarray(view["truth"], dtype=float)
     else:
         patch = meta.get("patch")
         angle = float(meta.get("angle_deg", 90.0))
