@@ -17,7 +17,8 @@ installed before the command runs (they change nothing the command does):
 
 Operator actions fire at the n-th engine event of a kind: ``kill`` is a real ``SIGKILL`` of
 the segment, ``pause`` one ``SIGINT`` (Ctrl-C: pause after the current reading), ``estop``
-two (abort now: the emergency stop).  The run is then resumed with ``run --resume UUID``, as a
+two (abort now: the emergency stop), ``resume2`` a second ``normbox-lab run --resume`` of the
+same run from another interpreter while the segment executes it (it must be refused).  The run is then resumed with ``run --resume UUID``, as a
 user would, until it is done or the segments run out.  A segment that outlives its wall-clock
 limit is killed and reported as a hang.
 """
@@ -161,7 +162,28 @@ def _faults_fired() -> int:
                for e in list(core.CONTEXT.instances.values()))
 
 
-def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[str, Any]) -> None:
+def _second_owner(argv: list[str], uuid: str) -> dict[str, Any]:
+    """`normbox-lab run --resume UUID` from another process while this one executes the run
+    (a real interpreter: it must be refused at once, naming this process)."""
+    import subprocess
+
+    second = ["run", "--resume", uuid, "--plain"]
+    for opt in ("--lab", "--store"):
+        if opt in argv:
+            second += [opt, argv[argv.index(opt) + 1]]
+    try:
+        done = subprocess.run([sys.executable, "-m", "normbox_lab", *second], check=False,
+                              capture_output=True, text=True, timeout=120,
+                              stdin=subprocess.DEVNULL)
+    except subprocess.TimeoutExpired:
+        return {"rc": None, "stdout": "", "stderr": "timed out after 120 s",
+                "owner_pid": os.getpid()}
+    return {"rc": done.returncode, "stdout": done.stdout[-600:], "stderr": done.stderr[-1500:],
+            "owner_pid": os.getpid()}
+
+
+def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[str, Any],
+                          argv: list[str]) -> None:
     from normbox_lab.acquire import runner
 
     original = runner.Engine.run
@@ -188,6 +210,9 @@ def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[st
             counts[name] = counts.get(name, 0) + 1
             if name == action.event and counts[name] == action.nth:
                 write({"action": action.label()})
+                if action.what == "resume2":
+                    write({"second_owner": _second_owner(argv, str(self.run_uuid))})
+                    return
                 if action.what == "kill":
                     os.kill(os.getpid(), signal.SIGKILL)
                 os.kill(os.getpid(), signal.SIGINT)
@@ -220,7 +245,7 @@ def _child(argv: list[str], workdir: Path, tag: str, action: Action | None,
             journal = os.open(f"{tag}.journal", os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
             notes: dict[str, Any] = {}
             _install_world_probes(notes)
-            _install_engine_probe(journal, action, notes)
+            _install_engine_probe(journal, action, notes, argv)
         from normbox_lab import cli
 
         try:

@@ -17,7 +17,8 @@
     recorded for it, a retry allowance; no segment outlives its wall-clock limit.
 (d) **Consistent state.**  Store, ``runs`` and ``qa`` agree on the run's status, readings and
     flags; a stored reading carries no skip flag; "running" means a live owner holds the run
-    lock; every reading a killed process reported stored is in the store.
+    lock, and a second ``run --resume`` while the run executes is refused with a typed line
+    naming the owner's pid; every reading a killed process reported stored is in the store.
 (e) **Resume.**  With kills, the resumed run's readings match an uninterrupted run of the same
     scenario: the same keys when both are done, the same claimed geometry, values within both
     readings' uncertainty.
@@ -349,6 +350,17 @@ def consistent_state(ex: Execution, store: Any, rec: Any, keys: set[str],
                                      f"after segment {i} was killed, `runs` shows the run "
                                      "'running' with no live owner"))
         for e in seg.journal:
+            second = e.get("second_owner")
+            if second is not None:
+                err = second.get("stderr", "")
+                if second.get("rc") in (0, None) or "Traceback" in err or not any(
+                        ln.startswith("normbox-lab: ") and str(second["owner_pid"]) in ln
+                        for ln in err.splitlines()):
+                    out.append(Violation(
+                        "d", "d:second-owner",
+                        f"a second `run --resume` during segment {i} exited {second.get('rc')} "
+                        f"without a refusal naming the owner (pid {second['owner_pid']}): "
+                        f"{err.strip()[-160:]!r}"))
             if e.get("ev") == "reading-stored" and e["key"] not in keys:
                 out.append(Violation("d", "d:lost-reading",
                                      f"segment {i} reported {e['key']} stored; the store "

@@ -64,9 +64,10 @@ PROTOCOLS = ("reference-sweep", "brdf-inplane", "light-map", "repeatability")
 PROTOCOL_WEIGHTS = (0.4, 0.25, 0.15, 0.2)
 ANGLES_DEG = tuple(range(30, 91, 5))
 ACTION_EVENTS = ("reading-stored", "step-started:measure", "step-started:wait-stable",
-                 "step-started:move", "step-started:calibrate", "prompt", "fault",
-                 "run-started")
-ACTIONS = ("kill", "pause", "estop")
+                 "step-started:move", "step-started:calibrate", "prompt", "answer", "fault",
+                 "suspended", "run-started", "run-finished")
+ACTIONS = ("kill", "pause", "estop", "resume2")
+ACTION_WEIGHTS = (0.5, 0.22, 0.18, 0.1)
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,8 @@ class Fault:
 
 @dataclass(frozen=True)
 class Action:
-    what: str                 # kill (SIGKILL), pause (one SIGINT), estop (two SIGINTs)
+    what: str                 # kill (SIGKILL), pause (one SIGINT), estop (two SIGINTs),
+                              # resume2 (a second `run --resume` while the run executes)
     event: str                # engine event kind, "step-started:KIND" for a step kind
     nth: int                  # fire at the nth such event of its segment (1-based)
 
@@ -207,7 +209,7 @@ def draw(seed: int, index: int, *, normbox_share: float = 0.0,
         faults[(f.role, f.kind)] = f          # one rule per kind and device
     actions = []
     for _ in range(rng.choices(range(max_actions + 1), (0.35, 0.4, 0.25)[:max_actions + 1])[0]):
-        actions.append(Action(rng.choices(ACTIONS, (0.55, 0.25, 0.2))[0],
+        actions.append(Action(rng.choices(ACTIONS, ACTION_WEIGHTS)[0],
                               rng.choice(ACTION_EVENTS), rng.randint(1, 4)))
     return probe.with_(faults=tuple(faults.values()), actions=tuple(actions))
 

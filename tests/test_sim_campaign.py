@@ -42,7 +42,7 @@ def test_scenarios_are_drawn_deterministically_and_round_trip_as_json():
             "flicker", "unstable", "lamp-fail", "lamp-dim", "tec-drift", "dark-drift",
             "saturation", "over-range", "device-error"} <= kinds
     whats = {a.what for i in range(100) for a in draw(3, i).actions}
-    assert whats == {"kill", "pause", "estop"}
+    assert whats == {"kill", "pause", "estop", "resume2"}
 
 
 def test_lab_config_carries_each_roles_faults_and_seed():
@@ -131,6 +131,17 @@ def test_kill_9_then_resume_completes_the_run_and_every_invariant_holds(tmp_path
         rec = store.get_run(ex.run_uuid)
         assert rec.status == "done"
         assert store.keys(rec.id) == {"a30/p07", "a30/p19", "a60/p07", "a60/p19"}
+
+
+def test_a_second_resume_while_the_run_executes_is_refused_naming_the_owner(tmp_path):
+    s = small_sweep(actions=(Action("resume2", "reading-stored", 1),))
+    ex = harness.execute(s, tmp_path / "run")
+    [second] = [e["second_owner"] for e in ex.segments[0].journal if "second_owner" in e]
+    assert second["rc"] == 1 and f"pid {second['owner_pid']}" in second["stderr"]
+    assert invariants.check(ex) == []
+    # a second owner that is let in is a violation
+    second["rc"] = 0
+    assert [v.cls for v in invariants.check(ex)] == ["d:second-owner"]
 
 
 def test_a_scenario_replays_bit_for_bit(tmp_path):
