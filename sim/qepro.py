@@ -336,7 +336,7 @@ class QEProUsb:
     """The QE Pro's USB function: descriptors, bulk endpoints, OBP message handling."""
 
     def __init__(self, device: SimulatedQEProDevice) -> None:
-        from normbox_lab.sim.usb import bulk_endpoint, device_descriptor
+        from normbox_lab.sim.usb_descriptors import bulk_endpoint, device_descriptor
 
         self.device = device
         self.clock = device.clock
