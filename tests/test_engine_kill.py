@@ -179,16 +179,28 @@ def test_ctrl_c_pauses_after_the_current_reading_and_resume_completes(tmp_path):
                 proc.send_signal(signal.SIGINT)
                 break
     out, err = proc.communicate(timeout=120)
-    assert proc.returncode == 0, err
-    assert "pausing after the current reading" in err
+    # paused with readings missing: never exit 0 (3, documented), one line saying how to resume
+    assert proc.returncode == 3, err
+    assert "pausing after the current reading" in err and "Traceback" not in err
     status = next(ln for ln in out.splitlines() if ln.startswith("run ") and "readings" in ln)
     assert ": paused, " in status
     done = int(status.split(", ")[1].split("/")[0])
     assert 5 <= done < 312
-    resume = next(ln for ln in out.splitlines() if ln.startswith("resume with:"))
-    run_id = resume.split("--resume ")[1].split()[0]
-    proc2 = subprocess.run([sys.executable, str(Path(__file__)), "cli", "run", "--resume",
-                            run_id, "--world", "analytic", "--plain", "--store", store],
+    from normbox_lab.acquire.store import Store
+
+    last = out.splitlines()[-1]
+    run_id = status.split("(id ")[1].split(")")[0]
+    with Store(store) as s:
+        (run,) = s.runs()
+        stored = s.keys(run.id)
+    assert run.status == "paused" and len(stored) == done
+    key = last.split(" paused before ")[1].split(" ")[0]
+    assert key.startswith("a") and key not in stored
+    assert last == (f"run {run_id} paused before {key} — resume with: normbox-lab run "
+                    f"reference-sweep --resume {run_id} --store {store}")
+    command = last.split("resume with: normbox-lab ")[1].split()
+    proc2 = subprocess.run([sys.executable, str(Path(__file__)), "cli", *command,
+                            "--world", "analytic", "--plain"],
                            check=False, capture_output=True, text=True, cwd=tmp_path,
                            timeout=300)
     assert proc2.returncode == 0, proc2.stderr

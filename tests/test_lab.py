@@ -247,12 +247,14 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
         return original(self, resume)
     eng.Engine.run = run_and_pause
     try:
-        assert main(["run", "reference-sweep", "--plain", *common]) == 0
+        assert main(["run", "reference-sweep", "--plain", *common]) == 3    # paused: incomplete
     finally:
         eng.Engine.run = original
     out = capsys.readouterr().out
     assert "paused, 2/4 readings" in out
-    resume_line = next(ln for ln in out.splitlines() if ln.startswith("resume with:"))
+    resume_line = out.splitlines()[-1]
+    assert resume_line.startswith("run 1 paused before a90/p01 — resume with: normbox-lab run "
+                                  "reference-sweep --resume 1 --store ")
     run_id = resume_line.split("--resume ")[1].split()[0]
     assert main(["run", "--resume", run_id, "--store", store, "--plain"]) == 0   # same world
     out = capsys.readouterr().out

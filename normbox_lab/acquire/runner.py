@@ -227,6 +227,10 @@ class Engine:
         self._answer = choice
         self._answered.set()
 
+    def next_key(self) -> str | None:
+        """The first planned reading not stored yet (where a resume starts), None when none."""
+        return next((k for k in self.plan.commit_keys if k not in self._committed), None)
+
     @property
     def pending_prompt(self) -> PromptRequest | None:
         return self._pending_prompt

@@ -2,6 +2,12 @@
 [--param K=V ...] [--world normbox|analytic|none]`.
 
 Ctrl-C once = pause after the current reading (the run stays resumable); twice = abort now.
+
+Exit status: 0 the run is done (every planned reading stored; flagged ones included, `qa`
+lists the flags); 3 the run ended paused and resumable (Ctrl-C once, a pause or stop at a safe
+point, an emergency stop): its data are incomplete, and the last line says how to resume;
+130 Ctrl-C while a prompt waited for an answer (the run is paused too); 1 aborted, readings
+skipped, or an error (one line `normbox-lab: error: …`); 2 a bad command line.
 """
 
 from __future__ import annotations
@@ -9,6 +15,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+
+#: the exit status of a run that ended paused, resumable, with readings missing
+EXIT_PAUSED = 3
+#: the exit status after Ctrl-C at a prompt (the shell's 128 + SIGINT)
+EXIT_INTERRUPTED = 130
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -179,9 +190,8 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
     finally:
         signal.signal(signal.SIGINT, previous)
     if result is None:
-        store_arg = f" --store {args.store}" if args.store else ""
-        print(f"resume with: normbox-lab run --resume {engine.run_uuid}{store_arg}")
-        return 130
+        print(_paused_line(engine, args))
+        return EXIT_INTERRUPTED
     store_arg = f" --store {args.store}" if args.store else ""
     from normbox_lab.analyze import qa
 
@@ -193,9 +203,26 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
         print(f"{flagged.line()} — see: normbox-lab qa {result.run_id}{store_arg}")
     if result.skipped:
         print(f"skipped: {', '.join(result.skipped)}")
+    if result.status == "paused":
+        # incomplete data: never exit 0 (a script must not take a paused run for a done one)
+        print(_paused_line(engine, args))
+        return EXIT_PAUSED
     if result.status != "done":
         print(f"resume with: normbox-lab run --resume {result.uuid}{store_arg}")
-    return 0 if result.status in ("done", "paused") else 1
+    return 0 if result.status == "done" else 1
+
+
+def _paused_line(engine, args: argparse.Namespace) -> str:
+    """"run N paused before KEY — resume with: normbox-lab run PROTOCOL --resume N …"."""
+    from shlex import quote
+
+    run = engine.run_id if engine.run_id is not None else engine.run_uuid
+    key = engine.next_key()
+    where = f"before {key}" if key else "with every reading stored"
+    extra = "".join(f" --{name} {quote(value)}" for name, value in
+                    (("store", args.store), ("lab", args.lab)) if value)
+    return (f"run {run} paused {where} — resume with: normbox-lab run "
+            f"{quote(engine.plan.protocol)} --resume {run}{extra}")
 
 
 def _run_with_progress(engine, run_ref, progress_ref, clock_note):
