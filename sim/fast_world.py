@@ -109,9 +109,11 @@ def virtual_sweep(errors: ErrorSources | str, patches: Sequence[int], angles: Se
 
 def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
                        truth: str = "model", target_rel_se: float = 0.02,
-                       boxes: dict | None = None) -> tuple[np.ndarray, np.ndarray]:
+                       boxes: dict | None = None,
+                       seed: int = PREDICTION_SEED) -> tuple[np.ndarray, np.ndarray]:
     """The prediction with the truth materials themselves (no fitting error), nominal
-    geometry, the prediction's seeds: (radiance, std_error) on the world's 1 nm grid."""
+    geometry, the prediction's seeds (`seed` as their base): (radiance, std_error) on the
+    world's 1 nm grid."""
     from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
     from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
     from normbox_lab.predict.render import Lamp
@@ -131,7 +133,7 @@ def virtual_prediction(patches: Sequence[int], angles: Sequence[float], *,
             m = truth_patch(int(p), truth)
             r = box.render_view(patch=m, wall=wall, holder=holder_material(),
                                 angle_deg=float(a), lamp=Lamp(), target_rel_se=target_rel_se,
-                                seed=config_seed(PREDICTION_SEED, f"{m.name}@{float(a):g}"))
+                                seed=config_seed(seed, f"{m.name}@{float(a):g}"))
             rad[pi, ai] = np.interp(wl, r.wavelength_nm, r.radiance)
             se[pi, ai] = np.interp(wl, r.wavelength_nm, r.std_error)
     return rad, se

@@ -108,28 +108,29 @@ def null_campaign(rng, *, noise=0.002, gain=0.01):
     R = P * (1 + u * COMMON_PATTERN_REL[None])
     R = R * (1 + rng.uniform(-gain, gain, R.shape[:2]))[..., None]
     R = R * (1 + rng.normal(0, noise, R.shape))
-    draws = rng.uniform(-1.0, 1.0, (64, 1, 1, 1)) * COMMON_PATTERN_REL[None, None] * P[None]
+    draws = rng.uniform(-1.0, 1.0, (32, 1, 1, 1)) * COMMON_PATTERN_REL[None, None] * P[None]
     return R, P, D, draws
 
 
 def test_null_campaigns_raise_at_most_5_percent_false_alarms_per_angle():
-    """200 independent campaigns, no misadjustment: with the common errors' draws in the
+    """100 independent campaigns, no misadjustment: with the common errors' draws in the
     interval, the false-alarm rate is at most 5 % pooled over the angles, and at every angle
     within the binomial scatter of 5 % (99 % quantile); the jackknife over patches alone (the
     interval before) flags the common pattern as offsets in a third of the cases and more."""
     from scipy.stats import binom
 
     rng = np.random.default_rng(2026)
-    n = 200
+    n, n_alone = 100, 20
     with_common = np.zeros(ANGLES.size)
     jackknife_only = np.zeros(ANGLES.size)
-    for _ in range(n):
+    for k in range(n):
         R, P, D, draws = null_campaign(rng)
         with_common += estimate_angle_offsets(R, P, D, ANGLES, common=draws).significant()
-        jackknife_only += estimate_angle_offsets(R, P, D, ANGLES).significant()
+        if k < n_alone:
+            jackknife_only += estimate_angle_offsets(R, P, D, ANGLES).significant()
     assert np.sum(with_common) / (n * ANGLES.size) <= 0.05, with_common / n
     assert np.max(with_common) <= binom.ppf(0.99, n, 0.05), with_common / n
-    assert np.mean(jackknife_only / n) > 0.25, jackknife_only / n
+    assert np.mean(jackknife_only / n_alone) > 0.25, jackknife_only / n_alone
 
 
 def test_common_errors_widen_the_interval_by_their_projection():

@@ -124,7 +124,9 @@ def estimate_angle_offsets(reference: Any, prediction: Any, derivative_per_deg: 
             d = d[None]
         if d.shape[1:] != R.shape:
             raise ValueError(f"common draws {d.shape} must be [draw, {R.shape}]")
-        eb = np.nan_to_num(d / scale[None])
+        eb = d / scale[None]
+        if not np.isfinite(eb).all():
+            eb = np.nan_to_num(eb)
         # b_k[a] = Σ_b M[a, b] Σ_{p, λ} g[p, a, λ] e_k[p, b, λ]  (one matrix product)
         G = np.tensordot(g, eb, axes=([0, 2], [1, 3]))          # [a, k, b]
         b_k = np.einsum("ab,akb->ka", M, G)

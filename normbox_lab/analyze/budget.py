@@ -76,6 +76,10 @@ class BudgetInputs:
     #: truth and prediction rendered with common random numbers (a validation that wants the
     #: sources alone): their Monte-Carlo noise cancels unless the `render` source is on
     shared_noise: bool = False
+    #: the renders' noise is one draw for all bands of a configuration (the fast band-vector
+    #: renderer: every path carries every band; measured: a configuration's mean z spreads as
+    #: much as its single bands), not independent per band (Mitsuba's spectral sampling)
+    render_noise_correlated: bool = False
 
 
 @dataclass
@@ -167,15 +171,19 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
     if name == "render":
         if x.shared_noise and not errors.render_rel_se:
             return None            # truth and prediction share their random numbers
-        se = x.prediction_se[None] * _band_noise(rng, K, R.shape, x.wavelength_nm)
+        def noise() -> np.ndarray:
+            if x.render_noise_correlated:
+                return rng.standard_normal((K,) + R.shape[:-1] + (1,))
+            return _band_noise(rng, K, R.shape, x.wavelength_nm)
+
+        se = x.prediction_se[None] * noise()
         truth_rel_se = errors.render_rel_se or (0.0 if x.shared_noise else x.truth_rel_se)
         if truth_rel_se:
             # the truth rendered to a largest band error x: the prediction's SE spectrum scaled
             with np.errstate(divide="ignore", invalid="ignore"):
                 worst = np.nanmax(np.where(P > 0, x.prediction_se / P, 0.0), axis=-1)
             scale = truth_rel_se / np.maximum(worst, 1e-12)
-            se = se + (x.prediction_se * scale[..., None])[None] * _band_noise(
-                rng, K, R.shape, x.wavelength_nm)
+            se = se + (x.prediction_se * scale[..., None])[None] * noise()
         return se
     if not errors.is_on(name):
         return None

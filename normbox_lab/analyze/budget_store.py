@@ -62,7 +62,8 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     ref = reference_data(store, run.id)
     name = artifact_name(run.id, renderer)
     try:
-        pred = store.latest_artifact("prediction", name).arrays
+        pred_artifact = store.latest_artifact("prediction", name)
+        pred = pred_artifact.arrays
     except (KeyError, LookupError, StoreError) as exc:
         raise StoreError(f"run {run.id} has no prediction: run `normbox-lab predict` "
                          f"first ({exc})") from exc
@@ -88,7 +89,9 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     x = BudgetInputs(ref.wavelength_nm, ref.angle_deg, list(ref.patches), ref.radiance,
                      pred["radiance"], pred["std_error"], der["d_angle"],
                      der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
-                     white, truth_rel_se=truth_render_rel_se(run.lab_config))
+                     white, truth_rel_se=truth_render_rel_se(run.lab_config),
+                     render_noise_correlated=pred_artifact.metadata.get("renderer")
+                     == "fastrender")
     return x, timings
 
 

@@ -113,6 +113,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
     out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
     err = np.zeros_like(out)
     total, done, t0 = n_p * n_a + n_a, 0, time.perf_counter()
+    renderer = "fastrender"             # the band-vector renderer, unless a render says other
     if executor is not None:
         from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, predict_spectra
 
@@ -147,6 +148,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
                            lamp=lamp, quality=quality)
                 out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
                 err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
+                renderer = str(r.info.get("renderer", "mitsuba"))
                 done += 1
     # direct-only renders of the white patch (or the first) for the light shares per angle
     wp = ref.patches[white_index(ref.patches)]
@@ -164,7 +166,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
         {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
          "patches": np.array(ref.patches, dtype=float), "radiance": out, "std_error": err,
          "direct_white": direct, "full_white": out[ref.patches.index(wp)]},
-        metadata={"quality": quality, "white_patch": wp,
+        metadata={"quality": quality, "white_patch": wp, "renderer": renderer,
                   "executor": getattr(executor, "name", None) or "none",
                   "render_s": time.perf_counter() - t0,
                   "fits": {n: fits[n].name for n in need}, **qa.provenance(accepted)},
