@@ -18,7 +18,6 @@ The 24 reflectances come from the virtual Normbox's cached table (`materials.py`
 
 from __future__ import annotations
 
-
 import numpy as np
 
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
