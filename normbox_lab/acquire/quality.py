@@ -27,10 +27,13 @@ lamp-drift             error     lamp monitor (the light source's own, e.g. MEAS
                                  first reading (docs/quality.md: why flag, not correct);
                                  gonio: the lamp check (`lamp_ratio`) beyond the gonio's
                                  `lamp_drift_limit_percent` even after re-referencing
-lamp-unstable          error     the lamp's output noise, from monitor samples taken just
-                                 before and after each reading (rms of their relative
-                                 difference / √2 over the last `LAMP_WINDOW` readings),
-                                 above `lamp_flicker_percent`
+lamp-unstable          error     the lamp's output noise above `lamp_flicker_percent`,
+                                 from the monitor: the scatter of the `LAMP_SAMPLES` samples
+                                 taken back to back just before and just after the reading
+                                 (pooled rms about each group's mean, 4 degrees of freedom:
+                                 this reading's own estimate), or the rms of the relative
+                                 change across readings / √2 over the last `LAMP_WINDOW`
+                                 readings (slower changes)
 repeatability-cv       warning   CV of the luminance of a repeatability run >
                                  `repeatability_cv_percent`
 radiometer-range       error     Lv outside `radiometer_min_luminance_cd_m2` …
@@ -262,6 +265,33 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
 
 #: readings over which the lamp's output noise is estimated (`lamp-unstable`)
 LAMP_WINDOW = 5
+#: monitor samples taken back to back before, and again after, each reading: 2 × (3 − 1) = 4
+#: degrees of freedom for the reading's own noise estimate, so a lamp flickering at 8× the
+#: limit (2 % rms against 0.25 %) goes unflagged with a probability of ~5e-4 (χ²₄ below
+#: 4/64), where one before/after pair (1 degree of freedom) missed it ~10 % of the time
+LAMP_SAMPLES = 3
+
+
+def _lamp_scatter(metadata: Mapping[str, Any]) -> float | None:
+    """The lamp's relative output noise from this reading's own monitor samples (the first
+    half taken before it, the second after): pooled rms about each half's mean, relative to
+    the mean of all; None without at least two samples on each side."""
+    samples = metadata.get("lamp_monitor_samples_cd_m2")
+    if not isinstance(samples, list | tuple) or len(samples) < 4 or len(samples) % 2:
+        return None
+    values = [float(v) for v in samples]
+    if not all(math.isfinite(v) for v in values):
+        return None
+    mean = sum(values) / len(values)
+    if not mean > 0:
+        return None
+    half = len(values) // 2
+    squares, dof = 0.0, 0
+    for group in (values[:half], values[half:]):
+        m = sum(group) / len(group)
+        squares += sum((v - m) ** 2 for v in group)
+        dof += len(group) - 1
+    return math.sqrt(squares / dof) / mean
 
 
 def _lamp_step(metadata: Mapping[str, Any]) -> float | None:
@@ -336,15 +366,24 @@ class RunGates:
                                     f"{ref_name} {ref_cd_m2:.4g} cd/m² (limit "
                                     f"±{self.limits.lamp_drift_percent:g} %)"))
         step = _lamp_step(metadata)
+        estimates: list[tuple[float, str]] = []
+        scatter = _lamp_scatter(metadata)
+        if scatter is not None:
+            n = len(metadata["lamp_monitor_samples_cd_m2"])
+            estimates.append((100.0 * scatter, f"scatter of the {n} monitor samples just "
+                                               "before and after this reading"))
         if step is not None:
             self.lamp_steps = [*self.lamp_steps, step][-LAMP_WINDOW:]
             noise = 100.0 * math.sqrt(sum(d * d for d in self.lamp_steps)
                                       / len(self.lamp_steps) / 2.0)
+            estimates.append((noise, f"monitor before and after the last "
+                                     f"{len(self.lamp_steps)} readings"))
+        if estimates:
+            noise, how = max(estimates)
             if noise > self.limits.lamp_flicker_percent:
                 out.append(FlagSpec(key, "lamp-unstable", "error", noise,
                                     self.limits.lamp_flicker_percent,
-                                    f"lamp output noise {noise:.2f} % rms (monitor before and "
-                                    f"after the last {len(self.lamp_steps)} readings; limit "
+                                    f"lamp output noise {noise:.2f} % rms ({how}; limit "
                                     f"{self.limits.lamp_flicker_percent:g} %)"))
         return out
 
@@ -389,5 +428,5 @@ class RunGates:
         return self._record(specs)
 
 
-__all__ = ["LAMP_WINDOW", "LIMIT_SOURCES", "FlagSpec", "QualityLimits", "RunGates", "brdf_flags",
+__all__ = ["LAMP_SAMPLES", "LAMP_WINDOW", "LIMIT_SOURCES", "FlagSpec", "QualityLimits", "RunGates", "brdf_flags",
            "limits_from_text", "parse_limits", "spectral_flags"]

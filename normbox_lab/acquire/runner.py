@@ -26,7 +26,7 @@ from typing import Any, Protocol
 from normbox_lab.acquire.estimate import DryRun, dry_run
 from normbox_lab.acquire.events import EngineEvent, Operator, PromptRequest, RunResult
 from normbox_lab.acquire.plan import Plan
-from normbox_lab.acquire.quality import RunGates, limits_from_text
+from normbox_lab.acquire.quality import LAMP_SAMPLES, RunGates, limits_from_text
 from normbox_lab.acquire.retry import RetryPolicy, Skip, StopAtPrompt, run_with_retry
 from normbox_lab.acquire.steps import (
     KINDS,
@@ -552,11 +552,13 @@ class Engine:
         meta["segment"] = self.segment
         if step.requires:
             meta["requires"] = dict(step.requires)
-        # the lamp's own monitor just before and after the reading (the lamp gates)
+        # the lamp's own monitor just before and after the reading (the lamp gates): the
+        # samples nearest the reading, and all of them (their scatter is the lamp's noise)
         for lamp_role, after in self._lamp_monitors(step).items():
-            meta["lamp_monitor_cd_m2"] = after
+            meta["lamp_monitor_cd_m2"] = after[0]
             if lamp_role in before:
-                meta["lamp_monitor_before_cd_m2"] = before[lamp_role]
+                meta["lamp_monitor_before_cd_m2"] = before[lamp_role][-1]
+                meta["lamp_monitor_samples_cd_m2"] = [*before[lamp_role], *after]
         record = kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
         if mark and self._gates is not None:
@@ -582,13 +584,17 @@ class Engine:
         self._emit("progress", step.key, done=len(self._committed), planned=self.plan.planned,
                    eta_s=remaining * self._ratio, remaining_estimate_s=remaining)
 
-    def _lamp_monitors(self, step: Step) -> dict[str, float]:
-        """The monitor of each lamp the step requires stable that has one (`LampMonitor`)."""
-        out: dict[str, float] = {}
+    def _lamp_monitors(self, step: Step) -> dict[str, list[float]]:
+        """`LAMP_SAMPLES` readings of the monitor of each lamp the step requires stable that
+        has one (`LampMonitor`), back to back: their scatter measures the lamp's output noise
+        on this reading alone (the `lamp-unstable` gate), not only over the run's last
+        readings."""
+        out: dict[str, list[float]] = {}
         for role in (r for r, v in step.requires.items() if v == "stable"):
             lamp = self.instrument(role)
             if isinstance(lamp, LampMonitor):
-                out[role] = float(self.with_retry(step.key, role, lamp.luminance_cd_m2))
+                out[role] = [float(self.with_retry(step.key, role, lamp.luminance_cd_m2))
+                             for _ in range(LAMP_SAMPLES)]
         return out
 
     def _quality_gates(self, key: str, record: ReadingRecord) -> None:
