@@ -36,8 +36,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--workers", type=int, default=None, help="cluster workers (dask/ray)")
     pr.add_argument("--address", default=None, help="an existing dask/ray cluster")
     pr.add_argument("--quick", action="store_true", help="a smoke run (4 patches × 3 angles)")
-    pr.add_argument("--baseline-spp", type=int, default=None,
-                    help="stock samples per pixel per batch")
+    pr.add_argument("--baseline-spp", default=None,
+                    help="stock samples per pixel per batch, at least three, comma-separated "
+                         "(default 64,256,1024: t = a + b·N is fitted over them)")
+    pr.add_argument("--repeats", type=int, default=None, help="repeats (default 3)")
     pr.add_argument("--seed", type=int, default=None)
     pr.set_defaults(handler=_predict)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
@@ -243,5 +245,5 @@ def _predict(args: argparse.Namespace) -> int:
         print("normbox-lab: bench predict is not available in this installation")
         return 2
     argv = _forward(args, ("target", "executor", "workers", "address", "quick", "baseline-spp",
-                           "seed"))
+                           "repeats", "seed"))
     return int(run_bench_predict(sys.stdout, argv=argv) or 0)
