@@ -73,6 +73,11 @@ class BudgetInputs:
     #: virtual Normbox renders the truth independently of the prediction (its lab config's
     #: ``[render] truth_rel_se``); 0 for a measured truth
     truth_rel_se: float = 0.0
+    #: the prediction's own target (largest band relative SE; 0 = unknown): a truth rendered
+    #: like the prediction, with the same adaptive first pass, to `truth_rel_se` instead has
+    #: the prediction's standard errors × truth_rel_se / prediction_rel_se (both renders beat
+    #: a loose target by the same margin)
+    prediction_rel_se: float = 0.0
     #: truth and prediction rendered with common random numbers (a validation that wants the
     #: sources alone): their Monte-Carlo noise cancels unless the `render` source is on
     shared_noise: bool = False
@@ -178,7 +183,10 @@ def perturbations(name: str, errors: ErrorSources, x: BudgetInputs, n_draws: int
 
         se = x.prediction_se[None] * noise()
         truth_rel_se = errors.render_rel_se or (0.0 if x.shared_noise else x.truth_rel_se)
-        if truth_rel_se:
+        if truth_rel_se and not errors.render_rel_se and x.prediction_rel_se:
+            # the world's truth, rendered as the prediction is, to its own target
+            se = se + (x.prediction_se * (truth_rel_se / x.prediction_rel_se))[None] * noise()
+        elif truth_rel_se:
             # the truth rendered to a largest band error x: the prediction's SE spectrum scaled
             with np.errstate(divide="ignore", invalid="ignore"):
                 worst = np.nanmax(np.where(P > 0, x.prediction_se / P, 0.0), axis=-1)

@@ -34,6 +34,16 @@ def truth_render_rel_se(lab_config_text: str, errors: Any = None) -> float:
     return float(render_cfg.get("truth_rel_se", 0.0) or 0.0)
 
 
+def _prediction_target(metadata: dict) -> float:
+    """The fast renderer's target (largest band relative SE) of a stored prediction; 0 for
+    another renderer."""
+    if metadata.get("renderer") != "fastrender":
+        return 0.0
+    from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE
+
+    return float(FAST_TARGET_REL_SE.get(str(metadata.get("quality")), 0.0))
+
+
 def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
                       with_geometry: bool = True,
                       progress: Callable[[str, int, int], None] | None = None,
@@ -91,7 +101,8 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
                      der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
                      white, truth_rel_se=truth_render_rel_se(run.lab_config),
                      render_noise_correlated=pred_artifact.metadata.get("renderer")
-                     == "fastrender")
+                     == "fastrender",
+                     prediction_rel_se=_prediction_target(pred_artifact.metadata))
     return x, timings
 
 
