@@ -212,8 +212,11 @@ class FakeLab:
     def provenance(self) -> dict[str, Any]:
         return {"lab_config": "", "seeds": {"lab": 0}}
 
-    def record_identities(self, store: Any, run_id: int, segment: int = 1) -> None:
+    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+                          roles: Any = None) -> None:
         for role, inst in self.instruments.items():
+            if roles is not None and role not in roles:
+                continue
             ident = inst.identify()
             store.add_instrument(run_id, role, {"model": ident.model, "segment": segment})
 

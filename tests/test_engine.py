@@ -12,7 +12,7 @@ from engine_fakes import FakeLab, timeout
 
 from normbox_lab.acquire import engine as eng
 from normbox_lab.acquire.store import Store
-from normbox_lab.core.errors import DeviceError, NormboxError, StoreError
+from normbox_lab.core.errors import DeviceError, NormboxError, ProtocolError, StoreError
 
 SMALL = {"angles_deg": [30, 60, 90], "patches": [1, 2, 3, 4]}
 
@@ -176,6 +176,31 @@ def test_persistent_fault_asks_the_operator(store, answer, status, done):
         # resuming fills the hole, and nothing else is taken again
         res2 = make(FakeLab(), store, SMALL).run(resume=res.run_id)
         assert res2.taken == 1 and res2.done == 12
+
+
+@pytest.mark.parametrize("error", [timeout("no reply to IDN within 10 s"),
+                                   ProtocolError("IDDR: expected OK00,<name>", raw=b"OK00",
+                                                 instrument="radiometer")])
+def test_an_instrument_that_never_answers_identify_ends_the_segment_cleanly(store, error):
+    """Identification is preparation like remote mode and homing: under replies later than the
+    timeout, `identify()`'s InstrumentTimeout escaped `Engine.run` (run left `failed`).  Now:
+    retried after recover(), then the operator (retry / abort); abort ends the segment
+    `aborted` (resumable), nothing measured, and a resume with the instrument back works."""
+    lab = FakeLab(fault_answers=["retry"])           # retry once, then (no answer left) abort
+
+    def identify():
+        raise error
+    lab.radiometer.identify = identify
+    res = make(lab, store, SMALL).run()               # no exception escapes
+    assert (res.status, res.done, res.taken) == ("aborted", 0, 0)
+    assert store.get_run(res.run_id).status == "aborted"
+    faults = [d for _, k, d in store.events(res.run_id) if k == "fault"]
+    assert {f["key"] for f in faults} == {"prepare/radiometer"} and len(faults) == 6
+    asked = [r for r in lab.operator.asked if r.kind == "fault"]
+    assert [r.choices for r in asked] == [("retry", "abort")] * 2
+    assert lab.radiometer.calls == 0                  # nothing measured
+    res2 = make(FakeLab(), store, SMALL).run(resume=res.run_id)
+    assert (res2.status, res2.done) == ("done", 12)
 
 
 def test_device_error_is_not_retried(store):
@@ -416,3 +441,28 @@ def test_a_skipped_reading_taken_again_on_resume_loses_its_skip_error(store):
     lab3.radiometer.faults[2] = [ImplausibleData("garbled", instrument="radiometer")]
     res3 = make(lab3, store, SMALL).run()
     assert [(f.key, f.severity) for f in qa.flags(store, res3.run_id)] == [("a30/p02", "error")]
+
+
+def test_run_command_with_a_lamp_that_never_answers_identify(tmp_path, monkeypatch, capsys):
+    """The same on the command line, on the simulated lab: one status line and the resume
+    hint, exit 1, no traceback; `runs` shows the run aborted (resumable), not `failed`."""
+    from normbox_lab.cli import main
+    from normbox_lab.core.errors import InstrumentTimeout
+    from normbox_lab.drivers.sphere import SphereLightSource
+
+    def identify(self):
+        raise InstrumentTimeout("no reply to *IDN? within 5 s", instrument="sphere")
+    monkeypatch.setattr(SphereLightSource, "identify", identify)
+    monkeypatch.chdir(tmp_path)
+    argv = ["run", "reference-sweep", "--world", "analytic", "--plain", "--store", "s.sqlite",
+            "--param", "angles_deg=[30]", "--param", "patches=[1]"]
+    assert main(argv) == 1
+    out, err = capsys.readouterr()
+    assert "Traceback" not in err and "normbox-lab: error" not in err
+    assert "fault: prepare/sphere sphere no reply to *IDN? within 5 s (InstrumentTimeout)" in err
+    status = [ln for ln in out.splitlines() if "readings" in ln]
+    assert len(status) == 1 and ": aborted, 0/1 readings (0 taken now)" in status[0]
+    assert out.splitlines()[-1].startswith("resume with: normbox-lab run --resume ")
+    with Store(tmp_path / "s.sqlite") as s:
+        (run,) = s.runs()
+        assert run.status == "aborted" and s.keys(run.id) == set()

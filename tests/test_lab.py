@@ -365,10 +365,11 @@ def test_simulated_lamp_instability_and_wire_faults_are_ridden_out(tmp_path):
     from normbox_lab.acquire.store import Store
 
     _sim_lab()
-    # the sphere's STAT? count is deterministic on the virtual clock: ~620 polls of the warm-up,
-    # then two per reading, so the 640th command lands in the middle of the first angle
+    # the sphere's command count is deterministic on the virtual clock: ~620 polls of the
+    # warm-up, then per reading its STAT? and 3 + 3 lamp-monitor samples, so the 656th command
+    # lands in the middle of the first angle (652-662 all suspend a40/p07 or a40/p08)
     text = SIM_CONFIG_TEMPLATE.replace('port = "sim://sphere"',
-                                       'port = "sim://sphere?faults=unstable@640:45"')
+                                       'port = "sim://sphere?faults=unstable@656:45"')
     text = text.replace('port = "sim://cs1000a"',
                         'port = "sim://cs1000a?faults=no-reply=0.05&seed=3"')
     lab = labmod.build_lab(parse_config(text), world="analytic")

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from typing import Any
 
 from normbox_lab.acquire import registry
@@ -148,9 +148,16 @@ class Lab:
         """What a new run records about the lab."""
         return {"lab_config": self.config.text, "seeds": {"lab": self.config.seed}}
 
-    def identities(self) -> dict[str, dict[str, Any]]:
+    def identities(self, roles: Iterable[str] | None = None) -> dict[str, dict[str, Any]]:
+        """The identity of each open instrument, of `roles` only when given (the gonio's
+        parts come with "gonio")."""
+        wanted = None if roles is None else set(roles)
+        if wanted is not None and "gonio" in wanted:
+            wanted.update(GONIO_ROLES)
         out = {}
-        for role, inst in self._open.items():
+        for role, inst in list(self._open.items()):
+            if wanted is not None and role not in wanted:
+                continue
             d = dataclasses.asdict(inst.identify()) if isinstance(inst, Identifiable) else \
                 {"identity": repr(inst)}
             cfg = self.config.instruments.get(role)
@@ -159,8 +166,9 @@ class Lab:
             out[role] = d
         return out
 
-    def record_identities(self, store: Any, run_id: int, segment: int = 1) -> None:
-        for role, ident in self.identities().items():
+    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+                          roles: Iterable[str] | None = None) -> None:
+        for role, ident in self.identities(roles).items():
             store.add_instrument(run_id, role, {**ident, "segment": segment})
 
     def close(self) -> None:

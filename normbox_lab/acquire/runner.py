@@ -80,7 +80,11 @@ class LabAccess(Protocol):
     def luminance_hint_cd_m2(self, step: Step) -> float:
         """Expected luminance of a reading (the radiometer's timing model needs it)."""
         ...
-    def record_identities(self, store: Any, run_id: int, segment: int = 1) -> None: ...
+    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+                          roles: Iterable[str] | None = None) -> None:
+        """Store the identity of each open instrument (of `roles` only, when given: the
+        engine identifies one role at a time, through its fault policy)."""
+        ...
     def provenance(self) -> Mapping[str, Any]:
         """What a new run records about the lab: {"lab_config": text, "seeds": {...}}."""
         ...
@@ -480,11 +484,16 @@ class Engine:
         return False
 
     def _prepare(self) -> None:
-        """(Re-)initialise: remote mode, homing where needed; record instrument identities."""
-        self.lab.record_identities(self.store, self.run_id, segment=self.segment)
+        """(Re-)initialise: remote mode, homing where needed; record instrument identities.
+        Every exchange here goes through the fault policy, identification included: retries
+        after `recover()`, then the operator (retry or abort).  An instrument that never
+        answers ends the segment `aborted` (resumable) like any other fault, never with an
+        exception escaping `run()`."""
         for role in self.plan.roles:
             inst = self.instrument(role)
             self.with_retry(f"prepare/{role}", role, lambda inst=inst: self._prepare_one(inst))
+            self.with_retry(f"prepare/{role}", role, lambda role=role: self.lab.record_identities(
+                self.store, self.run_id, segment=self.segment, roles=(role,)))
 
     @staticmethod
     def _prepare_one(inst: Any) -> None:
