@@ -370,14 +370,14 @@ class RunGates:
         scatter = _lamp_scatter(metadata)
         if scatter is not None:
             n = len(metadata["lamp_monitor_samples_cd_m2"])
-            estimates.append((100.0 * scatter, f"scatter of the {n} monitor samples just "
-                                               "before and after this reading"))
+            how = f"scatter of the {n} monitor samples just before and after this reading"
+            estimates.append((100.0 * scatter, how))
         if step is not None:
             self.lamp_steps = [*self.lamp_steps, step][-LAMP_WINDOW:]
             noise = 100.0 * math.sqrt(sum(d * d for d in self.lamp_steps)
                                       / len(self.lamp_steps) / 2.0)
-            estimates.append((noise, f"monitor before and after the last "
-                                     f"{len(self.lamp_steps)} readings"))
+            how = f"monitor before and after the last {len(self.lamp_steps)} readings"
+            estimates.append((noise, how))
         if estimates:
             noise, how = max(estimates)
             if noise > self.limits.lamp_flicker_percent:
