@@ -6,7 +6,7 @@ from __future__ import annotations
 import asyncio
 from dataclasses import replace
 
-from test_tui import answer_prompt, new_session, screen_text, set_reduced_parameters, until
+from pilot import answer_prompt, new_session, screen_text, set_reduced_parameters, until
 from textual.widgets import DataTable, Input, RichLog, Static
 
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import asyncio
 
-from test_tui import (  # noqa: F401
+from pilot import (
     answer_prompt,
     new_session,
     screen_text,
@@ -30,7 +30,7 @@ async def start_and_wait_for_the_second_prompt(pilot, app, parameters: bool = Tr
     await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
 
 
-def test_tab_keys_work_from_the_runs_tab_also_after_tab_focus(lab_env):  # noqa: F811
+def test_tab_keys_work_from_the_runs_tab_also_after_tab_focus(lab_env):
     """The Runs tab used to trap 2, 3 and 6: focus stayed on its hidden table and the tabbed
     container switched back to the pane holding the focused widget."""
     app = NormboxConsole(new_session(lab_env))
@@ -66,7 +66,7 @@ def test_rating_colours_are_four_distinct_colour_blind_safe_colours():
     assert min(pairs) > 15, pairs            # the old two oranges were ΔE00 4.6 apart
 
 
-def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F811
+def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):
     """The console's clock is injected: the remaining time is the observed rate (40 s for the
     first of 6 readings → 5 × 40 s left), a first `a` asks, a second `a` after the 5 s window
     asks again (the window expired), a second `a` within it aborts; no estimate afterwards."""
@@ -118,7 +118,7 @@ def test_remaining_time_is_measured_and_gone_after_an_abort(lab_env):  # noqa: F
     session.close()
 
 
-def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):  # noqa: F811
+def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):
     """Ctrl+Q while the operator is asked: no hang, the prompt is withdrawn, the run ends
     paused (resumable), never left `running`."""
     import time
@@ -143,7 +143,7 @@ def test_ctrl_q_at_a_prompt_pauses_the_run_and_leaves_at_once(lab_env):  # noqa:
         assert run.status == "paused" and s.keys(run.id) == {"a30/p01"}
 
 
-def test_runs_tab_shows_flag_counts_and_completed_with_flags(lab_env):  # noqa: F811
+def test_runs_tab_shows_flag_counts_and_completed_with_flags(lab_env):
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze import qa
 
@@ -168,7 +168,7 @@ def test_runs_tab_shows_flag_counts_and_completed_with_flags(lab_env):  # noqa: 
     app.session.close()
 
 
-def test_dead_radiometer_is_a_red_row_not_connected(lab_env):  # noqa: F811
+def test_dead_radiometer_is_a_red_row_not_connected(lab_env):
     """Health is real: the poll asks each instrument a cheap question through its driver; a
     radiometer that never answers is shown in red with 'no answer', and `i` says so."""
     from dataclasses import replace
@@ -300,7 +300,7 @@ def test_fault_prompt_names_the_role_once_and_says_what_to_check():
     assert "cable" in message and "powered on" in message
 
 
-def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
+def test_instruments_table_follows_the_run(lab_env):
     """During a run the engine owns the ports (no polling), so the Instruments table shows what
     the run's events say: the rotator at the sweep angle, the sphere stable, the radiometer's
     last reading — not the stale '0.00° unhomed' / 'off' of the poll before the run."""
@@ -338,7 +338,7 @@ def test_instruments_table_follows_the_run(lab_env):  # noqa: F811
     app.session.close()
 
 
-def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):  # noqa: F811
+def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):
     from textual.widgets import Input, Label, Select
 
     app = NormboxConsole(new_session(lab_env))
@@ -372,7 +372,7 @@ def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):  # 
     app.session.close()
 
 
-def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env):  # noqa: F811
+def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env):
     """80×24: the prompt sits at the bottom, the Run tab's progress line stays in view; 4
     shows the Runs tab while the prompt keeps waiting (the run line says so), 2 brings it
     back; p at the prompt is acknowledged."""
@@ -427,7 +427,7 @@ def test_a_waiting_prompt_steps_aside_and_never_covers_the_progress_line(lab_env
     app.session.close()
 
 
-def test_repeatability_summary_event_log_and_a_readings_spectrum(lab_env):  # noqa: F811
+def test_repeatability_summary_event_log_and_a_readings_spectrum(lab_env):
     """A repeatability run ends with σ / CV / flags; in the Runs tab Enter on the run shows
     its event log, Enter on a reading its spectrum with geometry, Lv and flags."""
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
@@ -485,7 +485,7 @@ def test_reading_rows_format_luminance_and_brdf_geometry():
     assert xy_text(float("nan"), float("nan")) == "x — y — (no light)"     # a dark reading
 
 
-def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env):  # noqa: F811
+def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env):
     """h homes, g asks an angle and goes there, k jogs +5°, o / f switch the lamp, m takes a
     single reading (shown, not stored) — each through the instrument's capabilities; while a
     run owns the instruments each is refused with the reason."""
@@ -542,7 +542,7 @@ def test_manual_control_on_the_instruments_tab_and_refused_during_a_run(lab_env)
     session.close()
 
 
-def test_the_first_paint_is_the_complete_screen_with_the_footer(lab_env):  # noqa: F811
+def test_the_first_paint_is_the_complete_screen_with_the_footer(lab_env):
     app = NormboxConsole(new_session(lab_env), exit_after_paint=True)
 
     async def scenario() -> None:
@@ -553,7 +553,7 @@ def test_the_first_paint_is_the_complete_screen_with_the_footer(lab_env):  # noq
     app.session.close()
 
 
-def test_the_e_stop_key_is_on_screen_on_every_tab_at_80x24(lab_env):  # noqa: F811
+def test_the_e_stop_key_is_on_screen_on_every_tab_at_80x24(lab_env):
     """The footer's first key is x E-STOP on every tab (the Instruments tab's manual keys
     are listed in the pane, not in front of it), so it is never cut at 80 columns."""
     app = NormboxConsole(new_session(lab_env))
@@ -572,7 +572,7 @@ def test_the_e_stop_key_is_on_screen_on_every_tab_at_80x24(lab_env):  # noqa: F8
     app.session.close()
 
 
-def test_a_silent_radiometer_is_retried_and_logged_naming_the_role_once(lab_env):  # noqa: F811
+def test_a_silent_radiometer_is_retried_and_logged_naming_the_role_once(lab_env):
     """The radiometer's emulator stops answering: each engine retry shows in the Run tab's log
     as a warning that names the role once ('radiometer: no reply …', not 'radiometer:
     radiometer:'), then the fault prompt; it answers again, r retries, the reading is stored."""
@@ -647,7 +647,7 @@ def test_instruments_table_fits_80_columns_state_and_last_seen_whole(tmp_path, m
     """At 80×24 the seven instruments of the simulated lab (long identities) fit: role, state
     and last seen are whole on screen, the identity gives up width first (…); at 160 columns
     nothing is cut."""
-    from test_tui import screen_text
+    from pilot import screen_text
 
     from normbox_lab.tui.tabs.instruments import INSTRUMENT_MIN_WIDTHS, fit_widths
 
@@ -718,8 +718,8 @@ def test_run_progress_remaining_time_on_a_real_and_a_virtual_lab_clock():
         None, prompt_waiting=False)
 
 
-def test_the_footer_fits_80_columns_from_e_stop_to_poll(lab_env):  # noqa: F811
-    from test_tui import screen_text
+def test_the_footer_fits_80_columns_from_e_stop_to_poll(lab_env):
+    from pilot import screen_text
 
     app = NormboxConsole(new_session(lab_env))
 
@@ -733,7 +733,7 @@ def test_the_footer_fits_80_columns_from_e_stop_to_poll(lab_env):  # noqa: F811
     app.session.close()
 
 
-def test_a_prompt_over_the_runs_tab_steps_aside_to_another_tab(lab_env):  # noqa: F811
+def test_a_prompt_over_the_runs_tab_steps_aside_to_another_tab(lab_env):
     """The prompt came back (w) over the Runs tab, whose table had the focus; at the next
     prompt 1 must show the Instruments tab (the focus given back to the Runs table when the
     prompt closed used to switch the tabs back to Runs)."""
@@ -780,7 +780,7 @@ def test_event_lines_leave_no_blank_key_column():
                      "11-24 02:20:03 fault          a30/p01 · no reply · try=3"]
 
 
-def test_e_exports_the_selected_run_as_csv(lab_env):  # noqa: F811
+def test_e_exports_the_selected_run_as_csv(lab_env):
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
     from normbox_lab.tui.controller import Session
 
@@ -809,7 +809,7 @@ def test_e_exports_the_selected_run_as_csv(lab_env):  # noqa: F811
         lines[:3]
 
 
-def test_x_stops_also_while_typing_in_a_parameter_field(lab_env):  # noqa: F811
+def test_x_stops_also_while_typing_in_a_parameter_field(lab_env):
     """The emergency stop is never swallowed by a text field: x in a parameter field stops
     (and is not typed); other letters are typed."""
     from textual.widgets import Input
@@ -863,7 +863,7 @@ def test_stop_during_a_lamp_warm_up_ends_the_segment_paused_and_resumable(tmp_pa
         assert again.status == "done" and again.done == 2
 
 
-def test_ctrl_q_in_the_lamp_warm_up_leaves_at_once_and_the_run_resumes(lab_env, monkeypatch):  # noqa: F811
+def test_ctrl_q_in_the_lamp_warm_up_leaves_at_once_and_the_run_resumes(lab_env, monkeypatch):
     """The console's Ctrl+Q during the lamp warm-up: the console is gone within 2 s (it used
     to wait for the warm-up), the run is paused with nothing measured, and it resumes."""
     import threading
@@ -908,7 +908,7 @@ def test_ctrl_q_in_the_lamp_warm_up_leaves_at_once_and_the_run_resumes(lab_env, 
     again.close()
 
 
-def test_a_running_run_without_a_live_owner_is_shown_interrupted(lab_env):  # noqa: F811
+def test_a_running_run_without_a_live_owner_is_shown_interrupted(lab_env):
     """A closed terminal or a kill leaves a run stored as `running`: the run lock tells
     whether a process still executes it; without one the console shows it interrupted (and
     offers to resume it), with one it stays running."""

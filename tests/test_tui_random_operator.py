@@ -24,7 +24,7 @@ from dataclasses import replace
 from typing import Any
 
 import pytest
-from test_tui import screen_text, until
+from pilot import screen_text, until
 from textual.widgets import DataTable, Input, Static
 
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config

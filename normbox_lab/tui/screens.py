@@ -117,13 +117,12 @@ class ResumeScreen(ModalScreen[int | None]):
         self.runs = runs
 
     def compose(self) -> ComposeResult:
+        from normbox_lab.tui.tabs.common import RUN_COLUMNS
         from normbox_lab.tui.views import run_row
 
         with Vertical():
             yield Label(f"[b]{len(self.runs)} interrupted run(s)[/b] in the store. Resume one?")
             table: DataTable = DataTable(id="resume-table", cursor_type="row")
-            from normbox_lab.tui.tabs.runs import RUN_COLUMNS
-
             table.add_columns(*RUN_COLUMNS)
             for r in reversed(self.runs):
                 table.add_row(*run_row(r), key=str(r.id))

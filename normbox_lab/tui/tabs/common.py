@@ -6,6 +6,9 @@ from typing import Any
 
 from textual.widgets import DataTable, Input
 
+#: the columns of a run's row (`views.run_row`): the Runs tab and the resume offer
+RUN_COLUMNS = ("id", "protocol", "status", "readings", "flags", "created")
+
 
 def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
     """A DataTable with these columns."""

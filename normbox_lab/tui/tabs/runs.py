@@ -9,10 +9,9 @@ from typing import Any
 from textual import on, work
 from textual.widgets import DataTable, TabPane
 
-from normbox_lab.tui.tabs.common import table
+from normbox_lab.tui.tabs.common import RUN_COLUMNS, table
 
 #: the Runs table's (and the resume offer's) columns: `views.run_row`
-RUN_COLUMNS = ("id", "protocol", "status", "readings", "flags", "created")
 
 
 class RunsPane(TabPane):
