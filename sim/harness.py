@@ -154,12 +154,18 @@ def _small(data: Any) -> dict[str, Any]:
     return out
 
 
-def _faults_fired() -> int:
-    """How many faults the emulators of this process have injected so far."""
+#: fault kinds that latch a changed physics for the rest of the process (the light, the
+#: detector), not one failed exchange
+LATCHED_KINDS = ("lamp-drift", "flicker", "lamp-dim", "dark-drift", "tec-drift", "saturation")
+
+
+def _faults_fired() -> tuple[int, int]:
+    """(faults the emulators of this process have injected so far, of which latched)."""
     from normbox_lab.sim import core
 
-    return sum(len(getattr(getattr(e, "faults", None), "log", ()))
-               for e in list(core.CONTEXT.instances.values()))
+    logs = [entry for e in list(core.CONTEXT.instances.values())
+            for entry in getattr(getattr(e, "faults", None), "log", ())]
+    return len(logs), sum(1 for x in logs if x.split("#")[0] in LATCHED_KINDS)
 
 
 def _second_owner(argv: list[str], uuid: str) -> dict[str, Any]:
@@ -194,8 +200,9 @@ def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[st
 
     def run(self, *args, **kwargs):
         def on_event(ev) -> None:
+            fired, latched = _faults_fired()
             entry = {"ev": ev.kind, "key": ev.key, "t": ev.time_s, "d": _small(ev.data),
-                     "f": _faults_fired()}
+                     "f": fired, "latched": latched}
             if ev.kind == "run-started":
                 entry["estimates"] = {k: float(v) for k, v in
                                       dict(getattr(self, "_estimates", {}) or {}).items()}

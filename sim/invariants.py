@@ -12,8 +12,11 @@
     exit comes with one typed line (``normbox-lab: …``) or the run's status line; exit 0 only
     when the run's data are complete or every missing reading carries an error flag.
 (c) **No hang.**  No reading takes longer (virtual clock) than its timing model allows with
-    its retries: (1 + faults the emulators injected meanwhile) × (the engine's own estimate
-    for it + `DRIVER_TIMEOUT_S`), plus, per fault, warning, suspension and prompt the engine
+    its retries: the engine's own estimate for it + `DRIVER_TIMEOUT_S` (× `LATCHED_FACTOR`
+    once a latched condition — a dimmed or drifting lamp, a warmer detector — changed the
+    physics), plus, per fault the emulators injected since the previous reading began, the
+    segment's costliest reading (every state established anew: a lamp that lost power warms
+    up again) + `DRIVER_TIMEOUT_S`, plus, per fault, warning, suspension and prompt the engine
     recorded for it, a retry allowance; no segment outlives its wall-clock limit.
 (d) **Consistent state.**  Store, ``runs`` and ``qa`` agree on the run's status, readings and
     flags; a stored reading carries no skip flag; "running" means a live owner holds the run
@@ -45,6 +48,7 @@ ANGLE_TOLERANCE_DEG = 0.25
 AIM_TOLERANCE_MM = 0.5
 FAULT_ALLOWANCE_S = 120.0          # timeouts, drains, reconnect windows of one retry
 DRIVER_TIMEOUT_S = 30.0            # a command timeout, a drain and a re-handshake
+LATCHED_FACTOR = 10.0              # a dimmed lamp or a warmer detector may lengthen exposures
 PROMPT_ALLOWANCE_S = 60.0
 STATUS_LINE = re.compile(r"^run [0-9a-f-]{36} \(id \d+\): ")
 
@@ -278,13 +282,17 @@ def no_hang(ex: Execution) -> list[Violation]:
         estimates: dict[str, float] = {}
         suspend_s = 600.0
         counts: dict[str, dict[str, int]] = {}
-        fired_before = 0                  # faults the emulators had injected before this reading
+        # faults injected since the start of the previous reading (a fault's cost may land on
+        # the reading after the exchange it hit)
+        fired_marks = [0, 0]
+        state_s = 0.0                     # the segment's costliest reading: every state anew
         for e in seg.journal:
             ev = e.get("ev")
             if ev == "run-started":
                 estimates = e.get("estimates") or {}
                 suspend_s = float(e.get("suspend_timeout_s") or suspend_s)
-                fired_before = int(e.get("f", 0))
+                fired_marks = [int(e.get("f", 0))] * 2
+                state_s = max([0.0, *(float(v) for v in estimates.values())])
             elif ev in ("fault", "suspended", "prompt", "warning"):
                 c = counts.setdefault(e.get("key", ""), {})
                 c[ev] = c.get(ev, 0) + 1
@@ -294,11 +302,15 @@ def no_hang(ex: Execution) -> list[Violation]:
                 if est <= 0:
                     continue
                 c = dict(counts.get(key, {}))
-                injected = max(0, int(e.get("f", 0)) - fired_before)
-                fired_before = int(e.get("f", 0))
+                injected = max(0, int(e.get("f", 0)) - fired_marks[0])
+                fired_marks = [fired_marks[1], int(e.get("f", 0))]
                 if injected:
                     c["injected"] = injected
-                bound = ((1 + injected) * (est + DRIVER_TIMEOUT_S)
+                latched = int(e.get("latched", 0)) > 0
+                if latched:
+                    c["latched"] = 1
+                model = (LATCHED_FACTOR if latched else 1.0) * (est + DRIVER_TIMEOUT_S)
+                bound = (model + injected * (state_s + DRIVER_TIMEOUT_S)
                          + (c.get("fault", 0) + c.get("warning", 0)) * (est + FAULT_ALLOWANCE_S)
                          + c.get("suspended", 0) * (est + suspend_s)
                          + c.get("prompt", 0) * (est + PROMPT_ALLOWANCE_S))
