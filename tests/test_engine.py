@@ -466,3 +466,42 @@ def test_run_command_with_a_lamp_that_never_answers_identify(tmp_path, monkeypat
     with Store(tmp_path / "s.sqlite") as s:
         (run,) = s.runs()
         assert run.status == "aborted" and s.keys(run.id) == set()
+
+
+def test_after_a_skip_the_next_reading_is_estimated_with_the_state_it_must_establish(store):
+    """The lamp faults while being switched on for the first reading, which is skipped; the
+    next reading switches it on and waits its 120 s.  The segment's dry run had counted that
+    wait for the first reading only: the next one's estimate (and the ETA) must include it
+    (sim campaign seed 7 scenario 113: a light-map reading took 322 s against its 16 s)."""
+    from normbox_lab.core.errors import InstrumentTimeout
+
+    lab = FakeLab(fault_answers=["skip"])
+    fails = {"n": 3}
+    switch = lab.sphere.set_output
+
+    def set_output(on):
+        if fails["n"] > 0:
+            fails["n"] -= 1
+            raise InstrumentTimeout("no reply to OUTP ON", instrument="sphere")
+        switch(on)
+    lab.sphere.set_output = set_output
+    e = make(lab, store, SMALL)
+    seen: dict[str, float] = {}
+    took: dict[str, float] = {}
+    updates = []
+
+    def on_event(ev):
+        if ev.kind == "step-started" and ev.data.get("kind") == "measure":
+            seen[ev.key] = e._estimates.get(ev.key, 0.0)
+        elif ev.kind == "step-finished" and ev.data.get("kind") == "measure":
+            took[ev.key] = ev.data["duration_s"]
+        elif ev.kind == "estimates":
+            updates.append(dict(ev.data["estimates"]))
+    e.subscribe(on_event)
+    res = e.run()
+    assert res.skipped == ("a30/p01",) and res.done == 11
+    assert took["a30/p02"] >= lab.sphere.settle_s          # it did warm the lamp up
+    assert seen["a30/p02"] >= took["a30/p02"] - 1e-6       # and was expected to
+    assert len(updates) == 1 and set(updates[0]) == set(took)
+    # every later reading stays within its (new) estimate: no inflated ETA ratio
+    assert all(took[k] <= seen[k] + 1e-6 for k in took), {k: (took[k], seen[k]) for k in took}

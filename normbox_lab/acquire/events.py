@@ -12,7 +12,8 @@ from typing import Any
 class EngineEvent:
     kind: str           # run-started, step-started, step-finished, reading-stored, prompt,
                         # answer, warning, fault, suspended, unsuspended, paused, resumed,
-                        # progress, run-finished
+                        # progress, estimates (after a skip: the remaining readings' expected
+                        # times, again), run-finished
     run_id: int | None
     key: str = ""
     time_s: float = 0.0  # the lab clock (virtual seconds in a simulation)

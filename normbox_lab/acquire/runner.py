@@ -381,6 +381,7 @@ class Engine:
                     taken += 1
                 except Skip:
                     self._skipped.append(step.key)
+                    self._reestimate()
         except StopAtPrompt as exc:
             # stopped while a question was open: the unanswered step is asked again on resume
             status = "paused"
@@ -421,6 +422,22 @@ class Engine:
                    planned=self.plan.planned, skipped=list(self._skipped), elapsed_s=elapsed)
         return RunResult(self.run_id, self.run_uuid, status, taken, done, self.plan.planned,
                          tuple(self._skipped), elapsed)
+
+    def _reestimate(self) -> None:
+        """After a skip the lab is not in the state the segment's dry run assumed (the
+        skipped reading's state steps may not have run: a lamp that faulted while warming up
+        is warmed up by the next reading).  The readings still to take are estimated again
+        from now — positions and lamps as they are, every state step counted — for the ETA
+        and for each reading's expected time."""
+        try:
+            _, per_key = dry_run(self.plan, self.estimate_context(),
+                                 self._committed | set(self._skipped))
+        except (InstrumentError, OSError) as exc:     # an instrument that cannot say: keep
+            log.warning("no new estimate after the skip: %s", exc)
+            return
+        self._estimates.update(per_key)
+        self._remaining_s = sum(per_key.values())
+        self._emit("estimates", estimates=dict(per_key))
 
     def _open_new_run(self) -> None:
         prov = self.lab.provenance()
