@@ -82,7 +82,9 @@ SPECTRAL_BLOCK_SIZES = {1: 100, 2: 100, 3: 100, 4: 101}
 FIRST_REPLY_TIMEOUT_S = 15.0          # pre-measurement "about 1–10 s"
 HEX_UNDEFINED = "D1BA43B6"
 HEX_DIGITS = frozenset("0123456789ABCDEFabcdef")
-IDDR_REPLY = re.compile(rb"^OK00,[^,]{1,16},[12],\s*\d{1,12}$")
+#: the name holds a letter: SPMR's ``OK00,2,1,2`` (Multi-Integ Normal 1 s, ND auto) has the
+#: same field layout in digits only
+IDDR_REPLY = re.compile(rb"^OK00,(?=[^,]*[A-Za-z])[^,]{1,16},[12],\s*\d{1,12}$")
 
 
 def measurement_time_s(luminance_cd_m2: float, speed: str = "normal", time_s: float = 1.0) -> int:

@@ -19,6 +19,10 @@ flipped bit in a data line is a plausible wrong number.  So:
     has been sent, so it can only answer this command; it counts as a line fault); when
     even that passes, the line is drained for as long again (the late reply is dropped when
     it comes) before the command is repeated;
+  - a reply given up on may come later still: until the sync query has been answered after
+    it, the line is unsettled and the next command is preceded by a resynchronisation; and
+    a sync query's own reply (a shape no other command gives) is dropped wherever it comes
+    while another command is outstanding — a sync query given up on leaves one on its way;
   - every data block (a spectral or colorimetric line, a MEDR block) is read until two reads
     agree byte for byte (`agreed_blocks`): the instrument's buffer does not change between
     reads, a garbled or stray line does.  A reply that breaks the framing (an ``OK`` or
@@ -90,6 +94,8 @@ class SerialRadiometer:
     #: a query whose reply no other command gives (`is_sync_reply`): sent after a timeout to
     #: find where the line stands
     sync_command = b""
+    #: sync replies dropped while waiting for one reply before it is a ProtocolError
+    max_stray_replies = 8
 
     def __init__(self, port: transport.Port, clock: Clock, *,
                  instrument_id: str = "radiometer", command_timeout_s: float = 10.0, attempts: int = 3,
@@ -108,6 +114,11 @@ class SerialRadiometer:
         self.history: list[tuple[bytes, bytes]] = []
         #: line faults seen (timeouts, garbled replies, lost links) since opening
         self.line_faults = 0
+        #: the command last written (its reply is the one outstanding)
+        self._outstanding = b""
+        #: a reply was given up on and the sync query has not been answered since: the reply
+        #: may still come, so the next command first resynchronises
+        self._unsettled = False
 
     # --- errors -------------------------------------------------------------------------------
     def _protocol(self, msg: str, raw: bytes) -> ProtocolError:
@@ -118,11 +129,18 @@ class SerialRadiometer:
 
     # --- bytes ----------------------------------------------------------------------------------
     def _write(self, cmd: bytes) -> None:
+        if self._unsettled and self.sync_command and cmd != self.sync_command:
+            # a reply given up on may still be on its way: find where the line stands first
+            # (once: an instrument that answers not even the sync query is left to the
+            # command's own timeout)
+            self._resync(late=True)
+            self._unsettled = False
         try:
             self.port.reset_input_buffer()
             self.port.write(cmd + self.terminator)
         except (SerialException, OSError) as exc:
             raise LinkLost(f"write failed: {exc}", instrument=self.instrument_id) from exc
+        self._outstanding = cmd
 
     def _read_exact(self, n: int, timeout_s: float) -> bytes:
         deadline = self.clock.now_s() + timeout_s
@@ -173,8 +191,19 @@ class SerialRadiometer:
     def read_reply(self, timeout_s: float, *, watch_abort: bool = False) -> bytes | None:
         """The reply to the one command outstanding.  One that has not begun within
         `timeout_s` is waited for up to `late_window_s` more (a line fault): nothing else has
-        been sent, so a line that comes now can only answer this command.  None when
-        `watch_abort` and abort() was requested before the line began."""
+        been sent, so a line that comes now can only answer this command.  A sync query's
+        reply while another command is outstanding answers a sync query given up on: it is
+        dropped (a line fault) and the reply waited for anew.  None when `watch_abort` and
+        abort() was requested before the line began."""
+        line: bytes | None = b""
+        for _ in range(self.max_stray_replies + 1):
+            line = self._read_reply_once(timeout_s, watch_abort=watch_abort)
+            if line is None or not self._stray_sync_reply(line):
+                return line
+            self._count_line_fault()
+        raise self._protocol("only stray sync replies on the line", line or b"")
+
+    def _read_reply_once(self, timeout_s: float, *, watch_abort: bool) -> bytes | None:
         try:
             return self._read_line(timeout_s, watch_abort=watch_abort)
         except InstrumentTimeout:
@@ -182,8 +211,14 @@ class SerialRadiometer:
             try:
                 return self._read_line(self._late_window_s(), watch_abort=watch_abort)
             except InstrumentTimeout:
+                self._unsettled = True          # the reply may still come
                 raise self._timeout(f"no reply within {timeout_s + self._late_window_s():g} s"
                                     ) from None
+
+    def _stray_sync_reply(self, raw: bytes) -> bool:
+        """`raw` has the sync query's shape while another command is outstanding."""
+        return bool(self.sync_command) and self._outstanding != self.sync_command \
+            and self.is_sync_reply(raw)
 
     def _late_window_s(self) -> float:
         return self.command_timeout_s if self.late_window_s is None else self.late_window_s
@@ -267,7 +302,8 @@ class SerialRadiometer:
         `resync_quiet_s` (at most `resync_max_s`).  `late`: a reply did not come in time and
         may still be on its way: send the model's sync query and read until its reply comes
         (the line is first in, first out, so whatever came before it answered earlier
-        commands and is dropped).  True when the line is known to be in step."""
+        commands and is dropped).  True when the line is known to be in step; `late` and
+        not in step leaves the line unsettled (the next command resynchronises first)."""
         self._count_line_fault()
         deadline_s = self.clock.now_s() + self.resync_max_s
         try:
@@ -277,8 +313,14 @@ class SerialRadiometer:
                     break
             self.port.reset_input_buffer()
         except (SerialException, OSError):
+            if late:
+                self._unsettled = True
             return False
-        return self._sync() if late and self.sync_command else True
+        if not (late and self.sync_command):
+            return True
+        in_step = self._sync()
+        self._unsettled = not in_step
+        return in_step
 
     def _sync(self) -> bool:
         """Send `sync_command` and read lines until one `is_sync_reply`, for at most the

@@ -11,11 +11,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import test_cs1000 as cs1000_wire
+import test_cs2000 as cs2000_wire
+from wire import Exchange
 
 from normbox_lab.acquire import engine as eng
 from normbox_lab.acquire import lab as labmod
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
+from normbox_lab.core.errors import InstrumentTimeout
 
 
 def _run(tmp_path, radiometer_url: str, driver: str = "cs1000a", repeats: int = 12):
@@ -57,3 +61,64 @@ def test_late_reply_never_corrupts_stored_readings(tmp_path, driver, url):
         # noise off: the only deviation is the instrument's fixed ±2 % calibration model
         assert np.all(np.abs(ratio - np.median(ratio)) < 1e-3), (i, np.min(ratio), np.max(ratio))
         assert abs(np.median(ratio) - 1) < 0.03, (i, np.median(ratio))
+
+
+# --- a reply given up on, arriving later still (scripted port, virtual clock) ----------------
+#
+# Timeout 10 s, late window 10 s: a reply 30 s late is given up on at 20 s; the line is
+# drained (0.5 s quiet) and the sync query sent at 20.5 s.  The late reply then comes at 30 s
+# and is taken for the sync query's reply (the shapes are equal when the late command was the
+# sync query itself); the sync query's own reply, a moment later, is then still on its way.
+# Before, it reached the next command: ``MEAS,1: expected OK00,ttt (raw=b'OK00,CS-2000A
+# ,2,2000123')``.
+
+
+def test_cs2000_a_sync_reply_given_up_on_never_answers_the_next_command():
+    w = cs2000_wire
+    iddr = w.IDDR.reply
+    d, port = w.scripted([*w.remote_script(),
+                          Exchange(b"IDDR\n", iddr, delay_s=30.0),  # identify(): 30 s late
+                          Exchange(b"IDDR\n", iddr, delay_s=9.6),   # sync query: at 30.1 s
+                          Exchange(b"IDDR\n", iddr, delay_s=0.2),   # identify() again: 30.2 s
+                          *w.measure_script()])
+    assert d.identify().serial_number == "2000123"
+    faults = d.line_faults
+    reading = d.measure()             # the IDDR reply at 30.2 s is dropped, not taken
+    port.assert_done()
+    np.testing.assert_allclose(reading.radiance_W_sr_m2_nm, w.SPECTRUM, rtol=6e-5)
+    assert reading.metadata["measurement_time_s"] == 2
+    assert d.line_faults == faults + 1
+
+
+def test_cs2000_a_reply_given_up_on_is_drained_before_the_next_command():
+    """SPMS's reply 45 s late, the sync query unanswered within its 20 s: an
+    InstrumentTimeout.  The next command first resynchronises (the late OK00 and the sync
+    replies are read and dropped) instead of taking the late OK00 as MEAS,1's answer."""
+    w = cs2000_wire
+    iddr = w.IDDR.reply
+    d, port = w.scripted([*w.remote_script(),
+                          Exchange(b"SPMS,0,2\n", b"OK00\n", delay_s=45.0),
+                          Exchange(b"IDDR\n", iddr, delay_s=30.0),  # 50.5 s: after its 40.5
+                          Exchange(b"IDDR\n", iddr, delay_s=9.6),   # the resync's: 50.6 s
+                          *w.measure_script()])
+    with pytest.raises(InstrumentTimeout):
+        d.set_speed("normal")
+    reading = d.measure()
+    port.assert_done()
+    np.testing.assert_allclose(reading.radiance_W_sr_m2_nm, w.SPECTRUM, rtol=6e-5)
+
+
+def test_cs1000_a_sync_reply_given_up_on_never_answers_the_next_command():
+    """The CS-1000A's sync query is STR (status()): the same race."""
+    w = cs1000_wire
+    st = b"OK,0,0,1.000\n"
+    d, port = w.scripted([Exchange(b"RMT,1\n", b"OK\n"),
+                          Exchange(b"STR\n", st, delay_s=30.0),
+                          Exchange(b"STR\n", st, delay_s=9.6),
+                          Exchange(b"STR\n", st, delay_s=0.2),
+                          *w.measure_script()])
+    assert d.status()["time_mode"] == "auto"
+    reading = d.measure()
+    port.assert_done()
+    assert reading.integration_time_s == 1.5
+    np.testing.assert_allclose(reading.radiance_W_sr_m2_nm, w.SPECTRUM, rtol=6e-5)
