@@ -153,9 +153,11 @@ class CameraTracer(BandPathTracer):
 
     # ---- the three kernels of a chunk -------------------------------------------------------
     def _first_hit(self, tab: Mapping[str, Any], c: SimpleNamespace, n: int, pix0: int,
-                   spp: int, seed_state: int) -> SimpleNamespace:
+                   spp: int, seed_state: int, layers: bool = True) -> SimpleNamespace:
         """The camera rays of pixels pix0… (spp each) to their first hit: emission, NEE and the
-        BSDF sample there, and the continuation ray.  Everything evaluated (one kernel)."""
+        BSDF sample there, and the continuation ray.  Everything evaluated (one kernel).  The
+        NEE and BSDF-sample factors split by lobe (nd, ns, gd, gs) with `layers`; without, only
+        their sums n_b = nd + ns, g_b = gd + gs (half the per-path values to store and read)."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         idx = dr.arange(m.UInt32, n)
@@ -207,12 +209,20 @@ class CameraTracer(BandPathTracer):
         probe = dr.abs(gd[0] + gs[0])
         for b in range(8, n_b, 8):
             probe = dr.fmax(probe, dr.abs(gd[b] + gs[b]))
-        out = SimpleNamespace(nd=nd, ns=ns, gd=gd, gs=gs, e0=e0, delta=delta, k=k, frac=frac,
+        out = SimpleNamespace(e0=e0, delta=delta, k=k, frac=frac,
                               ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
                               active=act & (1 < c.max_depth), rng=rng, probe=probe,
                               later=later)
-        dr.eval(out.nd, out.ns, out.gd, out.gs, out.e0, out.delta, out.k, out.frac, out.ray.o,
-                out.ray.d, out.pdf, out.active, out.rng, out.probe, out.later)
+        if layers:
+            out.nd, out.ns, out.gd, out.gs = nd, ns, gd, gs
+            per_band = (nd, ns, gd, gs)
+        else:
+            # the same float32 sums `_combine` forms from the split factors
+            out.nee = [nd[b] + ns[b] for b in range(n_b)]
+            out.g = [gd[b] + gs[b] for b in range(n_b)]
+            per_band = (out.nee, out.g)
+        dr.eval(*per_band, out.e0, out.delta, out.k, out.frac, out.ray.o, out.ray.d, out.pdf,
+                out.active, out.rng, out.probe, out.later)
         return out
 
     def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
@@ -238,28 +248,30 @@ class CameraTracer(BandPathTracer):
         lookup = self._lookup(tab, fh.k, fh.frac)
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         inv_b = 1.0 / n_b
-        g = [fh.gd[b] + fh.gs[b] for b in range(n_b)]
-        nee = [fh.nd[b] + fh.ns[b] for b in range(n_b)]
-        inc = [(e1 + acc[b]) * le[b] for b in range(n_b)]
-        avg_le = _sum(le) * inv_b
-        avg_inc = _sum(inc) * inv_b
-        avg_nee = _sum(nee) * inv_b
-        avg_g = _sum(g) * inv_b
+        if layers:
+            nee = [fh.nd[b] + fh.ns[b] for b in range(n_b)]
+            g = [fh.gd[b] + fh.gs[b] for b in range(n_b)]
+        else:
+            nee, g = fh.nee, fh.g
         ybar = self._luminance_weights()
         emission, diffuse, specular, indirect, cwni, nwci, rad, rad2 = ([] for _ in range(8))
         y = m.Float(0.0)
+        if layers:
+            inc = [(e1 + acc[b]) * le[b] for b in range(n_b)]
+            avg_le = _sum(le) * inv_b
+            avg_inc = _sum(inc) * inv_b
+            avg_nee = _sum(nee) * inv_b
+            avg_g = _sum(g) * inv_b
         for b in range(n_b):
-            em_b = fh.e0 * le[b]
-            di_b = dr.fma(fh.gd[b], e1, fh.nd[b]) * le[b]
-            sp_b = dr.fma(fh.gs[b], e1, fh.ns[b]) * le[b]
-            in_b = g[b] * acc[b] * le[b]
-            rad_b = em_b + di_b + sp_b + in_b
-            emission.append(em_b)
-            diffuse.append(di_b)
-            specular.append(sp_b)
-            indirect.append(in_b)
-            cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
-            nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
+            # the radiance in one form for both modes (identical materials, identical bits)
+            rad_b = (nee[b] + dr.fma(g[b], e1 + acc[b], fh.e0)) * le[b]
+            if layers:
+                emission.append(fh.e0 * le[b])
+                diffuse.append(dr.fma(fh.gd[b], e1, fh.nd[b]) * le[b])
+                specular.append(dr.fma(fh.gs[b], e1, fh.ns[b]) * le[b])
+                indirect.append(g[b] * acc[b] * le[b])
+                cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
+                nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
             rad.append(rad_b)
             rad2.append(rad_b * rad_b)
             y = dr.fma(float(ybar[b]), rad_b, y)
@@ -325,7 +337,7 @@ class CameraTracer(BandPathTracer):
         chunk_pix = max(1, self.chunk_paths // spp)
         for p0 in range(0, n_pix, chunk_pix):
             npx = min(chunk_pix, n_pix - p0)
-            fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state)
+            fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state, layers)
             acc, e1 = self._continue(tab, c, fh)
             sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp, layers)
             del fh, acc, e1
