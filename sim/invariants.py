@@ -4,7 +4,8 @@
     that reading — the noise-free value at the geometry the world really rendered, at the
     lamp's set level — within the instrument's stated uncertainty:
     radiometers ±2 % radiometric and ±0.3 nm wavelength (`sim.radiometer_common`), 5
-    significant digits on the wire, the sphere's 0.02 % noise and slow drift; the gonio ±2 %
+    significant digits on the wire, the lamp change the lab's `lamp-drift` gate accepts
+    unflagged (0.5 %) plus the sphere's 0.02 % noise and slow drift; the gonio ±2 %
     plus the white standard's ±0.7 % and the spectrometer's own scatter.  The geometry the
     world rendered must also be the one the reading claims (patch, sample angle within
     `ANGLE_TOLERANCE_DEG`, panel point, gonio material and arm angles).
@@ -41,7 +42,18 @@ from normbox_lab.sim.harness import Execution, qa_listing, runs_listing
 RADIOMETRIC = 0.02
 WAVELENGTH_NM = 0.3
 DIGITS_REL = 1e-4                  # "#.####e±#": half a unit in the 5th digit, with margin
-LAMP_REL = 0.003                   # sphere noise (4σ of 0.02 %) + slow drift over a run
+SPHERE_NOISE_REL = 0.001           # sphere noise (4σ of 0.02 %) + slow drift over a run
+
+
+def lamp_gate_rel() -> float:
+    """The lamp change the lab accepts without a flag (its `lamp-drift` gate, 0.5 %): part
+    of an accepted reading's stated uncertainty."""
+    from normbox_lab.acquire.quality import QualityLimits
+
+    return float(QualityLimits().lamp_drift_percent) / 100.0
+
+
+LAMP_REL = lamp_gate_rel() + SPHERE_NOISE_REL
 ABS_FLOOR = 2e-9                   # values below 1e-9 are sent as 0.0000e-9
 GONIO_REL = 0.027                  # ±2 % gonio + ±0.7 % white standard
 ANGLE_TOLERANCE_DEG = 0.25
