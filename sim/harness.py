@@ -207,6 +207,9 @@ def _install_engine_probe(journal_fd: int, action: Action | None, notes: dict[st
                 entry["estimates"] = {k: float(v) for k, v in
                                       dict(getattr(self, "_estimates", {}) or {}).items()}
                 entry["suspend_timeout_s"] = float(getattr(self, "suspend_timeout_s", 0.0))
+            elif ev.kind == "estimates":          # re-estimated after a skipped reading
+                entry["estimates"] = {k: float(v) for k, v in
+                                      dict(ev.data.get("estimates") or {}).items()}
             if ev.kind == "reading-stored":       # what the world showed since the last one
                 entry["view"] = notes.pop("view", None)
                 entry["brdf"] = notes.pop("brdf", None)

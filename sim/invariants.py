@@ -305,6 +305,8 @@ def no_hang(ex: Execution) -> list[Violation]:
                 suspend_s = float(e.get("suspend_timeout_s") or suspend_s)
                 fired_marks = [int(e.get("f", 0))] * 2
                 state_s = max([0.0, *(float(v) for v in estimates.values())])
+            elif ev == "estimates":           # the engine re-estimated after a skip
+                estimates = {**estimates, **(e.get("estimates") or {})}
             elif ev in ("fault", "suspended", "prompt", "warning"):
                 c = counts.setdefault(e.get("key", ""), {})
                 c[ev] = c.get(ev, 0) + 1
