@@ -64,28 +64,33 @@ class Acquisition:
     tec_temperature_c: float
 
 
-def _seabreeze(backend: str, pyusb_backend: str | None,
-               network_discovery: bool = True) -> tuple[Any, tuple[type, ...]]:
-    """seabreeze's `Spectrometer` on `backend`, and the exceptions a USB failure raises there
-    (pyseabreeze lets pyusb's `USBError` through unwrapped).
+#: pyseabreeze's device listing also multicasts a discovery request for network spectrometers
+#: (UDP to 239.239.239.239:57357 on the default interface, then a wait of 1 s) on every
+#: listing, unless `seabreeze.use(..., network_adapter=...)` names an adapter.  The QE Pro is a
+#: USB device, so the driver names an adapter that is none: pyseabreeze's discovery socket set-up
+#: fails with OSError, which pyseabreeze catches, warns about and skips the discovery — nothing
+#: is sent onto the network (the simulated lab, in CI, must send nothing) and nothing waits.
+NO_NETWORK_ADAPTER = "none"
 
-    pyseabreeze's device listing also looks for network spectrometers (a UDP multicast that
-    waits 1 s of wall time, every listing).  With `network_discovery` False (the simulated
-    lab's QE Pro is on the emulated USB bus) that wait is cut to 1 ms through the API keyword
-    pyseabreeze reads (``multicast_timeout``), which seabreeze's `use` does not pass on."""
+
+def _seabreeze(backend: str, pyusb_backend: str | None) -> tuple[Any, tuple[type, ...]]:
+    """seabreeze's `Spectrometer` on `backend`, and the exceptions a USB failure raises there
+    (pyseabreeze lets pyusb's `USBError` through unwrapped).  On pyseabreeze the network
+    discovery is off (`NO_NETWORK_ADAPTER`)."""
     import warnings
 
     import seabreeze
     import seabreeze.backends
 
-    kwargs = {"pyusb_backend": pyusb_backend} if backend == "pyseabreeze" and pyusb_backend \
-        else {}
+    kwargs: dict[str, Any] = {}
+    if backend == "pyseabreeze":
+        kwargs["network_adapter"] = NO_NETWORK_ADAPTER
+        if pyusb_backend:
+            kwargs["pyusb_backend"] = pyusb_backend
     with warnings.catch_warnings():
         # seabreeze warns when use() comes after a first device; the choice is the same one
         warnings.simplefilter("ignore")
         seabreeze.use(backend, **kwargs)
-    if backend == "pyseabreeze" and not network_discovery:
-        seabreeze.backends.BackendConfig.api_kwargs["multicast_timeout"] = 0.001
     seabreeze.backends.get_backend()             # ImportError here if the backend is missing
     from seabreeze.spectrometers import SeaBreezeError, Spectrometer, list_devices
 
@@ -281,8 +286,7 @@ class QEPro:
                         pyusb_backend: str | None, **options: Any) -> QEPro:
         instrument_id = options.get("instrument_id", "spectrometer")
         try:
-            Spectrometer, errors = _seabreeze(backend, pyusb_backend,
-                                              network_discovery=not options.get("simulated"))
+            Spectrometer, errors = _seabreeze(backend, pyusb_backend)
         except (ImportError, RuntimeError, ValueError) as exc:
             if backend == "pyseabreeze":
                 raise InstrumentError(f"seabreeze unavailable: {exc}",
@@ -291,7 +295,11 @@ class QEPro:
                                        pyusb_backend=pyusb_backend, **options)
 
         def reopen() -> Any:
-            return Spectrometer.from_serial_number(serial)
+            import warnings
+
+            with warnings.catch_warnings():          # the skipped network discovery's note
+                warnings.filterwarnings("ignore", message=".*Skipping IPv4 discovery")
+                return Spectrometer.from_serial_number(serial)
 
         try:
             spec = reopen()

@@ -11,7 +11,7 @@ pyusb backend by name (``seabreeze.use("pyseabreeze", pyusb_backend=NAME)`` →
     from normbox_lab.sim.usb import emulated_usb
     with emulated_usb("qepro", seed=1) as backend:
         import seabreeze
-        seabreeze.use("pyseabreeze", pyusb_backend=backend)
+        seabreeze.use("pyseabreeze", pyusb_backend=backend, network_adapter="none")
         from seabreeze.spectrometers import Spectrometer, list_devices
         spec = Spectrometer.from_first_available()      # VID 0x2457, PID 0x4004
         spec.integration_time_micros(100_000)

@@ -53,7 +53,9 @@ def test_seabreeze_lists_opens_and_reads_the_emulated_qepro():
 
         with warnings.catch_warnings():      # other tests in this process opened one before
             warnings.simplefilter("ignore")
-            seabreeze.use("pyseabreeze", pyusb_backend=backend)
+            # network_adapter="none": pyseabreeze skips its multicast discovery of network
+            # spectrometers (nothing leaves the machine), as the driver does
+            seabreeze.use("pyseabreeze", pyusb_backend=backend, network_adapter="none")
         from seabreeze.spectrometers import SeaBreezeError, Spectrometer, list_devices
 
         devices = list_devices()
@@ -274,3 +276,30 @@ def test_cseabreeze_stays_the_default_on_hardware():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=False, timeout=120).stdout.split()
     assert out == ["InstrumentError", "cseabreeze"]
+
+
+def test_the_driver_sends_nothing_onto_the_network(monkeypatch):
+    """pyseabreeze's listing multicasts a discovery request (UDP to 239.239.239.239:57357)
+    unless an adapter is named; the driver names none (`NO_NETWORK_ADAPTER`), so opening,
+    reading and reopening the simulated QE Pro sends no datagram at all."""
+    import socket
+
+    from normbox_lab.drivers.qepro import QEPro
+
+    sent: list[tuple] = []
+    real_sendto = socket.socket.sendto
+
+    def recording_sendto(self, data, *args):
+        sent.append(args[-1])
+        return real_sendto(self, data, *args)
+
+    monkeypatch.setattr(socket.socket, "sendto", recording_sendto)
+    clock = VirtualClock()
+    core.CONTEXT.reset(clock=clock)
+    sim.device("qepro", clock=clock, light_arm=lambda: 0.0, detector_arm=lambda: 45.0)
+    q = QEPro.open("sim://qepro", clock)
+    q.intensities_counts()
+    q.spec.close()
+    q.spec = q._reopen()                      # a reconnect lists the devices again
+    q.intensities_counts()
+    assert sent == []
