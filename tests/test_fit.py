@@ -158,8 +158,8 @@ def test_fit_error_at_does_not_alternate_between_on_grid_and_between_grid_angles
         data = BrdfData.from_readings(f"p{p:02d}", [
             BrdfReading(float(ti[k]), float(to[k]), 4.0, WL, f[k]) for k in range(ti.size)])
         fit = fit_material(data, 2.0)
-        for kernel in terms:
-            terms[kernel].append([np.sqrt(np.nanmean(fit_error_at(
+        for kernel, rows in terms.items():
+            rows.append([np.sqrt(np.nanmean(fit_error_at(
                 fit, data, float(i), float(o), kernel_deg=kernel) ** 2))
                 for i, o in zip(a_i, a_o)])
     nearest, smooth = (np.mean(terms[k], axis=0)[:8] for k in (0.0, 7.0))   # 30…65°
