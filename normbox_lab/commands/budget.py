@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,14 +37,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _budget(args: argparse.Namespace) -> int:
     import time
-    from pathlib import Path
 
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze.budget_store import budget_run
-    from normbox_lab.core.errors import StoreError
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     if args.paper_table:
         return _paper_table(args)
     t0 = time.perf_counter()

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -21,14 +21,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _export(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from normbox_lab.acquire.export import export_run
     from normbox_lab.acquire.store import Store
-    from normbox_lab.core.errors import StoreError
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     with Store(args.store, read_only=True) as store:
         out = export_run(store, args.run, args.format, args.output)
     print(f"wrote {out}")

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def _size(text: str) -> tuple[int, int]:
@@ -136,10 +136,8 @@ def _render_args(p: argparse.ArgumentParser) -> None:
 
 def _open_store(args: argparse.Namespace):
     from normbox_lab.acquire.store import Store
-    from normbox_lab.core.errors import StoreError
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     return Store(args.store)
 
 

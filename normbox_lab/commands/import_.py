@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,14 +58,11 @@ def _register_prediction(isub: argparse._SubParsersAction) -> None:
 
 def _import_prediction(args: argparse.Namespace) -> int:
     import sys
-    from pathlib import Path
 
     from normbox_lab.acquire.store import Store
-    from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.renderers import PredictionFileError, import_prediction
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     with Store(args.store) as store:
         try:
             run_id, aid = import_prediction(store, args.file, args.ref_run, args.renderer,

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,13 +70,10 @@ def _accept_flagged(p: argparse.ArgumentParser) -> None:
 
 
 def _open(args: argparse.Namespace):
-    from pathlib import Path
 
     from normbox_lab.acquire.store import Store
-    from normbox_lab.core.errors import StoreError
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     return Store(args.store)
 
 

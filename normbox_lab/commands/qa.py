@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,14 +25,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _qa(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze import qa
-    from normbox_lab.core.errors import StoreError
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     with Store(args.store, read_only=not args.recheck) as store:   # only --recheck writes
         rec = store.get_run(args.run)           # an unknown run: StoreError naming it
         if args.recheck:

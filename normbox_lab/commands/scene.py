@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,11 +31,9 @@ def _export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from normbox_lab.acquire.store import Store
-    from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.scene_package import export_scene_package
 
-    if not Path(args.store).exists():
-        raise StoreError(f"no store at {args.store}")
+    require_store(args.store)
     with Store(args.store) as store:
         s = export_scene_package(store, args.run, args.out, light_map_run=args.light_map)
     print(f"scene package of run {s.ref_run}: {len(s.configurations)} configurations, "
