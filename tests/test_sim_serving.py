@@ -42,9 +42,14 @@ def test_endpoint_parsing():
     assert serve.parse_tcp_endpoint("localhost:65535") == ("localhost", 65535)
 
 
-def _pump_until(server: serve.TcpServer, conn: socket.socket, want: bytes) -> bytes:
+def _pump_until(server: serve.TcpServer, conn: socket.socket, want: bytes,
+                clock: VirtualClock | None = None, steps: int = 200) -> bytes:
+    """Step the server until `conn` has received a reply ending in `want` (or `steps` passed);
+    with `clock`, the virtual clock moves 50 ms a step (the replies' line time)."""
     got = b""
-    for _ in range(200):
+    for _ in range(steps):
+        if clock is not None:
+            clock.advance(0.05)
         server.step()
         try:
             got += conn.recv(4096)
@@ -182,22 +187,6 @@ def test_pty_serviced_without_a_client_and_each_client_starts_clean():
         os.close(server.master)
 
 
-def _pump_clock(server: serve.TcpServer, clock: VirtualClock, conn: socket.socket,
-                want: bytes) -> bytes:
-    """`_pump_until` with the virtual clock moving 50 ms a step (the replies' line time)."""
-    got = b""
-    for _ in range(100):
-        clock.advance(0.05)
-        server.step()
-        try:
-            got += conn.recv(4096)
-        except BlockingIOError:
-            pass
-        if got.endswith(want):
-            break
-    return got
-
-
 @pytest.mark.parametrize(("device", "remote", "measure", "ok"), [
     ("cs1000a", b"RMT,1\n", b"MES,1\n", b"OK\n"),
     ("cs2000a", b"RMTS,1\n", b"MEAS,1\n", b"OK00\n"),
@@ -218,7 +207,7 @@ def test_a_new_client_never_gets_the_replies_of_a_measurement_the_last_one_start
             first.setblocking(False)
             server.step()
             first.sendall(remote)
-            assert _pump_clock(server, clock, first, ok) == ok
+            assert _pump_until(server, first, ok, clock, 100) == ok
             first.sendall(measure)
             for _ in range(3):
                 server.step()
@@ -231,9 +220,9 @@ def test_a_new_client_never_gets_the_replies_of_a_measurement_the_last_one_start
             clock.advance(60.0)                         # the measurement would end now
             server.step()
             second.sendall(remote)
-            assert _pump_clock(server, clock, second, ok) == ok
+            assert _pump_until(server, second, ok, clock, 100) == ok
             clock.advance(60.0)
-            assert _pump_clock(server, clock, second, b"never") == b""     # nothing more came
+            assert _pump_until(server, second, b"never", clock, 100) == b""     # nothing more came
     finally:
         server.listener.close()
 
