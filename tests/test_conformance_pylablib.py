@@ -41,7 +41,9 @@ def test_pylablib_rehomes_for_real_and_jogs_the_documented_way(transport):
             assert motor.get_position() == 0 and "homed" in motor.get_status()
             # "+" (pylablib sends direction code 2) turns the rotor towards positive angles
             motor.jog("+", kind="continuous")
-            time.sleep(0.2)
+            deadline = time.monotonic() + 5.0        # the served emulator runs in real time
+            while server.emulator.angle_deg() < 5.5 and time.monotonic() < deadline:
+                motor.get_status()                   # a round trip each, no sleeping
             # pylablib names bit 0x20 "moving_fw" (towards positive), 0x10 "moving_bk"
             assert "moving_fw" in motor.get_status()
             motor.stop(sync=True)

@@ -245,10 +245,14 @@ def test_rfc2217_port_counts_every_waiting_byte_where_socket_counts_one():
                 assert port.read_until(b"\n") == b"OK00\n"
                 port.write(b"IDDR\n")
                 deadline = time.monotonic() + 5
-                while time.monotonic() < deadline and port.in_waiting < len(reply) \
-                        and not (transport == "tcp" and port.in_waiting):
-                    time.sleep(0.01)
-                time.sleep(0.1)                      # the whole reply has arrived by now
+                if transport == "tcp":               # peek until the whole reply has arrived
+                    port._socket.settimeout(5)
+                    while len(port._socket.recv(4096, socket.MSG_PEEK)) < len(reply) \
+                            and time.monotonic() < deadline:
+                        pass
+                else:                                # the RFC 2217 client's reader thread
+                    while port.in_waiting < len(reply) and time.monotonic() < deadline:
+                        pass
                 counts[transport] = port.in_waiting
                 assert port.read_until(b"\n") == reply
             finally:
