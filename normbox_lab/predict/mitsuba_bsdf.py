@@ -61,7 +61,9 @@ def bsdf_class() -> Any:
             out.append(dr.fma(w, v1 - v0, v0))
         return mi.UnpolarizedSpectrum(*out)
 
-    class NormboxBSDF(mi.BSDF):
+    from normbox_lab.predict.standalone_bsdf import two_lobe_base
+
+    class NormboxBSDF(two_lobe_base()):
         def __init__(self, props: Any) -> None:
             mi.BSDF.__init__(self, props)
             diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
@@ -102,94 +104,17 @@ def bsdf_class() -> Any:
 
         # -- the model ---------------------------------------------------------------------
         def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
-            """f (sr⁻¹) for local directions with wi.z > 0 (no cosine)."""
-            cos_i = mi.Frame3f.cos_theta(wi)
-            cos_o = mi.Frame3f.cos_theta(wo)
-            valid = active & (cos_i > 0) & (cos_o > 0)
-            h = dr.normalize(wi + wo)
-            cos_h = mi.Frame3f.cos_theta(h)
-            a2 = self.alpha * self.alpha
-            c2 = cos_h * cos_h
-            d = a2 / (dr.pi * dr.square(c2 * (a2 - 1.0) + 1.0))
-            d = dr.select(cos_h > 0, d, 0.0)
-
-            def g1(cos_t: Any) -> Any:
-                cc = dr.clip(cos_t * cos_t, 1e-30, 1.0)
-                return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cc) / cc))
-
-            geo = d * g1(cos_i) * g1(cos_o) / (4.0 * dr.select(valid, cos_i * cos_o, 1.0))
-            geo = dr.select(valid, geo, 0.0)
-            cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+            """f (sr⁻¹) for local directions with wi.z > 0 (no cosine): the shared GGX and
+            Fresnel lobes with η(λ), spectral kd, ks, and the backscatter lobe."""
             wl = si.wavelengths
             eta = self.eta + self.deta * (wl - 550.0)
-            g = dr.sqrt(dr.fmax(eta * eta - 1.0 + cb * cb, 0.0))
-            fa = (g - cb) / (g + cb)
-            fb = (cb * (g + cb) - 1.0) / (cb * (g - cb) + 1.0)
-            fres = 0.5 * fa * fa * (1.0 + fb * fb)
+            valid, fres, geo = self._lobes(wi, wo, active, eta)
             kd = gather_spectrum(self.kd, wl, active)
             ks = gather_spectrum(self.ks, wl, active)
             kb = gather_spectrum(self.kb, wl, active)
             back = kb * (dr.exp((dr.dot(wi, wo) - 1.0) * self.inv_sigma2) * dr.inv_pi)
             f = kd * dr.inv_pi + ks * fres * geo + back - self.c
             return dr.select(valid, f, 0.0)
-
-        def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
-            cos_o = mi.Frame3f.cos_theta(wo)
-            pdf_d = mi.warp.square_to_cosine_hemisphere_pdf(wo)
-            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.alpha, True)
-            m = dr.normalize(wi + wo)
-            dwh = dr.dot(wo, m)
-            pdf_s = distr.pdf(wi, m) / (4.0 * dr.abs(dwh))
-            pdf_s = dr.select(dwh > 0, pdf_s, 0.0)
-            pdf = self.p_diffuse * pdf_d + (1.0 - self.p_diffuse) * pdf_s
-            return dr.select(active & (cos_o > 0), pdf, 0.0)
-
-        @staticmethod
-        def _to_front(si: Any) -> tuple[Any, Any]:
-            flip = mi.Frame3f.cos_theta(si.wi) < 0
-            wi = mi.Vector3f(si.wi.x, si.wi.y, dr.abs(si.wi.z))
-            return wi, flip
-
-        def sample(self, ctx: Any, si: Any, sample1: Any, sample2: Any, active: Any = True):
-            wi, flip = self._to_front(si)
-            use_d = sample1 < self.p_diffuse
-            wo_d = mi.warp.square_to_cosine_hemisphere(sample2)
-            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.alpha, True)
-            m, _ = distr.sample(wi, sample2)
-            wo_s = mi.reflect(wi, m)
-            wo = dr.select(use_d, wo_d, wo_s)
-            pdf = self._pdf(wi, wo, active)
-            ok = active & (pdf > 0) & (mi.Frame3f.cos_theta(wo) > 0)
-            f = self._f(si, wi, wo, ok)
-            value = f * mi.Frame3f.cos_theta(wo) / dr.select(ok, pdf, 1.0)
-            bs = dr.zeros(mi.BSDFSample3f)
-            bs.wo = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
-            bs.pdf = dr.select(ok, pdf, 0.0)
-            bs.eta = 1.0
-            bs.sampled_type = dr.select(use_d, mi.UInt32(+mi.BSDFFlags.DiffuseReflection),
-                                        mi.UInt32(+mi.BSDFFlags.GlossyReflection))
-            bs.sampled_component = dr.select(use_d, mi.UInt32(0), mi.UInt32(1))
-            return bs, dr.select(ok, value, 0.0)
-
-        def eval(self, ctx: Any, si: Any, wo: Any, active: Any = True):
-            wi, flip = self._to_front(si)
-            wo_l = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
-            f = self._f(si, wi, wo_l, active)
-            return dr.select(active, f * dr.fmax(mi.Frame3f.cos_theta(wo_l), 0.0), 0.0)
-
-        def pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True):
-            wi, flip = self._to_front(si)
-            wo_l = mi.Vector3f(wo.x, wo.y, dr.select(flip, -wo.z, wo.z))
-            return self._pdf(wi, wo_l, active)
-
-        def eval_pdf(self, ctx: Any, si: Any, wo: Any, active: Any = True):
-            return self.eval(ctx, si, wo, active), self.pdf(ctx, si, wo, active)
-
-        def traverse(self, callback: Any) -> None:
-            pass
-
-        def parameters_changed(self, keys: Any) -> None:
-            pass
 
         def to_string(self) -> str:
             return "NormboxBSDF[]"

@@ -41,38 +41,24 @@ def _scalar(value: Any) -> float:
         return float(value[0])
 
 
-def register() -> Any:
-    """Register the plugin for the current Mitsuba variant; returns the class."""
+def two_lobe_base() -> type:
+    """What every BSDF of the model shares, however it stores kd and ks: the GGX geometry and
+    Cook-Torrance Fresnel (`_lobes`), the two-lobe sampling (cosine hemisphere with probability
+    `p_diffuse`, GGX visible normals otherwise, their mixture pdf) and Mitsuba's BSDF interface.
+    A BSDF derives from it (it is an `mi.BSDF`), sets `alpha` and `p_diffuse` and defines `_f`.
+    (normbox-lab's own `predict.mitsuba_bsdf` derives from it too: one copy of the maths.)"""
     import drjit as dr
     import mitsuba as mi
 
-    class NormboxFitBSDF(mi.BSDF):
-        def __init__(self, props: Any) -> None:
-            mi.BSDF.__init__(self, props)
-            self.kd = props.get_unbounded_texture("kd")
-            self.ks = props.get_unbounded_texture("ks")
-            self.alpha_value = float(props.get("alpha", 0.5))
-            self.eta_value = float(props.get("eta", 1.5))
-            self.c_value = float(props.get("c", 0.0))
-            jit = dr.is_jit_v(mi.Float)
-            self.alpha = dr.opaque(mi.Float, self.alpha_value) if jit else self.alpha_value
-            self.eta = dr.opaque(mi.Float, self.eta_value) if jit else self.eta_value
-            self.c = dr.opaque(mi.Float, self.c_value) if jit else self.c_value
-            ks_mean = _scalar(self.ks.mean())
-            kd_mean = _scalar(self.kd.mean())
-            p_glossy = 0.0 if ks_mean <= 0 else min(
-                0.5, max(0.15, 0.25 / max(self.alpha_value, 0.1) * ks_mean
-                         / (ks_mean + max(kd_mean, 0.0))))
-            self.p_diffuse = 1.0 - p_glossy
-            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-                       | mi.BSDFFlags.BackSide)
-            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-                      | mi.BSDFFlags.BackSide)
-            self.m_components = [diffuse, glossy]
-            self.m_flags = diffuse | glossy
+    class TwoLobes(mi.BSDF):
+        alpha: Any
+        p_diffuse: Any
 
         def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
-            """f (sr⁻¹) for local directions, wi.z > 0 (no cosine)."""
+            raise NotImplementedError
+
+        def _lobes(self, wi: Any, wo: Any, active: Any, eta: Any) -> tuple[Any, Any, Any]:
+            """(valid, F, D·G1·G1 / (4 cosθi cosθo)) for local directions, wi.z > 0."""
             cos_i = mi.Frame3f.cos_theta(wi)
             cos_o = mi.Frame3f.cos_theta(wo)
             valid = active & (cos_i > 0) & (cos_o > 0)
@@ -90,14 +76,10 @@ def register() -> Any:
             geo = d * g1(cos_i) * g1(cos_o) / (4.0 * dr.select(valid, cos_i * cos_o, 1.0))
             geo = dr.select(valid, geo, 0.0)
             b = dr.clip(dr.dot(wi, h), 0.0, 1.0)
-            g = dr.sqrt(dr.fmax(self.eta * self.eta - 1.0 + b * b, 0.0))
+            g = dr.sqrt(dr.fmax(eta * eta - 1.0 + b * b, 0.0))
             fa = (g - b) / (g + b)
             fb = (b * (g + b) - 1.0) / (b * (g - b) + 1.0)
-            fres = 0.5 * fa * fa * (1.0 + fb * fb)
-            kd = self.kd.eval(si, active)
-            ks = self.ks.eval(si, active)
-            f = kd * dr.inv_pi + ks * (fres * geo) - self.c
-            return dr.select(valid, f, 0.0)
+            return valid, 0.5 * fa * fa * (1.0 + fb * fb), geo
 
         def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
             cos_o = mi.Frame3f.cos_theta(wo)
@@ -154,6 +136,47 @@ def register() -> Any:
 
         def parameters_changed(self, keys: Any) -> None:
             pass
+
+    return TwoLobes
+
+
+def register() -> Any:
+    """Register the plugin for the current Mitsuba variant; returns the class."""
+    import drjit as dr
+    import mitsuba as mi
+
+    class NormboxFitBSDF(two_lobe_base()):
+        def __init__(self, props: Any) -> None:
+            mi.BSDF.__init__(self, props)
+            self.kd = props.get_unbounded_texture("kd")
+            self.ks = props.get_unbounded_texture("ks")
+            self.alpha_value = float(props.get("alpha", 0.5))
+            self.eta_value = float(props.get("eta", 1.5))
+            self.c_value = float(props.get("c", 0.0))
+            jit = dr.is_jit_v(mi.Float)
+            self.alpha = dr.opaque(mi.Float, self.alpha_value) if jit else self.alpha_value
+            self.eta = dr.opaque(mi.Float, self.eta_value) if jit else self.eta_value
+            self.c = dr.opaque(mi.Float, self.c_value) if jit else self.c_value
+            ks_mean = _scalar(self.ks.mean())
+            kd_mean = _scalar(self.kd.mean())
+            p_glossy = 0.0 if ks_mean <= 0 else min(
+                0.5, max(0.15, 0.25 / max(self.alpha_value, 0.1) * ks_mean
+                         / (ks_mean + max(kd_mean, 0.0))))
+            self.p_diffuse = 1.0 - p_glossy
+            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+                       | mi.BSDFFlags.BackSide)
+            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+                      | mi.BSDFFlags.BackSide)
+            self.m_components = [diffuse, glossy]
+            self.m_flags = diffuse | glossy
+
+        def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
+            """f (sr⁻¹) for local directions, wi.z > 0 (no cosine)."""
+            valid, fres, geo = self._lobes(wi, wo, active, self.eta)
+            kd = self.kd.eval(si, active)
+            ks = self.ks.eval(si, active)
+            f = kd * dr.inv_pi + ks * (fres * geo) - self.c
+            return dr.select(valid, f, 0.0)
 
         def to_string(self) -> str:
             return (f"NormboxFitBSDF[alpha={self.alpha_value}, eta={self.eta_value}, "
