@@ -244,22 +244,31 @@ def test_all_patches_agree_with_one_patch_at_a_time():
             assert r.info["renderer"] == "fastrender-patchset" and r.info["patches"] == 3
 
 
-def test_all_patches_standard_error_is_the_spread_over_seeds():
+@pytest.mark.parametrize("angle_deg", [30.0, 90.0])
+def test_standard_error_is_the_spread_over_seeds(angle_deg):
+    """The stated SE of one configuration (per-path variance) and of all patches per path
+    (sub-batch spread) is the spread of the estimates over 100 seeds: ratio 0.8–1.2 (the
+    ratio's own scatter is ±7 %).  Lanes seeded PCG32(initstate=seed, initseq=lane) were
+    correlated: at 90° the spread was 0.68 of the one-configuration SE."""
     from normbox_lab.predict import materials as mats
 
     wall = mats.truth_wall("model")
-    patches = [mats.truth_patch(n, "model") for n in (2, 24)]
+    patches = [mats.truth_patch(n, "model") for n in (19, 13)]
     box = FastNormbox()
-    runs = [box.render_patches(patches=patches, wall=wall, angle_deg=70.0, n_paths=1 << 14,
-                               seed=s) for s in range(10)]
-    for i in range(len(patches)):
-        rad = np.array([r[i].radiance for r in runs])
-        se = np.mean([r[i].std_error for r in runs], axis=0)
-        ratio = np.median(rad.std(axis=0, ddof=1) / se)
-        assert 0.6 < ratio < 1.5, ratio
-    again = box.render_patches(patches=patches, wall=wall, angle_deg=70.0, n_paths=1 << 14,
-                               seed=0)
-    np.testing.assert_array_equal(again[1].radiance, runs[0][1].radiance)
+    seeds = range(100)
+    view = [[box.render_view(patch=patches[0], wall=wall, angle_deg=angle_deg,
+                             n_paths=1 << 14, seed=s)] for s in seeds]
+    both = [box.render_patches(patches=patches, wall=wall, angle_deg=angle_deg,
+                               n_paths=1 << 13, seed=s) for s in seeds]
+    for name, runs in (("one configuration", view), ("all patches per path", both)):
+        for i in range(len(runs[0])):
+            rad = np.array([r[i].radiance for r in runs])
+            se = np.sqrt(np.mean([r[i].std_error ** 2 for r in runs], axis=0))
+            ratio = float(np.mean(rad.std(axis=0, ddof=1)[10:70] / se[10:70]))
+            assert 0.8 < ratio < 1.2, (name, patches[i].name, angle_deg, ratio)
+    again = box.render_patches(patches=patches, wall=wall, angle_deg=angle_deg,
+                               n_paths=1 << 13, seed=0)
+    np.testing.assert_array_equal(again[1].radiance, both[0][1].radiance)
 
 
 def test_dispersive_patches_are_rendered_one_at_a_time():

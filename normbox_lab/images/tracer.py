@@ -65,6 +65,7 @@ from normbox_lab.predict.bandpath import (
     BandGrid,
     BandPathTracer,
     RectEmitter,
+    lane_rng,
 )
 from normbox_lab.predict.mitsuba_setup import jit_variant
 
@@ -162,9 +163,8 @@ class CameraTracer(BandPathTracer):
         n_b = self.grid.n_bands
         idx = dr.arange(m.UInt32, n)
         gidx = m.UInt64(idx) + dr.opaque(m.UInt64, int(pix0) * int(spp))
-        # seeded by the global path index (the constructor would add the chunk-local index)
-        rng = m.PCG32(size=n)
-        rng.seed(initstate=dr.opaque(m.UInt64, int(seed_state)) + gidx, initseq=gidx)
+        # seeded by the global path index (so a chunk's paths do not depend on the chunking)
+        rng = lane_rng(m, dr, seed_state, gidx)
         pix = dr.opaque(m.UInt32, int(pix0)) + idx // c.spp
         if self.qmc:
             # the spp samples of a pixel are the first spp points of an Owen-scrambled Sobol'
@@ -175,10 +175,7 @@ class CameraTracer(BandPathTracer):
 
             points = 1 << max(int(spp) - 1, 0).bit_length()
             net = m.UInt32(sobol_net(points, QMC_DIMS).ravel())
-            shifter = m.PCG32(size=n)
-            pix64 = m.UInt64(pix)
-            shifter.seed(initstate=dr.opaque(m.UInt64, int(seed_state) ^ 0x51A7E5D) + pix64,
-                         initseq=pix64)
+            shifter = lane_rng(m, dr, int(seed_state) ^ 0x51A7E5D, pix)
             base = (idx - (idx // c.spp) * c.spp) * QMC_DIMS
             draws = _Draws([m.Float((dr.gather(m.UInt32, net, base + d)
                                      ^ shifter.next_uint32()) >> 8) * (1.0 / 16777216.0)
@@ -378,7 +375,8 @@ def _sum(values: Sequence[Any]) -> Any:
 
 
 def _seed_state(seed: int) -> int:
-    """PCG32 initial state from a user seed (one stream per path via initseq)."""
+    """The 64-bit seed of a render from a user seed (`predict.bandpath.lane_rng` hashes it with
+    each path index)."""
     return (int(seed) * 0x9E3779B97F4A7C15 + 0x2545F4914F6CDD1D) & 0xFFFFFFFFFFFFFFFF
 
 

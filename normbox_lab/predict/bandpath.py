@@ -596,8 +596,7 @@ class BandPathTracer:
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         c = self._consts()
-        idx = dr.arange(m.UInt64, n)
-        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=idx)
+        rng = lane_rng(m, dr, seed, dr.arange(m.UInt32, n))
         delta, k, frac = self._wavelength_offset(rng)
         lookup = self._lookup(tab, k, frac)
         ray = self._radiometer_ray(rng)
@@ -740,6 +739,26 @@ class _FirstBounce:
 
 def _chunk_seed(seed: int, chunk_no: int) -> int:
     return (int(seed) * 0x9E3779B1 + chunk_no * 0x85EBCA6B + 0x2545F491) & 0xFFFFFFFFFFFF
+
+
+def lane_rng(m: Any, dr: Any, seed: int, lane: Any) -> Any:
+    """One PCG32 generator per lane, `lane` (UInt32 or UInt64) the lane's index in the whole
+    render, initial state and stream both hashed from (seed, lane) with TEA
+    (`mitsuba.sample_tea_64`), as Mitsuba's own samplers seed theirs.
+
+    Not PCG32(initstate=seed, initseq=lane): streams that share their state and differ only in
+    the increment are correlated.  Measured on the radiometer view at 90° (16 384 paths, 100
+    renders): the spread of the means was 0.68 of the per-path standard error (negatively
+    correlated lanes), 0.90–0.97 with hashed seeds."""
+    s = int(seed) & 0xFFFFFFFFFFFFFFFF
+    key = dr.opaque(m.UInt32, (s ^ (s >> 32) * 0x9E3779B1) & 0xFFFFFFFF)
+    lo = m.UInt32(lane)
+    hi = m.UInt32(m.UInt64(lane) >> 32)
+    state = m.sample_tea_64(lo ^ key, hi ^ dr.opaque(m.UInt32, 0x6A09E667))
+    stream = m.sample_tea_64(hi ^ key, lo ^ dr.opaque(m.UInt32, 0xBB67AE85))
+    rng = m.PCG32(size=dr.width(lo))
+    rng.seed(initstate=state, initseq=stream)
+    return rng
 
 
 def ggx_d(a2: Any, cos_h: Any) -> Any:

@@ -57,6 +57,7 @@ from normbox_lab.predict.bandpath import (
     _chunk_seed,
     fresnel,
     ggx_d,
+    lane_rng,
     max_rel_se,
     smith_g1,
 )
@@ -175,7 +176,7 @@ class PatchSetTracer(BandPathTracer):
             return dr.opaque(m.Float, float(v))
 
         idx = dr.arange(m.UInt32, n)
-        rng = m.PCG32(size=n, initstate=dr.opaque(m.UInt64, int(seed)), initseq=m.UInt64(idx))
+        rng = lane_rng(m, dr, seed, idx)
         # the wavelength cell of the lane, and frac from the triangle's density inside it
         sub = int(strata.counts.sum())
         k = dr.gather(m.UInt32, m.UInt32(strata.cell_of_lane),
