@@ -33,7 +33,7 @@ from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG, VirtualNormbox
 #: seed base of the prediction's per-configuration renders (`demo`, `pipeline.predict_run`)
 PREDICTION_SEED = 1
 #: the world's (truth's) target largest relative standard error per band, per render quality
-TRUTH_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
+TRUTH_REL_SE = {"quick": 0.02, "default": 0.0015, "high": 0.001}
 #: first pass of the adaptive render (paths): the world's default, and a smaller one when the
 #: `render` source sets a larger target (so the render does not overshoot it)
 PILOT_PATHS = 1 << 14

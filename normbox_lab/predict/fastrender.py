@@ -203,12 +203,22 @@ class FastNormbox:
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
         tr = self.tracer(angle_deg, direct_only=direct_only)
-        est = tr.render({"patch": patch, "wall": wall, "holder": holder}, LAMP_GRID_NM,
-                        lamp.radiance(LAMP_GRID_NM), n_paths=n_paths,
-                        target_rel_se=None if n_paths is not None else target_rel_se,
-                        seed=seed, max_paths=max_paths, pilot_paths=pilot_paths)
+        target = None if n_paths is not None else target_rel_se
+        if tr.separable(patch):
+            # randomised QMC at the patch vertex, wavelength strata (`patchset`): 1.6–3× fewer
+            # paths than plain Monte Carlo to the same standard error
+            est = tr.render_patches([patch], {"wall": wall, "holder": holder}, LAMP_GRID_NM,
+                                    lamp.radiance(LAMP_GRID_NM), n_paths=n_paths,
+                                    target_rel_se=target, seed=seed, max_paths=max_paths,
+                                    pilot_paths=pilot_paths)[0]
+            renderer = "fastrender-qmc"
+        else:
+            est = tr.render({"patch": patch, "wall": wall, "holder": holder}, LAMP_GRID_NM,
+                            lamp.radiance(LAMP_GRID_NM), n_paths=n_paths, target_rel_se=target,
+                            seed=seed, max_paths=max_paths, pilot_paths=pilot_paths)
+            renderer = "fastrender"
         info = {"angle_deg": float(angle_deg), "patch": patch.name, "wall": wall.name,
-                "renderer": "fastrender", "n_paths": est.n_paths, "seed": int(seed),
+                "renderer": renderer, "n_paths": est.n_paths, "seed": int(seed),
                 "max_depth": tr.max_depth, "target_rel_se": target_rel_se,
                 "max_rel_se": max_rel_se(est.radiance, est.std_error)}
         return RenderResult(est.wavelength_nm, est.radiance, est.std_error,
@@ -276,7 +286,7 @@ def config_seed(seed: int, name: str) -> int:
 
 #: the largest relative standard error over the bands, per configuration, of each prediction
 #: quality (the fast renderer's equivalent of `render.Quality`)
-FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.004, "high": 0.001}
+FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.0015, "high": 0.001}
 
 
 @dataclass

@@ -63,7 +63,7 @@ from normbox_lab.predict.bandpath import (
 )
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
-SUB_BATCH = 1024
+SUB_BATCH = 256
 #: random numbers of the first vertex taken from a randomised quasi-Monte-Carlo net (the
 #: radiometer ray 2, the light sample 2, the mixture's patch 1, the direction 3), then those of
 #: the continuation's first bounce (`bandpath.FIRST_BOUNCE_DRAWS`)
@@ -142,6 +142,10 @@ class PatchSetTracer(BandPathTracer):
     qmc = True
 
     # ---- per-patch tables --------------------------------------------------------------
+    def separable(self, patch: Any) -> bool:
+        """Whether `patch` can be rendered here (no λ-dependent Fresnel η)."""
+        return self.material_tables(patch)["deta"] == 0.0
+
     def _patch_tables(self, patches: Sequence[Any]) -> SimpleNamespace:
         mats = [self.material_tables(p) for p in patches]
         if any(t["deta"] != 0.0 for t in mats):
