@@ -190,7 +190,7 @@ def test_gonio_calibration_nonlinearity_noise(off):
 
 def test_fast_world_renders_with_its_own_random_numbers():
     from normbox_lab.predict.fastrender import config_seed
-    from normbox_lab.sim.fast_world import PREDICTION_SEED, FastVirtualNormbox
+    from normbox_lab.sim.fast_world import PREDICTION_SEED, TRUTH_REL_SE, FastVirtualNormbox
     from normbox_lab.sim.world import TRUTH_RENDER_SEED
 
     calls = []
@@ -203,7 +203,7 @@ def test_fast_world_renders_with_its_own_random_numbers():
         w = FastVirtualNormbox(errors=spec, fast=Fast())
         w.render(19, 30.0)
     # the quality's target, or the render source's; never the prediction's seed
-    assert [t for _, t in calls] == [0.004, 0.01, 0.01]
+    assert [t for _, t in calls] == [TRUTH_REL_SE["default"], 0.01, 0.01]
     assert calls[0][0] == config_seed(TRUTH_RENDER_SEED + 1, "patch-19@30")
     assert calls[2][0] == config_seed(TRUTH_RENDER_SEED + 5, "patch-19@30")
     assert config_seed(PREDICTION_SEED, "patch-19@30") not in {s for s, _ in calls}
