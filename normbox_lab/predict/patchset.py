@@ -72,6 +72,18 @@ QMC_DIMS = FIRST_VERTEX_DRAWS + FIRST_BOUNCE_DRAWS
 #: the fewest sub-batches of a render (so that their spread is an error estimate at all)
 MIN_SUB_BATCHES = 4
 _NONE = 0xFFFFFFFF
+#: sub-batch groups per chunk for the standard error: a chunk of more sub-batches sums them in
+#: groups (one matrix product per group and wavelength cell), at least this many groups
+SE_GROUPS_PER_CHUNK = 64
+
+
+def _group_size(sub_batches: int) -> int:
+    """Sub-batches per group: the largest power of two that divides `sub_batches` and leaves at
+    least `SE_GROUPS_PER_CHUNK` groups (1 for a small chunk)."""
+    g = 1
+    while sub_batches % (2 * g) == 0 and sub_batches // (2 * g) >= SE_GROUPS_PER_CHUNK:
+        g *= 2
+    return g
 
 
 @dataclass(frozen=True)
@@ -270,73 +282,95 @@ class PatchSetTracer(BandPathTracer):
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         post = [res.acc[b] * le[b] for b in range(n_b)]
         late = [res.late[b] * le[b] for b in range(n_b)]
-        dr.eval(le, post, late, res.pstar)
+        dr.eval(post, late, res.pstar)           # one kernel: the whole path loop
+        # light that came back to the patch (rare): only those lanes leave the device
+        late_lanes = dr.compress(res.pstar != dr.opaque(m.UInt32, _NONE))
+        late = [dr.gather(m.Float, v, late_lanes) for v in late]
+        dr.eval(late)
 
         def np32(values: Sequence[Any]) -> np.ndarray:
             """(n, len(values)) float32, as a transposed view of a row-major stack."""
             return np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
 
-        return {"le": np32(le), "post": np32(post), "late": np32(late),
+        lanes = np.asarray(late_lanes, dtype=np.int64)
+        return {"post": np32(post), "late": np32(late).reshape(lanes.size, n_b),
+                "late_lanes": lanes,
                 "rows_nee": np32(rows_nee), "rows_bsdf": np32(rows_bsdf),
                 "first": np.asarray(first, dtype=bool), "frac": np.asarray(frac, np.float32),
-                "pstar": np.asarray(res.pstar, dtype=np.uint32)}
+                "pstar": np.asarray(res.pstar, dtype=np.uint32)[lanes]}
 
-    def _sub_batch_estimates(self, out: Mapping[str, np.ndarray], pt: SimpleNamespace,
-                             strata: WavelengthStrata) -> np.ndarray:
-        """(J, P, B): each sub-batch's estimate of every patch's band radiance."""
+    def _group_sums(self, out: Mapping[str, np.ndarray], pt: SimpleNamespace,
+                    strata: WavelengthStrata, group: int) -> np.ndarray:
+        """(G, P, B): per group of `group` consecutive sub-batches, the sum of their estimates
+        of every patch's band radiance (G = sub-batches / group).
+
+        Per wavelength cell k and group: the light sample's factor is the lamp spectrum,
+        linear in frac inside the cell like the patch tables, so its part needs only the
+        sums Σ x, Σ x·frac, Σ x·frac² of each row x; the BSDF sample's part meets the
+        continuation's radiance per band (one matrix product over the group's lanes)."""
         n_p, n_b, step = pt.count, self.grid.n_bands, self.grid.step_nm
         sub = int(strata.counts.sum())
         n = out["frac"].size
-        n_j = n // sub
-        est = np.zeros((n_j, n_p, n_b))
-        frac = out["frac"].reshape(n_j, sub, 1)
-        non_first = (~out["first"]).astype(np.float32).reshape(n_j, 1, sub)
+        n_g = n // (sub * group)
+        est = np.zeros((n_g, n_p, n_b))
         n_rows = out["rows_nee"].shape[1]
-        spectra = [(pt.kd, pt.kd_slope, 0)]
-        spectra.append((pt.ks, pt.ks_slope, 1))
+
+        def lanes(a: np.ndarray, lo: int, hi: int) -> np.ndarray:
+            """(G, lanes of cell [lo, hi) in the group, columns) of a per-lane array."""
+            a = a.reshape(n_g, group, sub, -1)[:, :, lo:hi]
+            return a.reshape(n_g, group * (hi - lo), a.shape[-1])
+
+        frac = out["frac"][:, None]
+        non_first = (~out["first"]).astype(np.float32)[:, None]
+        spectra = [(pt.kd - np.pi * pt.c[:, None], pt.kd_slope, 0),
+                   (pt.ks, pt.ks_slope, 1)]
         if pt.has_kb:
             spectra.append((pt.kb, pt.kb_slope, 1 + n_p))
-        pi_c = np.pi * pt.c[:, None]
-        weight = strata.weight
         for kk in range(strata.counts.size):
             lo, hi = int(strata.bounds[kk]), int(strata.bounds[kk + 1])
             cols = kk + step * np.arange(n_b)
-            fk = frac[:, lo:hi]
-            for rows, w_band in (("rows_nee", "le"), ("rows_bsdf", "post")):
-                x = out[rows].reshape(n_j, sub, n_rows)[:, lo:hi]
-                wb = out[w_band].reshape(n_j, sub, n_b)[:, lo:hi]
-                xx = np.concatenate([x, x * fk], axis=2).transpose(0, 2, 1)
-                mm = np.matmul(xx, wb).astype(np.float64) * weight[kk]      # (J, 2R, B)
-                for table, table_slope, r0 in spectra:
-                    if r0 == 0:                       # kd: one row (A), patch-independent
-                        est += ((table[:, cols] - pi_c)[None] * mm[:, None, 0]
-                                + table_slope[:, cols][None] * mm[:, None, n_rows])
-                    else:
-                        est += (table[:, cols][None] * mm[:, r0:r0 + n_p]
-                                + table_slope[:, cols][None]
-                                * mm[:, n_rows + r0:n_rows + r0 + n_p])
-            post = out["post"].reshape(n_j, sub, n_b)[:, lo:hi]
-            est += (np.matmul(non_first[:, :, lo:hi], post)[:, 0].astype(np.float64)
-                    * weight[kk])[:, None, :]
+            fk = lanes(frac, lo, hi)
+            w = strata.weight[kk]
+            lv, ls = pt.le[cols], pt.le_slope[cols]
+            # light sample: Σ x·frac^i, i = 0, 1, 2 → (G, R, 3)
+            powers = np.concatenate([np.ones_like(fk), fk, fk * fk], axis=2)
+            a = np.matmul(lanes(out["rows_nee"], lo, hi).transpose(0, 2, 1),
+                          powers).astype(np.float64) * w
+            # BSDF sample: Σ x·W_b and Σ x·frac·W_b → (G, 2R, B)
+            x = lanes(out["rows_bsdf"], lo, hi)
+            mm = np.matmul(np.concatenate([x, x * fk], axis=2).transpose(0, 2, 1),
+                           lanes(out["post"], lo, hi)).astype(np.float64) * w
+            for table, table_slope, r0 in spectra:
+                tv, ts = table[:, cols], table_slope[:, cols]            # (P, B)
+                r = slice(0, 1) if r0 == 0 else slice(r0, r0 + n_p)   # kd: one row (A)
+                rs = slice(n_rows + r.start, n_rows + r.stop)
+                est += (a[:, r, 0:1] * (tv * lv) + a[:, r, 1:2] * (tv * ls + ts * lv)
+                        + a[:, r, 2:3] * (ts * ls))
+                est += tv[None] * mm[:, r] + ts[None] * mm[:, rs]
+            post = np.matmul(lanes(out["post"], lo, hi).transpose(0, 2, 1),
+                             lanes(non_first, lo, hi))[..., 0]
+            est += (post.astype(np.float64) * w)[:, None, :]
         # light that came back to the patch: for the picked patch p* only
-        lanes = np.nonzero(out["pstar"] != _NONE)[0]
-        if lanes.size:
-            local = lanes % sub
+        lanes_late = out["late_lanes"]
+        if lanes_late.size:
+            local = lanes_late % sub
             cell = strata.cell_of_lane[local].astype(np.int64)
             cols = cell[:, None] + step * np.arange(n_b)[None, :]
-            p = out["pstar"][lanes].astype(np.int64)
-            fr = out["frac"][lanes, None].astype(np.float64)
-            late = out["late"][lanes].astype(np.float64)
-            rows = out["rows_bsdf"][lanes].astype(np.float64)
+            p = out["pstar"].astype(np.int64)
+            fr = out["frac"][lanes_late, None].astype(np.float64)
+            late = out["late"].astype(np.float64)
+            rows = out["rows_bsdf"][lanes_late].astype(np.float64)
+            k = np.arange(lanes_late.size)
             factor = ((pt.kd[p[:, None], cols] + fr * pt.kd_slope[p[:, None], cols]
-                       - pi_c[p]) * rows[:, :1]
+                       - np.pi * pt.c[p, None]) * rows[:, :1]
                       + (pt.ks[p[:, None], cols] + fr * pt.ks_slope[p[:, None], cols])
-                      * rows[np.arange(lanes.size), 1 + p][:, None])
+                      * rows[k, 1 + p][:, None])
             if pt.has_kb:
                 factor += ((pt.kb[p[:, None], cols] + fr * pt.kb_slope[p[:, None], cols])
-                           * rows[np.arange(lanes.size), 1 + n_p + p][:, None])
-            factor = np.where(out["first"][lanes, None], factor, 1.0)
-            np.add.at(est, (lanes // sub, p), factor * late * strata.weight[cell][:, None])
+                           * rows[k, 1 + n_p + p][:, None])
+            factor = np.where(out["first"][lanes_late, None], factor, 1.0)
+            np.add.at(est, (lanes_late // (sub * group), p),
+                      factor * late * strata.weight[cell][:, None])
         return est
 
     # ---- public ------------------------------------------------------------------------
@@ -359,6 +393,8 @@ class PatchSetTracer(BandPathTracer):
             raise ValueError("no patches")
         t0 = time.perf_counter()
         pt = self._patch_tables(patches)
+        pt.le = self.grid.table(emitter_wavelength_nm, emitter_radiance)
+        pt.le_slope = np.diff(pt.le, append=pt.le[-1:])
         slots = {**materials, self.patch_slot_name: patches[0]}
         tab = self._tables(slots, emitter_wavelength_nm, emitter_radiance, extra_slots=patches)
         strata = WavelengthStrata.build(self.grid.step_nm)
@@ -368,6 +404,7 @@ class PatchSetTracer(BandPathTracer):
         s1 = np.zeros((n_p, n_b))
         s2 = np.zeros((n_p, n_b))
         n_j = 0
+        n_g = 0
         chunk_no = 0
 
         def whole(v: int) -> int:
@@ -381,13 +418,17 @@ class PatchSetTracer(BandPathTracer):
                 chunk_no += 1
                 # one BLAS thread: the sums' order, and so every bit, the same in any process
                 # (dask workers run with one BLAS thread, a plain process with several)
+                group = _group_size(n // sub)
                 with threadpool_limits(1, user_api="blas"):
-                    est = self._sub_batch_estimates(out, pt, strata)
+                    est = self._group_sums(out, pt, strata, group)
                 s1 += est.sum(axis=0)
-                s2 += np.einsum("jpb,jpb->pb", est, est)
-                n_j += est.shape[0]
+                s2 += np.einsum("gpb,gpb->pb", est, est) / group
+                n_j += est.shape[0] * group
+                n_g += est.shape[0]
             mean = s1 / n_j
-            var = np.maximum(s2 / n_j - mean * mean, 0.0) * n_j / max(n_j - 1, 1)
+            # groups of k sub-batches: their means y have variance σ²/k, and
+            # Σ k·(y − mean)² = s2 − n_j·mean² has expectation (groups − 1)·σ²
+            var = np.maximum(s2 - n_j * mean * mean, 0.0) / max(n_g - 1, 1)
             se = np.sqrt(var / n_j)
             if target_rel_se is None:
                 break
