@@ -272,6 +272,36 @@ def test_standard_error_is_the_spread_over_seeds(angle_deg):
     np.testing.assert_array_equal(again[1].radiance, both[0][1].radiance)
 
 
+def test_guide_to_the_aperture_sides_is_unbiased_and_pays():
+    """The patch vertex's area sampling of the aperture's side faces (one-sample MIS with the
+    BSDF mixture) against the same renderer without it, independent seeds, 524 288 paths: the
+    same radiance (the patches share paths, so one z per angle), and less variance per path
+    (measured 5–12× at 30–60°, 3× at 75°, 2× at 90°)."""
+    from normbox_lab.predict import materials as mats
+
+    wall = mats.truth_wall("model")
+    patches = [mats.truth_patch(n, "model") for n in (2, 19, 24)]
+    box = FastNormbox()
+    for angle, gain in ((30.0, 3.0), (60.0, 3.0), (90.0, 1.4)):
+        tr = box.tracer(angle)
+        guide = tr.guide
+        assert guide is not None and len(guide.rects) == 4
+        with_guide = box.render_patches(patches=patches, wall=wall, angle_deg=angle,
+                                        n_paths=1 << 19, seed=31)
+        tr.guide = None
+        try:
+            without = box.render_patches(patches=patches, wall=wall, angle_deg=angle,
+                                         n_paths=1 << 19, seed=32)
+        finally:
+            tr.guide = guide
+        for a, b in zip(with_guide, without, strict=True):
+            z = (a.radiance - b.radiance) / np.hypot(a.std_error, b.std_error)
+            assert abs(np.mean(z)) < 3.5, (angle, np.mean(z))
+            assert np.median((b.std_error / a.std_error) ** 2) > gain, angle
+    # direct light only: no guide (nothing to gain in one bounce)
+    assert box.tracer(90.0, direct_only=True).guide is None
+
+
 def test_dispersive_patches_are_rendered_one_at_a_time():
     from normbox_lab.predict import materials as mats
     from normbox_lab.predict.fastrender import predict_spectra

@@ -178,6 +178,9 @@ class FastNormbox:
     def tracer(self, angle_deg: float, *, direct_only: bool = False) -> Any:
         """The tracer (max_depth 12, or 2 for the direct light only) with the patch at angle:
         a `patchset.PatchSetTracer` (a `BandPathTracer` that can also serve all patches)."""
+        from normbox_lab.predict import scene as nbscene
+        from normbox_lab.predict.patchset import GuideRects
+
         self._ensure_scene(angle_deg)
         depth = 2 if direct_only else self.max_depth
         tr = self._tracers.get(depth)
@@ -187,6 +190,8 @@ class FastNormbox:
                 self._radiometer, self._emitter, variant=self.variant, emitter_slot="panel",
                 grid=self.grid, max_depth=depth, rr_depth=self.rr_depth,
                 chunk_paths=self.chunk_paths, symbolic=self.symbolic)
+            if depth > 2:        # light from the walls: only with more than one bounce
+                tr.guide = GuideRects(nbscene.aperture_sides_m(self.geometry))
         return tr
 
     def render_view(self, *, patch: Any, wall: Any, angle_deg: float, holder: Any = None,

@@ -144,6 +144,19 @@ def moving_transforms(geometry: Any, angle_deg: float) -> dict[str, Any]:
                                  None)["to_world"]}
 
 
+def aperture_sides_m(geometry: Any = None) -> tuple:
+    """The aperture's four side faces (as `scene_dict` builds them), each (corner, edge 1,
+    edge 2) in metres: lit by the panel from close by, small and bright as the sample sees
+    them (`predict.patchset.GuideRects`)."""
+    g = as_geometry(geometry)
+    top = g.box_inner_mm / 1000.0
+    hx, hy = g.aperture_x_mm / 2000.0, g.aperture_y_mm / 2000.0
+    up = (0.0, 0.0, g.ceiling_thickness_mm / 1000.0)
+    along_y, along_x = (0.0, 2 * hy, 0.0), (2 * hx, 0.0, 0.0)
+    return (((-hx, -hy, top), along_y, up), ((hx, -hy, top), along_y, up),
+            ((-hx, -hy, top), along_x, up), ((-hx, hy, top), along_x, up))
+
+
 def scene_dict(geometry: Any, *, angle_deg: float, patch_bsdf: Any, wall_bsdf: Any,
                holder_bsdf: Any, lamp_values: np.ndarray, lamp_grid_nm: np.ndarray,
                film: dict[str, Any], max_depth: int = 12,
