@@ -25,7 +25,8 @@ quality (0.15 % largest band relative SE, truth and prediction: `sim.fast_world.
 `predict.fastrender.FAST_TARGET_REL_SE`).  The render noise is almost all a common scale of
 the spectrum, and ΔE00 of a bright neutral patch moves 0.2 per 1 % of luminance: at 0.4 % /
 0.4 % the noise alone reached ΔE00 0.255 (one seed of two), at 0.2 % / 0.2 % 0.149–0.179 (three
-seeds), at 0.15 % / 0.15 % 0.139–0.148.
+seeds), at 0.15 % / 0.15 % 0.139–0.148, and 0.076–0.123 (three seeds) once the patch vertex
+also sampled the aperture's side faces (docs/virtual-normbox.md).
 """
 
 from __future__ import annotations
