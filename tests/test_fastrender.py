@@ -352,6 +352,8 @@ def test_fast_renderers_are_unbiased_against_stock_mitsuba():
                                 cache=False, seed=7)
             zs.append(_agreement(f, stock))
     z = np.concatenate(zs)
+    print(f"\nfast vs stock, {len(zs)} renders × {zs[0].size} bands: z mean {np.mean(z):+.3f}, "
+          f"RMS {np.sqrt(np.mean(z * z)):.3f}, |z| > 4: {int(np.sum(np.abs(z) > 4.0))}")
     assert abs(np.mean(z)) < 0.15, np.mean(z)
     assert 0.85 < np.sqrt(np.mean(z * z)) < 1.2, np.sqrt(np.mean(z * z))
     assert np.sum(np.abs(z) > 4.0) <= 2
