@@ -61,17 +61,16 @@ import numpy as np
 
 from normbox_lab.images.camera import AUX_IMAGES, LAYERS, PinholeCamera, SpectralImage
 from normbox_lab.predict.bandpath import (
-    FIRST_BOUNCE_DRAWS,
     BandGrid,
     BandPathTracer,
     RectEmitter,
-    lane_rng,
 )
 from normbox_lab.predict.mitsuba_setup import jit_variant
+from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, lane_rng
 
 #: a path's random numbers taken from each pixel's quasi-random point set: the wavelength
 #: offset 2, the jitter in the pixel 2, the light sample 2 and the direction 3 at the first hit,
-#: then the continuation's first bounce (`bandpath.FIRST_BOUNCE_DRAWS`, the first unused)
+#: then the continuation's first bounce (`streams.FIRST_BOUNCE_DRAWS`, the first unused)
 FIRST_HIT_DRAWS = 9
 QMC_DIMS = FIRST_HIT_DRAWS + FIRST_BOUNCE_DRAWS
 
@@ -375,7 +374,7 @@ def _sum(values: Sequence[Any]) -> Any:
 
 
 def _seed_state(seed: int) -> int:
-    """The 64-bit seed of a render from a user seed (`predict.bandpath.lane_rng` hashes it with
+    """The 64-bit seed of a render from a user seed (`predict.streams.lane_rng` hashes it with
     each path index)."""
     return (int(seed) * 0x9E3779B97F4A7C15 + 0x2545F4914F6CDD1D) & 0xFFFFFFFFFFFFFFFF
 

@@ -179,7 +179,7 @@ class FastNormbox:
         """The tracer (max_depth 12, or 2 for the direct light only) with the patch at angle:
         a `patchset.PatchSetTracer` (a `BandPathTracer` that can also serve all patches)."""
         from normbox_lab.predict import scene as nbscene
-        from normbox_lab.predict.patchset import GuideRects
+        from normbox_lab.predict.guide import GuideRects
 
         self._ensure_scene(angle_deg)
         depth = 2 if direct_only else self.max_depth

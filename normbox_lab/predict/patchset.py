@@ -51,22 +51,21 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 from normbox_lab.predict.bandpath import (
-    FIRST_BOUNCE_DRAWS,
     BandEstimate,
     BandPathTracer,
-    _chunk_seed,
     fresnel,
     ggx_d,
-    lane_rng,
     max_rel_se,
     smith_g1,
 )
+from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
+from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, chunk_seed, lane_rng
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
 SUB_BATCH = 256
 #: random numbers of the first vertex taken from a randomised quasi-Monte-Carlo net (the
 #: radiometer ray 2, the light sample 2, the mixture's patch 1, the direction 3), then those of
-#: the continuation's first bounce (`bandpath.FIRST_BOUNCE_DRAWS`)
+#: the continuation's first bounce (`streams.FIRST_BOUNCE_DRAWS`)
 FIRST_VERTEX_DRAWS = 8
 QMC_DIMS = FIRST_VERTEX_DRAWS + FIRST_BOUNCE_DRAWS
 #: the fewest sub-batches of a render (so that their spread is an error estimate at all)
@@ -146,74 +145,10 @@ class _Draws:
         return self.values.pop(0)
 
 
-@dataclass(frozen=True)
-class GuideRects:
-    """Small bright rectangles the patch vertex samples directly (by area, one-sample MIS with
-    the BSDF mixture): each (corner, edge 1, edge 2) in metres."""
-
-    rects: tuple[tuple[tuple[float, float, float], tuple[float, float, float],
-                       tuple[float, float, float]], ...]
-
-    @property
-    def areas_m2(self) -> np.ndarray:
-        return np.array([np.linalg.norm(np.cross(e1, e2)) for _, e1, e2 in self.rects])
-
-
-#: the share of the patch vertex's direction samples that go to the guide rectangles
-GUIDE_SHARE = 0.1
-
-
-class _GuideKernel:
-    """`GuideRects` in a kernel: area sampling (rectangle by area, point uniform) and its
-    solid-angle pdf for any direction (every rectangle the ray crosses, occluded or not)."""
-
-    def __init__(self, m: Any, dr: Any, guide: GuideRects) -> None:
-        self.m, self.dr = m, dr
-        areas = guide.areas_m2
-        self.total = float(areas.sum())
-        self.cum = np.cumsum(areas) / self.total
-        self.rects = []
-        for (corner, e1, e2), area in zip(guide.rects, areas, strict=True):
-            n = np.cross(e1, e2) / area
-            self.rects.append(tuple(self._vec(v) for v in (corner, e1, e2, n))
-                              + (1.0 / float(np.dot(e1, e1)), 1.0 / float(np.dot(e2, e2))))
-
-    def _vec(self, v: Any) -> Any:
-        f = self.dr.opaque
-        return self.m.Vector3f(*(f(self.m.Float, float(x)) for x in v))
-
-    def sample(self, o: Any, u_rect: Any, u_s: Any, u_t: Any) -> Any:
-        """A world direction from o to a point uniform on the rectangles' total area."""
-        dr = self.dr
-        corner, e1, e2 = self.rects[-1][:3]
-        for k in range(len(self.rects) - 2, -1, -1):
-            pick = u_rect < float(self.cum[k])
-            c, a, b = self.rects[k][:3]
-            corner, e1, e2 = (dr.select(pick, c, corner), dr.select(pick, a, e1),
-                              dr.select(pick, b, e2))
-        return dr.normalize(corner + u_s * e1 + u_t * e2 - o)
-
-    def pdf(self, o: Any, w: Any) -> Any:
-        """Solid-angle pdf at o of the world direction w."""
-        dr, m = self.dr, self.m
-        pdf = m.Float(0.0)
-        for corner, e1, e2, n, inv1, inv2 in self.rects:
-            cos_n = dr.dot(w, n)
-            t = dr.dot(corner - o, n) / dr.select(cos_n != 0, cos_n, 1.0)
-            rel = o + t * w - corner
-            s, r = dr.dot(rel, e1) * inv1, dr.dot(rel, e2) * inv2
-            hit = (cos_n != 0) & (t > 0) & (s >= 0) & (s <= 1) & (r >= 0) & (r <= 1)
-            pdf += dr.select(hit, t * t / (dr.abs(cos_n) * self.total), 0.0)
-        return pdf
-
-
 class PatchSetTracer(BandPathTracer):
     """`BandPathTracer` (radiometer view) with `render_patches`: every patch per path."""
 
     patch_slot_name = "patch"
-    #: rectangles the patch vertex also samples by area (`FastNormbox`: the aperture's side
-    #: faces), or None
-    guide: GuideRects | None = None
     #: the first vertex's and first bounce's random numbers from a randomised Sobol' net
     qmc = True
 
@@ -292,7 +227,7 @@ class PatchSetTracer(BandPathTracer):
         wl, em_w, pdf_l, ok = self._light_sample(c, frame, o, draws, first)
         # one uniform picks the technique: the guide with probability β, else the mixture
         # (and its patch, from the same uniform rescaled)
-        beta = GUIDE_SHARE if self.guide else 0.0
+        beta = GUIDE_SHARE if self.guide is not None else 0.0
         u_pick = draws.next_float32()
         u_mix = dr.clip((u_pick - beta) / (1.0 - beta), 0.0, 1.0) if beta else u_pick
         q = dr.minimum(m.UInt32(u_mix * f(n_p)), dr.opaque(m.UInt32, n_p - 1))
@@ -300,10 +235,10 @@ class PatchSetTracer(BandPathTracer):
         p_specs = [f(v) for v in pt.p_spec]
         alpha_q = dr.gather(m.Float, m.Float(pt.alpha + [pt.alpha[-1]]), q)
         pspec_q = dr.gather(m.Float, m.Float(pt.p_spec + [pt.p_spec[-1]]), q)
-        guide = _GuideKernel(m, dr, self.guide) if beta else None
+        guide = GuideKernel(m, dr, self.guide, o, frame.n) if beta else None
         if guide is not None:
             u_face, u_s, u_t = draws.values[:3]        # the direction's three numbers
-            wo_guide = frame.to_local(guide.sample(o, u_face, u_s, u_t))
+            wo_guide = frame.to_local(guide.sample(u_face, u_s, u_t))
         wo = self._sample_direction(wi, alpha_q, pspec_q, draws)
         if guide is not None:
             wo = dr.select(u_pick < beta, wo_guide, wo)
@@ -314,7 +249,7 @@ class PatchSetTracer(BandPathTracer):
             """The pdf of the direction w (local) under the guide-or-mixture choice."""
             if guide is None:
                 return pdf_mixture
-            return (1.0 - beta) * pdf_mixture + beta * guide.pdf(o, frame.to_world(w))
+            return (1.0 - beta) * pdf_mixture + beta * guide.pdf(frame.to_world(w))
 
         def per_patch(w: Any) -> tuple[Any, list[Any], list[Any], Any]:
             """(mixture pdf of w, GGX·F factor per patch, backscatter factor per patch,
@@ -497,7 +432,7 @@ class PatchSetTracer(BandPathTracer):
         while True:
             while n_j * sub < goal:
                 n = min(chunk, goal - n_j * sub)
-                out = self._trace_patches(tab, pt, n, _chunk_seed(seed, chunk_no), strata)
+                out = self._trace_patches(tab, pt, n, chunk_seed(seed, chunk_no), strata)
                 chunk_no += 1
                 # one BLAS thread: the sums' order, and so every bit, the same in any process
                 # (dask workers run with one BLAS thread, a plain process with several)
