@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from normbox_lab.analyze.angles import estimate_angle_offsets
-from normbox_lab.analyze.budget import BudgetInputs, common_draws
+from normbox_lab.analyze.budget import BudgetInputs, common_draws, independent_draws
 from normbox_lab.analyze.budget_derivatives import render_derivatives
 from normbox_lab.core.error_sources import parse_error_spec
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
@@ -65,9 +65,11 @@ def detect(nominal, spec, *, common=True, prediction_seed=None):
                      pred, se, der["d_angle"], der["d_geometry_rel"],
                      der["d_homogeneity_rel"], None, PATCHES.index(19),
                      render_noise_correlated=True)
-    draws = common_draws(x, parse_error_spec(spec)) if common else None
+    errors = parse_error_spec(spec)
+    draws = common_draws(x, errors) if common else None
     with_common = estimate_angle_offsets(ref, x.prediction, x.d_angle, x.angle_deg,
-                                         common=draws)
+                                         common=draws,
+                                         independent=independent_draws(x, errors))
     alone = estimate_angle_offsets(ref, x.prediction, x.d_angle, x.angle_deg)
     detect.inputs = x
     return with_common, alone

@@ -252,15 +252,33 @@ COMMON_SOURCES = ("geometry", "homogeneity", "diffusivity", "lamp", "gonio-cal",
                   "qepro-nonlin", "fit")
 
 
+#: the sources whose errors differ between the patches at one angle (per reading, or per
+#: material): the model's part of the angle-offset intervals next to the jackknife
+PATCH_INDEPENDENT_SOURCES = ("cs1000", "cs1000-wl", "render", "qepro-snr")
+
+
 def common_draws(x: BudgetInputs, errors: ErrorSources, *,
                  sources: Sequence[str] = BUDGET_SOURCES, n_draws: int = 64,
                  seed: int = 1) -> np.ndarray | None:
     """Draws [draw, patch, angle, λ] of the reference-minus-prediction error that all patches
     share (`COMMON_SOURCES` among `sources`, random ones drawn, fixed ones in every draw);
     None when none is on."""
+    return _source_draws(x, errors, COMMON_SOURCES, sources, n_draws, seed)
+
+
+def independent_draws(x: BudgetInputs, errors: ErrorSources, *,
+                      sources: Sequence[str] = BUDGET_SOURCES, n_draws: int = 64,
+                      seed: int = 2) -> np.ndarray | None:
+    """Draws [draw, patch, angle, λ] of the reference-minus-prediction error that differs
+    between patches (`PATCH_INDEPENDENT_SOURCES` among `sources`); None when none is on."""
+    return _source_draws(x, errors, PATCH_INDEPENDENT_SOURCES, sources, n_draws, seed)
+
+
+def _source_draws(x: BudgetInputs, errors: ErrorSources, names: Sequence[str],
+                  sources: Sequence[str], n_draws: int, seed: int) -> np.ndarray | None:
     rng = np.random.default_rng(seed)
     total = None
-    for name in COMMON_SOURCES:
+    for name in names:
         if name not in sources:
             continue
         d = perturbations(name, errors, x, n_draws, rng)

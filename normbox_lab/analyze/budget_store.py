@@ -16,6 +16,7 @@ from normbox_lab.analyze.budget import (
     common_draws,
     compute_budget,
     errors_for_run,
+    independent_draws,
 )
 
 
@@ -128,7 +129,8 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
                                    renderer=renderer)
     t0 = time.perf_counter()
     offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg,
-                                     common=common_draws(x, errors, sources=names))
+                                     common=common_draws(x, errors, sources=names),
+                                     independent=independent_draws(x, errors, sources=names))
     result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
     timings["propagation"] = time.perf_counter() - t0
     result.timings_s = timings
