@@ -22,7 +22,7 @@ import numpy as np
 
 @dataclass(frozen=True)
 class GuideRects:
-    """Small bright rectangles the patch vertex samples directly (by area, one-sample MIS with
+    """Small bright rectangles a path vertex also samples directly (by area, one-sample MIS with
     the BSDF mixture): each (corner, edge 1, edge 2) in metres."""
 
     rects: tuple[tuple[tuple[float, float, float], tuple[float, float, float],

@@ -147,7 +147,7 @@ def moving_transforms(geometry: Any, angle_deg: float) -> dict[str, Any]:
 def aperture_sides_m(geometry: Any = None) -> tuple:
     """The aperture's four side faces (as `scene_dict` builds them), each (corner, edge 1,
     edge 2) in metres: lit by the panel from close by, small and bright as the sample sees
-    them (`predict.patchset.GuideRects`)."""
+    them (`predict.guide.GuideRects`)."""
     g = as_geometry(geometry)
     top = g.box_inner_mm / 1000.0
     hx, hy = g.aperture_x_mm / 2000.0, g.aperture_y_mm / 2000.0
