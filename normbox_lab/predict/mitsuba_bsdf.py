@@ -66,12 +66,7 @@ def bsdf_class() -> Any:
     class NormboxBSDF(two_lobe_base()):
         def __init__(self, props: Any) -> None:
             mi.BSDF.__init__(self, props)
-            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-                       | mi.BSDFFlags.BackSide)
-            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-                      | mi.BSDFFlags.BackSide)
-            self.m_components = [diffuse, glossy]
-            self.m_flags = diffuse | glossy
+            self._two_sided_lobes()
             self.p_diffuse = 0.5
             flat = np.full(GRID_NM.shape, 0.5)
             self.set_values(kd=flat, ks=np.zeros_like(flat), kb=np.zeros_like(flat),

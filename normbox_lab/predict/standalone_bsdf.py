@@ -57,6 +57,15 @@ def two_lobe_base() -> type:
         def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
             raise NotImplementedError
 
+        def _two_sided_lobes(self) -> None:
+            """Mitsuba's components: a diffuse and a glossy reflection, both sides."""
+            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
+                       | mi.BSDFFlags.BackSide)
+            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
+                      | mi.BSDFFlags.BackSide)
+            self.m_components = [diffuse, glossy]
+            self.m_flags = diffuse | glossy
+
         def _lobes(self, wi: Any, wo: Any, active: Any, eta: Any) -> tuple[Any, Any, Any]:
             """(valid, F, D·G1·G1 / (4 cosθi cosθo)) for local directions, wi.z > 0."""
             cos_i = mi.Frame3f.cos_theta(wi)
@@ -163,12 +172,7 @@ def register() -> Any:
                 0.5, max(0.15, 0.25 / max(self.alpha_value, 0.1) * ks_mean
                          / (ks_mean + max(kd_mean, 0.0))))
             self.p_diffuse = 1.0 - p_glossy
-            diffuse = (mi.BSDFFlags.DiffuseReflection | mi.BSDFFlags.FrontSide
-                       | mi.BSDFFlags.BackSide)
-            glossy = (mi.BSDFFlags.GlossyReflection | mi.BSDFFlags.FrontSide
-                      | mi.BSDFFlags.BackSide)
-            self.m_components = [diffuse, glossy]
-            self.m_flags = diffuse | glossy
+            self._two_sided_lobes()
 
         def _f(self, si: Any, wi: Any, wo: Any, active: Any) -> Any:
             """f (sr⁻¹) for local directions, wi.z > 0 (no cosine)."""
