@@ -47,6 +47,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
 from normbox_lab.predict.streams import FirstBounceDraws, chunk_seed, lane_rng
 
 INV_PI = 1.0 / np.pi
@@ -486,19 +487,13 @@ class BandPathTracer:
         """The guide (`guide.GuideKernel`) at the vertex o, or None without one."""
         if self.guide is None:
             return None
-        from normbox_lab.predict.guide import GuideKernel
-
         return GuideKernel(self.m, self.dr, self.guide, o, frame.n)
 
     def _direction_pdf(self, vx: Any, wo: Any, guide: Any, frame: Any) -> Any:
         """The pdf of the local direction wo under the vertex's sampling (BSDF mixture, and
         the guide with probability `GUIDE_SHARE` when there is one)."""
         bpdf = self._pdf(vx.wi, wo, vx.alpha, vx.p_spec)
-        if guide is None:
-            return bpdf
-        from normbox_lab.predict.guide import GUIDE_SHARE
-
-        return (1.0 - GUIDE_SHARE) * bpdf + GUIDE_SHARE * guide.pdf(frame.to_world(wo))
+        return bpdf if guide is None else guide.mixture_pdf(bpdf, frame.to_world(wo))
 
     def _nee(self, c: SimpleNamespace, vx: SimpleNamespace, frame: Any, o: Any, rng: Any,
              active: Any, guide: Any = None) -> tuple[Any, Any, Any]:
@@ -679,8 +674,6 @@ class BandPathTracer:
         if guide is None:
             wo = self._sample_direction(vx.wi, vx.alpha, vx.p_spec, rng)
         else:
-            from normbox_lab.predict.guide import GUIDE_SHARE
-
             uc, ux, uy = rng.next_float32(), rng.next_float32(), rng.next_float32()
             guided = uc < GUIDE_SHARE
             u_lobe = dr.clip((uc - GUIDE_SHARE) / (1.0 - GUIDE_SHARE), 0.0, 1.0)

@@ -84,6 +84,11 @@ class GuideKernel:
             picked = picked | pick
         return dr.normalize(corner + u_s * e1 + u_t * e2 - self.o)
 
+    def mixture_pdf(self, bsdf_pdf: Any, w: Any) -> Any:
+        """The pdf of the world direction w under the vertex's choice: the BSDF's sampling
+        (density `bsdf_pdf`) with probability 1 − `GUIDE_SHARE`, the guide otherwise."""
+        return (1.0 - GUIDE_SHARE) * bsdf_pdf + GUIDE_SHARE * self.pdf(w)
+
     def pdf(self, w: Any) -> Any:
         """Solid-angle pdf at o of the world direction w."""
         dr, m, o = self.dr, self.m, self.o

@@ -249,7 +249,7 @@ class PatchSetTracer(BandPathTracer):
             """The pdf of the direction w (local) under the guide-or-mixture choice."""
             if guide is None:
                 return pdf_mixture
-            return (1.0 - beta) * pdf_mixture + beta * guide.pdf(frame.to_world(w))
+            return guide.mixture_pdf(pdf_mixture, frame.to_world(w))
 
         def per_patch(w: Any) -> tuple[Any, list[Any], list[Any], Any]:
             """(mixture pdf of w, GGX·F factor per patch, backscatter factor per patch,
