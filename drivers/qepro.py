@@ -29,6 +29,10 @@ neither (another device, or a backend without raw access) TEC calls raise `NotRe
 nonlinearity correction is skipped (``status()["nonlinearity_correction"]`` says so) and the
 lamp line raises `NotReady`.
 
+Numbers that are not counts are a `ProtocolError`, never data: a raw count that is not finite or
+lies outside 0 … full scale (the 18-bit ADC: 262143; a device claiming a larger full scale is
+refused at open), or a nonlinearity correction that is not a finite positive factor at every
+pixel (coefficients that overflow or have a pole in the range).
 A saturated spectrum (any raw pixel at the maximum) raises `DeviceError("SATURATED")` from
 `intensities_counts`; `acquire` returns it flagged instead.  A USB drop (seabreeze or pyusb
 error) closes the handle, reopens the device by serial number until `reconnect_timeout_s`
@@ -53,6 +57,9 @@ from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady, Prot
 
 MIN_INTEGRATION_S = 8e-3
 MAX_INTEGRATION_S = 1600.0
+#: the QE Pro's ADC is 18-bit: no raw count can exceed 2**18 - 1 (a device that claims a larger
+#: full scale, or sends a larger count, sends numbers that are not counts)
+FULL_SCALE_COUNTS = 2 ** 18 - 1
 
 
 @dataclass(frozen=True)
@@ -236,7 +243,7 @@ class QEPro:
         wl = self._wavelengths
         if wl.ndim != 1 or wl.size < 16 or not np.all(np.isfinite(wl)) \
                 or np.any(np.diff(wl) <= 0) or not math.isfinite(self.max_counts) \
-                or self.max_counts <= 0:
+                or not 0 < self.max_counts <= FULL_SCALE_COUNTS:
             raise ProtocolError(f"implausible device data: {wl.size} wavelengths (they must "
                                 f"increase), max counts {self.max_counts:g}",
                                 instrument=instrument_id)
@@ -389,16 +396,40 @@ class QEPro:
             coeffs = self._call(lambda: list(
                 self._features()["nonlinearity_coefficients"][0]
                 .get_nonlinearity_coefficients()))
-            c = np.poly1d(coeffs[::-1])
-            counts = counts / np.polyval(c, counts)
+            counts = self._linearised(counts, coeffs)
             if not correct_dark:
                 counts = counts + offset
         saturated = bool(np.max(raw) >= self.max_counts - 0.5)
         tec = self.tec_temperature_c() if self.has_tec else float("nan")
         return Acquisition(counts, raw, self.integration_time_s, saturated, tec)
 
+    def _linearised(self, counts: np.ndarray, coeffs: Any) -> np.ndarray:
+        """``counts / polyval(coeffs, counts)`` (seabreeze's nonlinearity correction), or
+        `ProtocolError` when the stored coefficients are not numbers or the
+        correction is not a finite, positive factor at every pixel (an overflow, a pole of
+        the polynomial): never NaN or infinite counts handed on as data."""
+        try:
+            c = np.asarray(coeffs, dtype=float)
+        except (TypeError, ValueError) as exc:
+            raise ProtocolError(f"nonlinearity coefficients are not numbers: {exc}",
+                                instrument=self.instrument_id) from None
+        if c.ndim != 1 or c.size == 0 or not np.all(np.isfinite(c)):
+            raise ProtocolError(f"nonlinearity coefficients {c.tolist()[:8]} are not finite "
+                                "numbers", instrument=self.instrument_id)
+        with np.errstate(all="ignore"):
+            factor = np.polyval(c[::-1], counts)
+            out = counts / factor
+        bad = ~(np.isfinite(factor) & (factor > 0) & np.isfinite(out))
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ProtocolError(f"nonlinearity correction fails at {int(bad.sum())} pixel(s) "
+                                f"(pixel {i}: {counts[i]:.6g} counts, factor {factor[i]:.6g}):"
+                                " not data", instrument=self.instrument_id)
+        return out
+
     def _checked_counts(self, values: Any) -> np.ndarray:
-        """The device's counts as floats: one finite value per pixel, or ProtocolError."""
+        """The device's counts as floats: one finite value per pixel within 0 … full scale
+        (the 18-bit ADC's `max_counts`), or ProtocolError."""
         try:
             raw = np.asarray(values, dtype=float)
         except (TypeError, ValueError) as exc:
@@ -409,6 +440,12 @@ class QEPro:
                                 f"{self._wavelengths.size}), finite: "
                                 f"{bool(np.all(np.isfinite(raw)))}",
                                 instrument=self.instrument_id)
+        out = (raw < 0) | (raw > self.max_counts)
+        if out.any():
+            i = int(np.flatnonzero(out)[0])
+            raise ProtocolError(f"counts: {int(out.sum())} value(s) outside 0 … "
+                                f"{self.max_counts:.0f} (the ADC's full scale; pixel {i}: "
+                                f"{raw[i]:.6g}): not counts", instrument=self.instrument_id)
         return raw
 
     def _dark_pixels(self) -> list[int]:

@@ -227,7 +227,7 @@ def brdf_json(rng: random.Random) -> None:
 
 class _HostileSpectrometer:
     """A seabreeze-shaped device whose answers are wrong in random ways: short, long, NaN or
-    non-numeric counts, out-of-range dark pixels, or a SeaBreezeError (a USB drop)."""
+    non-numeric counts, finite counts beyond the 18-bit full scale, out-of-range dark pixels, or a SeaBreezeError (a USB drop)."""
 
     def __init__(self, inner, rng: random.Random, error: type) -> None:
         self._inner, self._rng, self._error = inner, rng, error
@@ -241,6 +241,7 @@ class _HostileSpectrometer:
             lambda: good, lambda: good[:-3], lambda: np.append(good, 1.0),
             lambda: np.where(np.arange(good.size) == 7, np.nan, good),
             lambda: ["x"] * good.size, lambda: np.inf * good,
+            lambda: good * 1e30, lambda: good + 262144.0,       # finite, beyond the 18 bits
             lambda: (_ for _ in ()).throw(self._error("USB: device not found"))])()
 
     def integration_time_micros(self, us):
@@ -267,7 +268,9 @@ def qepro_operations(rng: random.Random) -> None:
     for _ in range(3):
         op = rng.randrange(3)
         if op == 0:
-            q.acquire()
+            acq = q.acquire()                   # data, or a typed error: never NaN counts
+            assert np.all(np.isfinite(acq.counts)) and 0 <= acq.raw_counts.min() \
+                and acq.raw_counts.max() <= 262143, "the driver handed on numbers as data"
         elif op == 1:
             q.set_integration_time_s(rng.choice([0.01, 0.1, 1.0]))
         else:

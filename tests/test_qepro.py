@@ -303,3 +303,43 @@ def test_the_driver_sends_nothing_onto_the_network(monkeypatch):
     q.spec = q._reopen()                      # a reconnect lists the devices again
     q.intensities_counts()
     assert sent == []
+
+
+class _Frames:
+    """The opened spectrometer with chosen raw frames or nonlinearity coefficients."""
+
+    def __init__(self, inner, frame=None) -> None:
+        self._inner, self._frame = inner, frame
+
+    def __getattr__(self, name):
+        return getattr(self._inner, name)
+
+    def intensities(self, *a):
+        return self._frame if self._frame is not None else self._inner.intensities(*a)
+
+
+def test_raw_counts_above_the_18_bit_full_scale_are_a_typed_error_not_data():
+    from normbox_lab.core.errors import ProtocolError
+
+    q, _dev = open_sim()
+    good = np.asarray(q.spec.intensities(False, False), dtype=float)
+    for bad in (np.where(np.arange(good.size) == 300, 262144.0, good),   # one count over
+                good * 1e30,                                              # finite but huge
+                np.where(np.arange(good.size) == 5, -1.0, good)):        # negative
+        q.spec = _Frames(q.spec, bad)
+        with pytest.raises(ProtocolError, match="full scale"):
+            q.acquire()
+    q.spec = _Frames(q.spec, np.full(good.size, 262143.0))                # at full scale: data
+    assert q.acquire().saturated
+
+
+def test_a_nonlinearity_correction_that_overflows_is_a_typed_error_not_nan():
+    from normbox_lab.core.errors import ProtocolError
+
+    q, _dev = open_sim()
+    assert np.all(np.isfinite(q.acquire().counts))
+    feature = q._features()["nonlinearity_coefficients"][0]
+    for coeffs in ([1.0, -1e-3], [1.0, 1e300, 1e300], [1.0, float("nan")], ["x"]):
+        feature.get_nonlinearity_coefficients = lambda c=coeffs: c
+        with pytest.raises(ProtocolError, match="nonlinearity"):
+            q.acquire()
