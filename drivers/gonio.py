@@ -67,7 +67,7 @@ integration times (sample + dark when t_s is new).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, replace
 from typing import Any, Protocol, runtime_checkable
 
@@ -539,10 +539,27 @@ class Gonioreflectometer:
 
 InPlaneGonio = Gonioreflectometer
 
+
+def compose(parts: Mapping[str, Any], clock: Clock,
+            ask_operator: Callable[..., str] | None = None) -> Gonioreflectometer:
+    """The lab's gonioreflectometer from its opened parts (the registry's composite ``gonio``:
+    ``gonio_light_arm``, ``gonio_detector_arm``, ``spectrometer``).  A spectrometer without a
+    white standard of its own (a real QE Pro) gets one the operator places during `calibrate`,
+    through ``ask_operator(key, message, **data)``."""
+    white = parts["spectrometer"].white_standard()
+    if white is None and ask_operator is not None:
+        white = OperatorWhiteStandard(lambda message: ask_operator(
+            "gonio/white-standard", message, action="white_standard"))
+    return Gonioreflectometer.from_parts(
+        spectrometer=parts["spectrometer"], light_arm=parts["gonio_light_arm"],
+        detector_arm=parts["gonio_detector_arm"], clock=clock, white_standard=white)
+
+
 __all__ = [
     "THETA_I_DEG",
     "THETA_O_DEG",
     "Gonioreflectometer",
     "InPlaneGonio",
     "OperatorWhiteStandard",
+    "compose",
 ]

@@ -1,5 +1,6 @@
-"""The simulated side of a lab: what `normbox_lab.acquire.lab.build_lab` asks of the simulator
-when a config has ``sim://`` ports (a real lab never imports this module).
+"""The simulated side of a lab, passed into `normbox_lab.acquire.lab.Lab` from outside when a
+config has ``sim://`` ports (a real lab never imports this module).  `build_lab` here builds
+both: a `Simulation` on the lab's clock, then the lab with it.
 
 - registers the ``sim://`` transports (pyserial URL handler, simulated seabreeze backend) with
   `normbox_lab.core.transport`;
@@ -16,14 +17,25 @@ import urllib.parse
 from collections.abc import Mapping
 from typing import Any
 
-from normbox_lab.core.clock import Clock
+from normbox_lab.acquire.lab import Lab
+from normbox_lab.acquire.lab import build_lab as assemble_lab
+from normbox_lab.core.clock import Clock, make_clock
+from normbox_lab.core.errors import NormboxError
 from normbox_lab.sim import core
 from normbox_lab.sim.analytic_world import AnalyticWorld
 from normbox_lab.sim.transport import register_url_scheme
 
+#: the world kinds a simulated lab may name
+WORLDS = ("normbox", "analytic", "none")
 
-def make_world(kind: str, config: Any = None) -> Any:
-    """``"normbox"`` (Mitsuba `VirtualNormbox`), ``"analytic"`` or ``"none"``."""
+
+def make_world(kind: str | Any, config: Any = None) -> Any:
+    """``"normbox"`` (Mitsuba `VirtualNormbox`), ``"analytic"`` or ``"none"``; any other object
+    is used as the world as it is."""
+    if not isinstance(kind, str):
+        return kind
+    if kind not in WORLDS:
+        raise NormboxError(f"unknown world {kind!r}; known: {', '.join(WORLDS)}")
     if kind == "none":
         return None
     if kind == "analytic":
@@ -33,7 +45,19 @@ def make_world(kind: str, config: Any = None) -> Any:
         from normbox_lab.sim.world import VirtualNormbox
 
         return VirtualNormbox(config=config)
-    raise ValueError(f"unknown world {kind!r}")
+    raise AssertionError(kind)
+
+
+def build_lab(config: Any, *, world: str | Any = "normbox", clock: Clock | None = None,
+              **options: Any) -> Lab:
+    """A lab from `config`: with a `Simulation` of `world` on the lab's clock when the config
+    has ``sim://`` ports, a real lab otherwise.  `options` go to
+    `normbox_lab.acquire.lab.build_lab` (operator, virtual_operator, fault_policy, …)."""
+    clock = clock if clock is not None else make_clock(config.time_scale)
+    simulation = None
+    if config.simulated or any(i.simulated for i in config.instruments.values()):
+        simulation = Simulation(config, clock, make_world(world, config))
+    return assemble_lab(config, simulation=simulation, clock=clock, **options)
 
 
 class Simulation:
@@ -80,4 +104,4 @@ class Simulation:
         return self._estimator
 
 
-__all__ = ["Simulation", "make_world"]
+__all__ = ["WORLDS", "Simulation", "build_lab", "make_world"]

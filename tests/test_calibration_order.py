@@ -113,10 +113,10 @@ def test_first_material_is_measured_as_well_as_the_others():
 
 def _fit_p01(order: list[int], tmp_path) -> object:
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-    from normbox_lab.acquire.lab import build_lab
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze.pipeline import fit_run
     from normbox_lab.demo import run_protocol
+    from normbox_lab.sim.labsim import build_lab
 
     config = parse_config(SIM_CONFIG_TEMPLATE, "lab.toml")
     lab = build_lab(config)

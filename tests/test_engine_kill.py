@@ -32,7 +32,7 @@ def child(store_path: str, lab_kind: str) -> int:
     store = Store(store_path)
     if lab_kind == "sim":
         from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-        from normbox_lab.acquire.lab import build_lab
+        from normbox_lab.sim.labsim import build_lab
 
         lab = build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
     else:

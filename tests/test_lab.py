@@ -12,7 +12,7 @@ from normbox_lab.acquire.engine import PromptRequest
 from normbox_lab.acquire.operator import TerminalOperator, VirtualOperator
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import ConfigError, NormboxError
-from normbox_lab.sim import core
+from normbox_lab.sim import core, labsim
 from normbox_lab.sim.analytic_world import AnalyticWorld, colorchecker_reflectances
 
 
@@ -23,7 +23,7 @@ def world():
 
 def test_build_lab_shares_clock_and_world_with_the_sim_context():
     cfg = parse_config(SIM_CONFIG_TEMPLATE)
-    lab = labmod.build_lab(cfg, world="analytic")
+    lab = labsim.build_lab(cfg, world="analytic")
     assert isinstance(lab.clock, VirtualClock) and lab.clock.time_scale == 0.0
     assert core.CONTEXT.clock is lab.clock and core.CONTEXT.world is lab.world
     assert isinstance(lab.world, AnalyticWorld)
@@ -32,12 +32,12 @@ def test_build_lab_shares_clock_and_world_with_the_sim_context():
     with pytest.raises(NormboxError, match="unknown driver"):
         labmod.driver_class("cs9000")
     with pytest.raises(NormboxError, match="unknown world"):
-        labmod.build_lab(cfg, world="mars")
+        labsim.build_lab(cfg, world="mars")
 
 
 def test_missing_role_is_a_config_error():
     cfg = parse_config(SIM_CONFIG_TEMPLATE.split("[instruments.gonio_light_arm]")[0])
-    lab = labmod.build_lab(cfg, world="none")
+    lab = labsim.build_lab(cfg, world="none")
     with pytest.raises(ConfigError, match="spectrometer"):
         lab.instrument("spectrometer")
 
@@ -297,7 +297,7 @@ def test_luminance_hint_is_closed_form_for_any_world():
     from normbox_lab.acquire import engine as eng
 
     cfg = parse_config(SIM_CONFIG_TEMPLATE)
-    lab = labmod.build_lab(cfg, world="none")
+    lab = labsim.build_lab(cfg, world="none")
     step = eng.build_plan("reference-sweep").steps[2]            # a30/p01/place … a30/p01
     meas = next(s for s in eng.build_plan("reference-sweep").steps if s.key == "a30/p19")
     ref = AnalyticWorld().luminance_cd_m2(19, 30.0)
@@ -311,7 +311,7 @@ def test_luminance_hint_is_closed_form_for_any_world():
 # --- the simulated lab end to end: wire-level emulators, analytic world -------------------------
 
 def _sim_lab():
-    return labmod.build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
+    return labsim.build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
 
 
 def test_reference_sweep_on_the_simulated_lab_sees_the_right_patch_and_angle(tmp_path):
@@ -372,7 +372,7 @@ def test_simulated_lamp_instability_and_wire_faults_are_ridden_out(tmp_path):
                                        'port = "sim://sphere?faults=unstable@656:45"')
     text = text.replace('port = "sim://cs1000a"',
                         'port = "sim://cs1000a?faults=no-reply=0.05&seed=3"')
-    lab = labmod.build_lab(parse_config(text), world="analytic")
+    lab = labsim.build_lab(parse_config(text), world="analytic")
     with Store(tmp_path / "f.sqlite") as store:
         plan = eng.build_plan("reference-sweep", {"angles_deg": [40, 80],
                                                   "patches": [5, 6, 7, 8, 9, 10]}, lab)

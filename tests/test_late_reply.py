@@ -16,10 +16,10 @@ import test_cs2000 as cs2000_wire
 from wire import Exchange
 
 from normbox_lab.acquire import engine as eng
-from normbox_lab.acquire import lab as labmod
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
 from normbox_lab.core.errors import InstrumentTimeout
+from normbox_lab.sim import labsim as labmod
 
 
 def _run(tmp_path, radiometer_url: str, driver: str = "cs1000a", repeats: int = 12):

@@ -47,10 +47,14 @@ def test_a_new_run_pauses_and_resumes_with_its_stored_parameters(tmp_path):
 
 def test_a_lab_built_from_a_config_records_its_world_and_is_closed(tmp_path):
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.sim.labsim import build_lab
 
     config = parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
+    with pytest.raises(PlanError, match="sim://"):       # the simulation comes from outside
+        open_run("reference-sweep", config=config, store=tmp_path / "t.sqlite")
     opened = open_run("reference-sweep", config=config, store=tmp_path / "s.sqlite",
-                      world="analytic", params={"angles_deg": [30], "patches": [1, 2]})
+                      world="analytic", make_lab=build_lab,
+                      params={"angles_deg": [30], "patches": [1, 2]})
     try:
         assert opened.engine.segment_info == {"world": "analytic", "lab": "<simulated template>"}
         assert opened.lab.operator is not None          # the virtual operator answers

@@ -9,13 +9,13 @@ import numpy as np
 import pytest
 
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-from normbox_lab.acquire.lab import build_lab
 from normbox_lab.acquire.quality import LAMP_SAMPLES, QualityLimits, brdf_flags
 from normbox_lab.acquire.store import Store
 from normbox_lab.analyze import qa
 from normbox_lab.cli import main
 from normbox_lab.core.errors import ConfigError, DataError
 from normbox_lab.demo import run_protocol
+from normbox_lab.sim.labsim import build_lab
 
 
 def lab_with(*, qepro: str = "", sphere: str = "", radiometer: str = "", quality: str = "",

@@ -228,8 +228,8 @@ def test_faults_from_the_url_alone(model):
 def test_the_lab_assembly_opens_the_driver_on_the_analytic_world(model):
     """As `build_lab` does it: config options (baud, …) through `open`, the world's radiance
     through `sim://`, the ETA from the same timing model as the emulator."""
-    from normbox_lab.acquire import lab as labmod
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
+    from normbox_lab.sim import labsim as labmod
 
     text = SIM_CONFIG_TEMPLATE.replace('driver = "cs1000a"', f'driver = "{model}"') \
         .replace('port = "sim://cs1000a"', f'port = "sim://{model}?noise=off"')

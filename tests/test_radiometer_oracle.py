@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 
 from normbox_lab.acquire import engine as eng
-from normbox_lab.acquire import lab as labmod
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.sim import core
+from normbox_lab.sim import labsim as labmod
 
 PLAN = {"angles_deg": [30, 60], "patches": [1, 2, 3, 4, 5, 6]}
 _FAULT_FREE: dict[tuple[str, int], dict[str, np.ndarray]] = {}

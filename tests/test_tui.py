@@ -17,9 +17,9 @@ from pilot import (
     until,
 )
 
-from normbox_lab.acquire import lab as labmod
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.store import Store
+from normbox_lab.sim import labsim as labmod
 from normbox_lab.tui.app import DrillScreen, NormboxConsole, PromptScreen, ResumeScreen
 from normbox_lab.tui.controller import Session
 from normbox_lab.tui.tabs import ImagesPane

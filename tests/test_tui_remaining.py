@@ -20,8 +20,8 @@ from typing import Any
 import pytest
 
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-from normbox_lab.acquire.lab import build_lab
 from normbox_lab.acquire.session import open_run
+from normbox_lab.sim.labsim import build_lab
 from normbox_lab.tui.tabs.run import RunProgress
 
 PERSON_S = 6.0            # placing a patch and pressing Enter

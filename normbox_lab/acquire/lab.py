@@ -7,17 +7,18 @@
   name → module, class, roles), imported lazily, and opened on first use with
   ``Driver.open(port, clock, **options)``; the options come from the driver's own signature,
   so an option the driver does not take is a ConfigError naming it.
-- The role ``gonio`` is composed from ``gonio_light_arm``, ``gonio_detector_arm`` and
-  ``spectrometer`` by `normbox_lab.drivers.gonio`.
-- The clock is ``make_clock(config.time_scale)``.
-- A simulated lab (any ``sim://`` port) is wired by `normbox_lab.sim.labsim`: it registers the
-  ``sim://`` transports, shares the lab's clock and world with every emulator, gives the
-  expected luminance of each reading (for the radiometer's timing model) and, by default, the
-  `VirtualOperator`.  Worlds: ``"normbox"`` (the Mitsuba `VirtualNormbox`, slow: seconds per
-  new configuration), ``"analytic"`` (closed form, milliseconds), or ``"none"``.
-- A real lab imports no module of `normbox_lab.sim`; its ETAs use the luminance a protocol
-  step declares (``luminance_cd_m2``) or `REAL_LAB_LUMINANCE_CD_M2`, corrected during the run
-  by the engine from the readings' real durations.
+- A composite role (``gonio``: the gonioreflectometer made of ``gonio_light_arm``,
+  ``gonio_detector_arm`` and ``spectrometer``) is declared in the registry
+  (`registry.COMPOSITES`): its parts and the driver function that composes them.
+- The clock is ``make_clock(config.time_scale)`` unless one is given.
+- A simulated lab (any ``sim://`` port) is wired from *outside*: the caller passes a
+  `LabSimulation` (``normbox_lab.sim.labsim.Simulation``; ``normbox_lab.sim.labsim.build_lab``
+  builds both), which registers the ``sim://`` transports, shares the lab's clock and world with
+  every emulator and gives the expected luminance of each reading (for the radiometer's timing
+  model).  This module imports nothing of `normbox_lab.sim`.
+- A real lab's ETAs use the luminance a protocol step declares (``luminance_cd_m2``) or
+  `REAL_LAB_LUMINANCE_CD_M2`, corrected during the run by the engine from the readings' real
+  durations.
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 from collections.abc import Iterable, Mapping
-from typing import Any
+from typing import Any, Protocol
 
 from normbox_lab.acquire import registry
 from normbox_lab.acquire.config import LabConfig
@@ -33,26 +34,25 @@ from normbox_lab.core.capabilities import Closable, Identifiable, Settling
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
 
-GONIO_ROLES = ("gonio_light_arm", "gonio_detector_arm", "spectrometer")
-WORLDS = ("normbox", "analytic", "none")
 #: a real lab's expected luminance of a reading when its step declares none (ETA only)
 REAL_LAB_LUMINANCE_CD_M2 = 20.0
 log = logging.getLogger("normbox_lab.acquire.lab")
 
 
+class LabSimulation(Protocol):
+    """What a lab asks of its simulation (`normbox_lab.sim.labsim.Simulation`)."""
+
+    world: Any
+
+    def attach(self, role: str, url: str) -> None:
+        """An instrument of `role` was opened on `url` (the world may follow its emulator)."""
+
+    def luminance_hint_cd_m2(self, params: Mapping[str, Any]) -> float:
+        """Expected luminance of a measurement with these step parameters (ETA only)."""
+
+
 def driver_class(name: str) -> type:
     return registry.driver_class(name)
-
-
-def make_world(kind: str | Any, config: LabConfig | None = None) -> Any:
-    """A world for a simulated lab: a kind name, or an object used as it is."""
-    if not isinstance(kind, str):
-        return kind
-    if kind not in WORLDS:
-        raise NormboxError(f"unknown world {kind!r}; known: {', '.join(WORLDS)}")
-    from normbox_lab.sim import labsim
-
-    return labsim.make_world(kind, config)
 
 
 class Lab:
@@ -60,12 +60,12 @@ class Lab:
 
     def __init__(self, config: LabConfig, clock: Clock, *, world: Any = None,
                  operator: Any = None, instruments: Mapping[str, Any] | None = None,
-                 simulation: Any = None) -> None:
+                 simulation: LabSimulation | None = None) -> None:
         self.config = config
         self.clock = clock
         self.world = world
         self.operator = operator
-        #: the simulated lab's wiring (`normbox_lab.sim.labsim.Simulation`), None for a real lab
+        #: the simulated lab's wiring (passed in from outside), None for a real lab
         self.simulation = simulation
         self._open: dict[str, Any] = dict(instruments or {})
 
@@ -75,8 +75,8 @@ class Lab:
 
     def roles(self) -> list[str]:
         roles = list(self.config.instruments)
-        if all(r in self.config.instruments for r in GONIO_ROLES):
-            roles.append("gonio")
+        roles += [name for name, c in registry.COMPOSITES.items()
+                  if all(r in self.config.instruments for r in c.parts)]
         return roles
 
     def light_sources(self) -> tuple[str, ...]:
@@ -97,8 +97,10 @@ class Lab:
         inst = self._open.get(role)
         if inst is not None:
             return inst
-        if role == "gonio":
-            inst = self._open_gonio()
+        composite = registry.COMPOSITES.get(role)
+        if composite is not None:
+            parts = {r: self.instrument(r) for r in composite.parts}
+            inst = registry.composer(role)(parts, self.clock, self.operator and self.ask_operator)
         else:
             try:
                 cfg = self.config.instruments[role]
@@ -112,19 +114,6 @@ class Lab:
                 self.simulation.attach(role, cfg.port)
         self._open[role] = inst
         return inst
-
-    def _open_gonio(self) -> Any:
-        from normbox_lab.drivers.gonio import Gonioreflectometer, OperatorWhiteStandard
-
-        parts = {r: self.instrument(r) for r in GONIO_ROLES}
-        white = parts["spectrometer"].white_standard()
-        if white is None and self.operator is not None:
-            # a real gonio: the operator places the Spectralon during `calibrate`
-            white = OperatorWhiteStandard(lambda message: self.ask_operator(
-                "gonio/white-standard", message, action="white_standard"))
-        return Gonioreflectometer.from_parts(
-            spectrometer=parts["spectrometer"], light_arm=parts["gonio_light_arm"],
-            detector_arm=parts["gonio_detector_arm"], clock=self.clock, white_standard=white)
 
     def ask_operator(self, key: str, message: str, **data: Any) -> str:
         """A prompt from inside an instrument (e.g. the gonio's white standard)."""
@@ -152,8 +141,9 @@ class Lab:
         """The identity of each open instrument, of `roles` only when given (the gonio's
         parts come with "gonio")."""
         wanted = None if roles is None else set(roles)
-        if wanted is not None and "gonio" in wanted:
-            wanted.update(GONIO_ROLES)
+        for name, composite in registry.COMPOSITES.items():
+            if wanted is not None and name in wanted:
+                wanted.update(composite.parts)
         out = {}
         for role, inst in list(self._open.items()):
             if wanted is not None and role not in wanted:
@@ -193,16 +183,18 @@ def _open_driver(cls: type, cfg: Any, config_path: str, clock: Clock) -> Any:
     return cls.open(cfg.port, clock, **cfg.options)
 
 
-def build_lab(config: LabConfig, *, world: str | Any = "normbox", clock: Clock | None = None,
-              operator: Any = None, virtual_operator: bool | None = None,
-              fault_policy: str = "retry", operator_response_s: float = 5.0) -> Lab:
-    """Assemble a lab.  Simulated labs get `world` and (by default) the virtual operator."""
+def build_lab(config: LabConfig, *, simulation: LabSimulation | None = None,
+              clock: Clock | None = None, operator: Any = None,
+              virtual_operator: bool | None = None, fault_policy: str = "retry",
+              operator_response_s: float = 5.0) -> Lab:
+    """Assemble a lab.  A config with ``sim://`` ports needs its `simulation`, built outside on
+    the same `clock` (``normbox_lab.sim.labsim.build_lab`` does both); a simulated lab gets the
+    virtual operator by default."""
     clock = clock if clock is not None else make_clock(config.time_scale)
-    simulation = None
-    if config.simulated or any(i.simulated for i in config.instruments.values()):
-        from normbox_lab.sim import labsim
-
-        simulation = labsim.Simulation(config, clock, make_world(world, config))
+    if simulation is None and (config.simulated
+                               or any(i.simulated for i in config.instruments.values())):
+        raise NormboxError("this lab config has sim:// ports: build it with its simulation "
+                           "(normbox_lab.sim.labsim.build_lab)")
     world_obj = simulation.world if simulation is not None else None
     if virtual_operator is None:
         virtual_operator = config.simulated and operator is None

@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import importlib
 import inspect
+from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from normbox_lab.core.errors import NormboxError
 
@@ -54,6 +56,22 @@ DRIVERS: dict[str, DriverEntry] = {
                          internal=("simulated",)),
 }
 
+@dataclass(frozen=True)
+class CompositeEntry:
+    """A role made of other roles' instruments (e.g. the gonioreflectometer): the driver
+    function ``function(parts, clock, ask_operator)`` composes it from the opened parts."""
+
+    module: str
+    function: str
+    parts: tuple[str, ...]
+
+
+#: composite role → entry (`normbox_lab.acquire.lab.Lab.instrument` opens the parts first)
+COMPOSITES: dict[str, CompositeEntry] = {
+    "gonio": CompositeEntry("normbox_lab.drivers.gonio", "compose",
+                            ("gonio_light_arm", "gonio_detector_arm", "spectrometer")),
+}
+
 #: every role a lab config may declare, in the order the docs list them
 ROLES: tuple[str, ...] = ("radiometer", "rotator", "sphere", "gonio_light_arm",
                           "gonio_detector_arm", "spectrometer")
@@ -78,6 +96,12 @@ def driver_class(name: str) -> type:
     """The driver class of a config name (its module is imported now)."""
     e = entry(name)
     return getattr(importlib.import_module(e.module), e.cls)
+
+
+def composer(role: str) -> Callable[..., Any]:
+    """The driver function that composes composite `role` (its module is imported now)."""
+    e = COMPOSITES[role]
+    return getattr(importlib.import_module(e.module), e.function)
 
 
 def _toml_type(annotation: object) -> type | None:
@@ -116,5 +140,6 @@ def driver_options(name: str) -> dict[str, type]:
     return signature_options(driver_class(name), e.internal)
 
 
-__all__ = ["DRIVERS", "REQUIRED_ROLES", "ROLES", "DriverEntry", "driver_class",
-           "driver_options", "drivers_for", "entry", "signature_options"]
+__all__ = ["COMPOSITES", "DRIVERS", "REQUIRED_ROLES", "ROLES", "CompositeEntry", "DriverEntry",
+           "composer", "driver_class", "driver_options", "drivers_for", "entry",
+           "signature_options"]

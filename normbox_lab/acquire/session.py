@@ -88,6 +88,7 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
              operator: Operator | None = None,
              make_operator: Callable[[Any], Operator] | None = None,
              virtual_operator: bool | None = None, fault_policy: str = "retry",
+             make_lab: Callable[..., Any] | None = None,
              **engine_options: Any) -> OpenRun:
     """Assemble a run.
 
@@ -104,6 +105,10 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
                   `make_operator(lab)` becomes the lab's operator (instruments ask it too, e.g.
                   the gonio's white standard)
     virtual_operator, fault_policy   for a lab built here (see `build_lab`)
+    make_lab      builds the lab from `config`: ``make_lab(config, world=…, virtual_operator=…,
+                  fault_policy=…)``; a simulated config needs one (the simulation is passed in
+                  from outside: ``normbox_lab.sim.labsim.build_lab``), a real config defaults
+                  to `normbox_lab.acquire.lab.build_lab`
     engine_options  passed to `Engine` (wait_when_paused, retry, poll_s …)
     """
     from normbox_lab.acquire.store import Store
@@ -152,8 +157,16 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
                 raise PlanError("open_run builds its lab with a world kind; pass a lab built "
                                 "with a world object instead")
             world = (world or "normbox") if config.simulated else "none"
-            lab = build_lab(config, world=world, virtual_operator=virtual_operator,
-                            fault_policy=fault_policy)
+            if make_lab is not None:
+                lab = make_lab(config, world=world, virtual_operator=virtual_operator,
+                               fault_policy=fault_policy)
+            elif world != "none":
+                raise PlanError("this lab config has sim:// ports: pass make_lab (the "
+                                "simulation is built outside acquire: "
+                                "normbox_lab.sim.labsim.build_lab)")
+            else:
+                lab = build_lab(config, virtual_operator=virtual_operator,
+                                fault_policy=fault_policy)
             closers.append(lab.close)
             info = {"world": world, "lab": config.path}
         if lab.operator is None and make_operator is not None:

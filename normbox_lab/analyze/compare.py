@@ -9,7 +9,8 @@ Metrics (per patch × angle):
   sign of the BRDF fitting error (fit − measured)/measured it is compared with (paper Fig. 14).
 - RMSE over wavelengths, in radiance units; NRMSE = RMSE / mean(reference spectrum) (the paper's
   "normalised by the averaged reference spectrum"); NRMSE by the spectrum's range is kept too.
-- ΔE00: XYZ (CIE 1931 2°, emissive: illuminant E, via colour-science) of both spectra divided by
+- ΔE00 (colour maths in `normbox_lab.core.colorimetry`): XYZ (CIE 1931 2°, emissive:
+  illuminant E, via colour-science) of both spectra divided by
   the Y of the *reference* white patch at 30°, Lab with the D65 white point (Y = 1), CIE 2000
   with kL = kC = kH = 1.  (colour's `sd_to_XYZ` divides by 100 when k is given; the scale
   cancels in the white normalisation, and `XYZ_to_Lab` wants the white with Y = 1.)
@@ -35,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.colorimetry import XYZ_to_Lab_D65, delta_e00, spectra_to_XYZ
 from normbox_lab.core.errors import DataError
 
 #: ColorChecker patch numbering of the paper (1-based): 19 = white 9.5, 24 = black 2.
@@ -69,34 +71,6 @@ def rating_class_range(k: int) -> str:
     if not np.isfinite(hi):
         return f"> {lo:g}"
     return f"≤ {hi:g}" if k == 0 else f"{lo:g}–{hi:g}"
-
-
-def spectra_to_XYZ(radiance: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray:
-    """Emissive CIE 1931 2° XYZ (relative scale, k = 1) of spectra [..., λ] on a regular grid."""
-    import colour
-    from colour.colorimetry.tristimulus_values import msds_to_XYZ_integration
-
-    wl = np.asarray(wavelength_nm, dtype=float)
-    step = np.diff(wl)
-    if wl.size < 2 or not np.allclose(step, step[0]):
-        raise DataError("spectra", "wavelength_nm", "needs a regular wavelength grid")
-    shape = colour.SpectralShape(float(wl[0]), float(wl[-1]), float(step[0]))
-    cmfs = colour.MSDS_CMFS["CIE 1931 2 Degree Standard Observer"].copy().align(shape)
-    return msds_to_XYZ_integration(np.asarray(radiance, dtype=float), cmfs,
-                                   colour.sd_ones(shape), k=1, shape=shape)
-
-
-def XYZ_to_Lab_D65(XYZ: np.ndarray) -> np.ndarray:
-    import colour
-
-    d65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
-    return colour.XYZ_to_Lab(XYZ, illuminant=d65)
-
-
-def delta_e00(lab_a: np.ndarray, lab_b: np.ndarray) -> np.ndarray:
-    import colour
-
-    return colour.delta_E(lab_a, lab_b, method="CIE 2000", textiles=False)
 
 
 def _corr(x: np.ndarray, y: np.ndarray) -> float:

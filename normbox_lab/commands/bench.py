@@ -102,7 +102,7 @@ class _TimedStore:
 
 def _sim_lab():
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
-    from normbox_lab.acquire.lab import build_lab
+    from normbox_lab.sim.labsim import build_lab
 
     lab = build_lab(parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>"), world="analytic")
     for role in ("radiometer", "rotator", "sphere"):

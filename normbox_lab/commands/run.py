@@ -133,7 +133,9 @@ def _run(args: argparse.Namespace) -> int:
     store_path = args.store or DEFAULT_STORE
     # a dry run only reads: it never creates or changes the store
     store = Store(store_path, read_only=True) if args.dry_run else store_path
-    with open_run(args.protocol, store=store, config=config,
+    from normbox_lab.sim.labsim import build_lab
+
+    with open_run(args.protocol, store=store, config=config, make_lab=build_lab,
                   params=overrides, resume=args.resume, world=args.world,
                   virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
                   make_operator=terminal_operator) as opened:

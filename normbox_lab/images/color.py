@@ -10,8 +10,8 @@ Conventions (one way for the whole images package):
   linear values to [0, 1] before the transfer function — the display preview, not a colorimetric
   product.  A non-D65 scene white is adapted first by `normbox_lab.images.whitebalance`;
 - `delta_e00_map`: CIE 2000 ΔE between two XYZ images, both normalised by one reference white
-  (`white_XYZ`, Y of the white → 1), Lab with D65 — the convention of `normbox_lab.analyze.compare`
-  (kL = kC = kH = 1).
+  (`white_XYZ`, Y of the white → 1), Lab with D65 — the convention of the comparison, from
+  `normbox_lab.core.colorimetry` (kL = kC = kH = 1).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ KM_LM_PER_W = 683.0
 
 def spectral_to_XYZ(wavelength_nm: Any, radiance: Any) -> np.ndarray:
     """Absolute XYZ of spectral radiances [..., B] (Y = luminance in cd/m²)."""
-    from normbox_lab.analyze.compare import spectra_to_XYZ
+    from normbox_lab.core.colorimetry import spectra_to_XYZ
 
     # compare.spectra_to_XYZ integrates with k = 1 and colour-science's division by 100
     return spectra_to_XYZ(np.asarray(radiance, dtype=np.float64),
@@ -89,7 +89,7 @@ def spectral_to_srgb(wavelength_nm: Any, radiance: Any, white_Y: float | None = 
 
 def delta_e00_map(XYZ_a: Any, XYZ_b: Any, white_XYZ: Any) -> np.ndarray:
     """Per-pixel CIE 2000 ΔE between two XYZ images [..., 3] normalised by one white."""
-    from normbox_lab.analyze.compare import XYZ_to_Lab_D65, delta_e00
+    from normbox_lab.core.colorimetry import XYZ_to_Lab_D65, delta_e00
 
     white_Y = float(np.asarray(white_XYZ, dtype=np.float64)[1])
     if not white_Y > 0.0:

@@ -166,7 +166,7 @@ class Session:
         return self.store
 
     def ensure_lab(self) -> Any:
-        from normbox_lab.acquire.lab import build_lab
+        from normbox_lab.sim.labsim import build_lab
 
         with self._lock:
             if self.lab is None:
