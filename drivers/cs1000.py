@@ -88,6 +88,16 @@ ERRORS = {
 }
 
 
+def parse_identification(replies: list[bytes]) -> InstrumentIdentity | None:
+    """`lab discover`'s identification (registry: blank line, RMT,1, STR, RMT,0): the
+    CS-1000A has no identification command, so an ``OK`` to RMT,1 and STR's three-field
+    status identify the model; serial number and firmware stay unknown."""
+    if len(replies) < 3 or replies[1] != b"OK" or STR_REPLY.match(replies[2]) is None:
+        return None
+    return InstrumentIdentity("spectroradiometer", "CS-1000A",
+                              extra={"note": "the CS-1000A has no identification command"})
+
+
 def integration_time_s(luminance_cd_m2: float, speed: str = "normal", time_mode: str = "auto",
                        time_s: float = 1.0) -> float:
     if time_mode in ("multi", "manual"):

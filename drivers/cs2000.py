@@ -87,6 +87,18 @@ HEX_DIGITS = frozenset("0123456789ABCDEFabcdef")
 IDDR_REPLY = re.compile(rb"^OK00,(?=[^,]*[A-Za-z])[^,]{1,16},[12],\s*\d{1,12}$")
 
 
+def parse_identification(replies: list[bytes]) -> InstrumentIdentity | None:
+    """`lab discover`'s identification (registry: blank line, RMTS,2, IDDR, RMTS,0): IDDR's
+    ``OK00,<name>,<variation>,<serial>``."""
+    if len(replies) < 3 or IDDR_REPLY.match(replies[2]) is None:
+        return None
+    fields = replies[2].decode("ascii").split(",")
+    return InstrumentIdentity("spectroradiometer", fields[1].strip(),
+                              serial_number=fields[3].strip(),
+                              extra={"variation": "CS-2000A" if fields[2] == "2"
+                                     else "CS-2000"})
+
+
 def measurement_time_s(luminance_cd_m2: float, speed: str = "normal", time_s: float = 1.0) -> int:
     """ttt of the timing model (2–242 s)."""
     lv = max(float(luminance_cd_m2), 1e-6)

@@ -118,6 +118,38 @@ def _seabreeze(backend: str, pyusb_backend: str | None) -> tuple[Any, tuple[type
     return Spectrometer, errors
 
 
+def usb_identities(backend: str = "cseabreeze", pyusb_backend: str | None = None,
+                   ) -> list[tuple[str, InstrumentIdentity]]:
+    """`lab discover`'s identification on USB: the spectrometers seabreeze lists (it reads each
+    one's model and serial number; nothing else is sent), as ``("usb:SERIAL", identity)``.
+    `backend` falls back from cseabreeze to pyseabreeze as `QEPro.open` does; a missing
+    seabreeze or USB backend is an `InstrumentError` that says so."""
+    try:
+        _, errors = _seabreeze(backend, pyusb_backend)
+    except (ImportError, RuntimeError, ValueError) as exc:
+        if backend != "pyseabreeze":
+            return usb_identities("pyseabreeze", pyusb_backend)
+        raise InstrumentError(f"seabreeze unavailable: {exc}", instrument="usb") from exc
+    import warnings
+
+    from seabreeze.spectrometers import list_devices
+
+    try:
+        with warnings.catch_warnings():          # the skipped network discovery's note
+            warnings.simplefilter("ignore")
+            devices = list_devices()
+    except errors as exc:
+        raise InstrumentError(f"USB scan failed: {exc}", instrument="usb") from exc
+    out = []
+    for dev in devices:
+        serial, model = str(dev.serial_number), str(dev.model)
+        out.append((f"usb:{serial}", InstrumentIdentity(
+            "spectrometer", "QE Pro" if model.upper() == "QEPRO" else model, serial,
+            extra={"seabreeze_backend": backend, **({"pyusb_backend": str(pyusb_backend)}
+                                                     if pyusb_backend else {})})))
+    return out
+
+
 class ObpRawAccess:
     """The QE Pro's Ocean Binary Protocol messages through seabreeze's ``raw_usb_bus_access``
     feature (its `raw_usb_write` / `raw_usb_read`), for what a backend does not wrap.

@@ -68,6 +68,24 @@ MSG_STOPPED = 0x0466
 MSG_GET_STATUS = 0x0481
 
 
+def parse_identification(replies: list[bytes]) -> InstrumentIdentity | None:
+    """`lab discover`'s identification (registry: HW_REQ_INFO): the HW_GET_INFO frame's
+    serial number, model and firmware, decoded as `identify` decodes them."""
+    if not replies or len(replies[0]) != 90 or replies[0][:2] != b"\x06\x00":
+        return None
+    unpacker = apt.Unpacker()
+    unpacker.feed(replies[0])
+    try:
+        info = next(unpacker)._asdict()
+    except (StopIteration, KeyError, ValueError, AssertionError, TypeError, struct.error):
+        return None
+    model = bytes(info.get("model_number", b"")).split(b"\0", 1)[0].decode("ascii", "replace")
+    fw = ".".join(str(x) for x in info.get("firmware_version", []))
+    return InstrumentIdentity("rotation-stage", model or "APT device",
+                              str(info.get("serial_number", "")), fw,
+                              extra={"protocol": "thorlabs-apt"})
+
+
 class AptRotationStage(RotationStageBase):
     """A K10CR1 (or any APT stepper rotation stage with `steps_per_deg`)."""
 

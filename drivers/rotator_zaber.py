@@ -67,6 +67,23 @@ FLAGS = {
 }
 
 
+def parse_identification(replies: list[bytes]) -> InstrumentIdentity | None:
+    """`lab discover`'s identification (registry: blank line, ``/1 get deviceid``,
+    ``system.serial``, ``version``): three ``@01 0 OK <status> <flag> <value>`` replies."""
+    values = []
+    for raw in replies[1:4]:
+        parts = raw.decode("ascii", "replace").split()
+        if len(parts) != 6 or parts[0] != "@01" or parts[2] != "OK":
+            return None
+        values.append(parts[5])
+    if len(values) != 3:
+        return None
+    deviceid, serial, version = values
+    return InstrumentIdentity("rotation-stage", ZaberRotationStage.model if deviceid == "30342"
+                              else f"Zaber device {deviceid}", serial, version,
+                              extra={"protocol": "zaber-ascii", "deviceid": deviceid})
+
+
 class ZaberReply:
     def __init__(self, device: int, axis: int, ok: bool, busy: bool, flag: str, data: str):
         self.device, self.axis, self.ok, self.busy, self.flag, self.data = (

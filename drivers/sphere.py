@@ -62,6 +62,18 @@ ERR_REPLY = re.compile(rb"^ERR[ \t]+([+-]?\d{1,6})$")
 RESYNC_MAX_S = 5.0
 
 
+def parse_identification(replies: list[bytes]) -> InstrumentIdentity | None:
+    """`lab discover`'s identification (registry: blank line, ``*IDN?``): the placeholder
+    protocol's ``vendor,model,serial,firmware`` with an LE7 model."""
+    if len(replies) < 2:
+        return None
+    parts = replies[1].decode("ascii", "replace").split(",")
+    if len(parts) != 4 or not parts[1].startswith("LE7"):
+        return None
+    return InstrumentIdentity("light-source", parts[1], parts[2], parts[3],
+                              extra={"vendor": parts[0]})
+
+
 class SphereLightSource:
     model = "LE7-4x (placeholder protocol)"
 

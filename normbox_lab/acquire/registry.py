@@ -15,6 +15,13 @@ those an entry lists as `internal` are the program's, not the config's.  So a ke
 to a driver is a config option at once, and a keyword removed is refused at once
 (tests/test_lab.py checks every entry).
 
+Each entry also declares how `normbox-lab lab discover` may ask the instrument who it is
+(`Identification`): the exact bytes of its identification exchanges, the baud rates to try, and
+the driver function that reads the replies.  Discover sends those bytes and nothing else (a
+port wrapper refuses any other write), so what may reach an unknown instrument is readable
+here: identification queries and remote-mode switches, never a command that moves, switches a
+lamp or measures.
+
 docs/adding-an-instrument.md walks a new model through every file it touches.
 """
 
@@ -30,6 +37,37 @@ from normbox_lab.core.errors import NormboxError
 
 
 @dataclass(frozen=True)
+class Exchange:
+    """One identification exchange: `send` goes out as it is; the reply ends with `reply_end`
+    (a terminator, or a byte count for binary frames; None: no reply is awaited, whatever
+    comes back within the quiet time is drained and ignored).  When `expect` is given and the
+    reply does not start with it, the exchanges after this one are not sent."""
+
+    send: bytes
+    reply_end: bytes | int | None = b"\n"
+    expect: bytes = b""
+
+
+@dataclass(frozen=True)
+class Identification:
+    """How `lab discover` finds this driver's instrument.
+
+    Serial instruments: `exchanges` at each of `bauds` (8N1, RTS/CTS when `rtscts`); the driver
+    module's function `parse` turns the list of replies into an `InstrumentIdentity`, or None
+    when they are not this instrument's.  `binary`: the exchanges are binary frames (probed
+    before the line-oriented ones, so that no ASCII probe can misalign a binary framing).
+    USB instruments: `usb` lists (VID, PID); the module's function `parse` is then
+    ``parse(backend, pyusb_backend) -> list[(target, InstrumentIdentity)]``."""
+
+    parse: str
+    exchanges: tuple[Exchange, ...] = ()
+    bauds: tuple[int, ...] = ()
+    rtscts: bool = False
+    binary: bool = False
+    usb: tuple[tuple[int, int], ...] = ()
+
+
+@dataclass(frozen=True)
 class DriverEntry:
     """One driver a lab config may name."""
 
@@ -38,22 +76,59 @@ class DriverEntry:
     roles: tuple[str, ...]           # the instrument roles it can fill
     #: keyword parameters that are the program's, not the lab config's
     internal: tuple[str, ...] = ()
+    #: how `lab discover` asks the instrument who it is (None: it cannot be discovered)
+    identification: Identification | None = None
 
 
 _RADIOMETER = ("radiometer",)
 _STAGE = ("rotator", "gonio_light_arm", "gonio_detector_arm")
 
+#: the blank line a line-oriented probe starts with: it ends whatever partial line an earlier
+#: probe (another driver's, or a binary frame) left in the instrument, whose error reply is
+#: drained and ignored
+_FLUSH = Exchange(b"\n", reply_end=None)
+
 #: config driver name → entry.  The one registry: roles, classes and options all come from it.
 DRIVERS: dict[str, DriverEntry] = {
-    "cs1000a": DriverEntry("normbox_lab.drivers.cs1000", "CS1000A", _RADIOMETER),
-    "cs2000a": DriverEntry("normbox_lab.drivers.cs2000", "CS2000A", _RADIOMETER),
+    # CS-1000A: no identification command; remote on, the status STR (a read), remote off
+    "cs1000a": DriverEntry("normbox_lab.drivers.cs1000", "CS1000A", _RADIOMETER,
+                           identification=Identification(
+                               "parse_identification",
+                               (_FLUSH, Exchange(b"RMT,1\n", expect=b"OK"), Exchange(b"STR\n"),
+                                Exchange(b"RMT,0\n")),
+                               bauds=(9600, 19200, 4800))),
+    # CS-2000A: remote on without flash writes, IDDR (name, variation, serial), remote off
+    "cs2000a": DriverEntry("normbox_lab.drivers.cs2000", "CS2000A", _RADIOMETER,
+                           identification=Identification(
+                               "parse_identification",
+                               (_FLUSH, Exchange(b"RMTS,2\n", expect=b"OK00"),
+                                Exchange(b"IDDR\n"), Exchange(b"RMTS,0\n")),
+                               bauds=(115200,), rtscts=True)),
+    # APT: HW_REQ_INFO (0x0005) → HW_GET_INFO (0x0006, 90 bytes); MOD_IDENTIFY would flash the LED
     "apt-k10cr1": DriverEntry("normbox_lab.drivers.rotator_apt", "AptRotationStage", _STAGE,
-                              internal=("connect",)),
+                              internal=("connect",),
+                              identification=Identification(
+                                  "parse_identification",
+                                  (Exchange(b"\x05\x00\x00\x00\x50\x01", reply_end=90),),
+                                  bauds=(115200,), rtscts=True, binary=True)),
+    # Zaber ASCII: three reads of the device at address 1
     "zaber": DriverEntry("normbox_lab.drivers.rotator_zaber", "ZaberRotationStage", _STAGE,
-                         internal=("connect",)),
-    "sphere-scpi": DriverEntry("normbox_lab.drivers.sphere", "SphereLightSource", ("sphere",)),
+                         internal=("connect",),
+                         identification=Identification(
+                             "parse_identification",
+                             (_FLUSH, Exchange(b"/1 get deviceid\n", expect=b"@01"),
+                              Exchange(b"/1 get system.serial\n"),
+                              Exchange(b"/1 get version\n")),
+                             bauds=(115200,))),
+    "sphere-scpi": DriverEntry("normbox_lab.drivers.sphere", "SphereLightSource", ("sphere",),
+                               identification=Identification(
+                                   "parse_identification", (_FLUSH, Exchange(b"*IDN?\n")),
+                                   bauds=(115200,))),
+    # QE Pro on USB (Ocean Insight VID 0x2457, PID 0x4004): seabreeze lists it with its serial
     "qepro": DriverEntry("normbox_lab.drivers.qepro", "QEPro", ("spectrometer",),
-                         internal=("simulated",)),
+                         internal=("simulated",),
+                         identification=Identification("usb_identities",
+                                                       usb=((0x2457, 0x4004),))),
 }
 
 @dataclass(frozen=True)
@@ -132,6 +207,14 @@ def signature_options(cls: type, internal: tuple[str, ...] = ()) -> dict[str, ty
         named += [p for p in _keywords(cls.__init__)[0] if p.name not in {q.name for q in named}]
     out = {p.name: _toml_type(p.annotation) for p in named}   # None: not a TOML option
     return {k: t for k, t in out.items() if t is not None and k not in internal}
+
+
+def identification_parser(name: str) -> Any:
+    """The parse function of driver `name`'s identification (its module is imported now)."""
+    e = entry(name)
+    if e.identification is None:
+        raise NormboxError(f"driver {name!r} declares no identification")
+    return getattr(importlib.import_module(e.module), e.identification.parse)
 
 
 def driver_options(name: str) -> dict[str, type]:
