@@ -485,6 +485,8 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     kw = {k: float(v) for k, v in options.items()
           if k in ("power_up_angle_deg", "limit_min_deg", "limit_max_deg",
                    "max_velocity_deg_s", "acceleration_deg_s2", "home_velocity_deg_s")}
+    if "serial_number" in options:        # two stages of one model differ by it (lab discover)
+        kw["serial_number"] = int(options["serial_number"])
     return AptRotatorEmulator(clock, faults, seed, **kw)
 
 

@@ -286,6 +286,8 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     elif world is not None and hasattr(world, "geometry"):
         kw["homogeneity_percent"] = float(getattr(world.geometry, "panel_homogeneity_percent",
                                                   3.0))
+    if "serial" in options:
+        kw["serial"] = str(options["serial"])
     return SphereEmulator(clock, faults, seed, **kw)
 
 

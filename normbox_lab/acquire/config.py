@@ -13,6 +13,15 @@ numbers for values, so `_Locator` finds the line of a key inside its table in th
     driver = "cs1000a"      # cs1000a | cs2000a
     port = "sim://cs1000a"  # /dev/ttyUSB0, COM3, socket://host:port or sim://DEVICE?options
     baud = 9600
+    serial_number = "…"     # optional: the instrument `lab discover` found (lab check compares)
+
+    [instruments.radiometer.calibration]      # optional: the certificate in force
+    certificate = "DAkkS-12345"
+    date = 2026-03-02
+    due = 2027-03-02
+    laboratory = "…"
+    uncertainty_percent = 2.0                 # stated expanded uncertainty (k = 2)
+    responsivity_file = "cal/cs1000a.csv"     # radiometer: spectral responsivity correction
 
     [geometry]              # DESIGN §1; every field has the Normbox default
     box_inner_mm = 600.0
@@ -24,6 +33,8 @@ numbers for values, so `_Locator` finds the line of a key inside its table in th
 
 from __future__ import annotations
 
+import datetime
+import hashlib
 import math
 import tomllib
 from dataclasses import dataclass, field, fields
@@ -41,11 +52,55 @@ BAUD_RATES = (4800, 9600, 19200, 38400, 57600, 115200)
 
 
 @dataclass(frozen=True)
+class Calibration:
+    """An instrument's calibration certificate, as the lab config states it.
+
+    `uncertainty_percent` is the certificate's stated expanded uncertainty (with `coverage_k`);
+    `responsivity_file` (radiometer) a spectral responsivity correction, CSV of wavelength_nm
+    and factor, path relative to the config, recorded with its SHA-256 so a run names the
+    exact file it rests on."""
+
+    certificate: str
+    date: datetime.date
+    due: datetime.date
+    laboratory: str
+    uncertainty_percent: float
+    coverage_k: float = 2.0
+    responsivity_file: str = ""
+    responsivity_sha256: str = ""
+
+    def expired(self, on: datetime.date) -> bool:
+        return on > self.due
+
+    def as_dict(self) -> dict[str, Any]:
+        """The record stored with each run (ISO dates)."""
+        d = {"certificate": self.certificate, "date": self.date.isoformat(),
+             "due": self.due.isoformat(), "laboratory": self.laboratory,
+             "uncertainty_percent": self.uncertainty_percent, "coverage_k": self.coverage_k}
+        if self.responsivity_file:
+            d.update(responsivity_file=self.responsivity_file,
+                     responsivity_sha256=self.responsivity_sha256)
+        return d
+
+
+#: the fields of an [instruments.ROLE.calibration] table: name → (required, TOML type)
+CALIBRATION_FIELDS: dict[str, tuple[bool, type | tuple[type, ...]]] = {
+    "certificate": (True, str), "date": (True, datetime.date), "due": (True, datetime.date),
+    "laboratory": (True, str), "uncertainty_percent": (True, (int, float)),
+    "coverage_k": (False, (int, float)), "responsivity_file": (False, str)}
+#: instrument-table keys that are the config's, not the driver's options
+INSTRUMENT_KEYS = ("driver", "port", "serial_number", "calibration")
+
+
+@dataclass(frozen=True)
 class InstrumentConfig:
     role: str
     driver: str
     port: str
     options: dict[str, Any] = field(default_factory=dict)
+    #: the serial number the instrument must report (`lab check`); "" = not checked
+    serial_number: str = ""
+    calibration: Calibration | None = None
 
     @property
     def simulated(self) -> bool:
@@ -65,6 +120,12 @@ class LabConfig:
     render: dict[str, Any]
     text: str = ""                  # the source, snapshotted into every run
     quality: QualityLimits = field(default_factory=QualityLimits)   # [quality] gate limits
+    #: a run (other than lab-check) needs a passing `lab check` younger than this; None: not
+    require_check_h: float | None = None
+
+    def calibrations(self) -> dict[str, Calibration]:
+        """Role → the calibration in the config (roles without one are left out)."""
+        return {r: i.calibration for r, i in self.instruments.items() if i.calibration}
 
     def protocol_defaults(self, name: str) -> dict[str, Any]:
         return dict(self.protocols.get(name, {}))
@@ -228,7 +289,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
 
     lab = table(data.get("lab"), "lab")
     for k in lab:
-        if k not in ("name", "simulated", "time_scale", "seed"):
+        if k not in ("name", "simulated", "time_scale", "seed", "require_check_h"):
             raise err("lab", k, "unknown field")
     name = lab.get("name", "Normbox")
     if not isinstance(name, str):
@@ -241,6 +302,47 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
     seed = lab.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
         raise err("lab", "seed", "must be an integer")
+    require_check_h = number("lab", lab, "require_check_h", None, minimum=0.0,
+                             allow_none=True) if "require_check_h" in lab else None
+
+    def calibration(tab: str, spec: Any) -> Calibration | None:
+        if spec is None:
+            return None
+        if not isinstance(spec, dict):
+            raise err(tab.rsplit(".", 1)[0], "calibration", "must be a table")
+        for k in spec:
+            if k not in CALIBRATION_FIELDS:
+                raise err(tab, k, f"unknown field; known: {', '.join(CALIBRATION_FIELDS)}")
+        for k, (required, want) in CALIBRATION_FIELDS.items():
+            if k not in spec:
+                if required:
+                    raise err(tab, None, f"{k} missing (a calibration names certificate, "
+                                         "date, due, laboratory and uncertainty_percent)")
+                continue
+            v = spec[k]
+            if isinstance(v, bool) or not isinstance(v, want) or (
+                    want is datetime.date and isinstance(v, datetime.datetime)):
+                kind = "a date (2026-03-02)" if want is datetime.date else \
+                    "a string" if want is str else "a number"
+                raise err(tab, k, f"must be {kind}, got {v!r}")
+            if want is str and not v.strip():
+                raise err(tab, k, "must not be empty")
+        if spec["due"] <= spec["date"]:
+            raise err(tab, "due", f"must be after the calibration date {spec['date']}")
+        u = number(tab, spec, "uncertainty_percent", 0.0, minimum=0.0, maximum=100.0)
+        k_cov = number(tab, spec, "coverage_k", 2.0, minimum=1.0, maximum=10.0)
+        digest = ""
+        rfile = spec.get("responsivity_file", "")
+        if rfile:
+            where = Path(path).parent / rfile
+            try:
+                digest = hashlib.sha256(where.read_bytes()).hexdigest()
+            except OSError as exc:
+                raise err(tab, "responsivity_file", f"cannot read {where}: "
+                          f"{exc.strerror or exc}") from None
+        return Calibration(spec["certificate"].strip(), spec["date"], spec["due"],
+                           spec["laboratory"].strip(), float(u or 0.0), float(k_cov or 2.0),
+                           rfile, digest)
 
     instruments: dict[str, InstrumentConfig] = {}
     inst_tab = table(data.get("instruments"), "instruments")
@@ -258,7 +360,11 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
         if not isinstance(port, str) or not port:
             raise err(tab, "port", "must be a non-empty string (device path, socket:// or "
                       "sim:// URL)")
-        options = {k: v for k, v in spec.items() if k not in ("driver", "port")}
+        serial_number = spec.get("serial_number", "")
+        if not isinstance(serial_number, str):
+            raise err(tab, "serial_number", f"must be a string, got {serial_number!r}")
+        cal = calibration(f"{tab}.calibration", spec.get("calibration"))
+        options = {k: v for k, v in spec.items() if k not in INSTRUMENT_KEYS}
         allowed = driver_options(driver)
         for k, v in options.items():
             if k not in allowed:
@@ -283,7 +389,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
         if "min_angle_deg" in options and "max_angle_deg" in options \
                 and options["min_angle_deg"] >= options["max_angle_deg"]:
             raise err(tab, "max_angle_deg", "must be greater than min_angle_deg")
-        instruments[role] = InstrumentConfig(role, driver, port, options)
+        instruments[role] = InstrumentConfig(role, driver, port, options, serial_number, cal)
     for role in REQUIRED_ROLES:
         if role not in instruments:
             raise ConfigError(path, loc.line_of("instruments") or 1, f"instruments.{role}",
@@ -319,7 +425,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
 
     quality = parse_limits(data.get("quality"), err)
     return LabConfig(path, name, simulated, time_scale, seed, instruments, geometry, protocols,
-                     render, text, quality)
+                     render, text, quality, require_check_h)
 
 
 SIM_CONFIG_TEMPLATE = """\
@@ -401,6 +507,8 @@ lamp_reference_cd_m2 = 2000.0   # the sphere's monitor (MEAS:LUM?) at its calibr
 
 
 def _toml_value(value: Any) -> str:
+    if isinstance(value, datetime.date):
+        return value.isoformat()
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, (int, float)):
@@ -425,12 +533,20 @@ def format_config(config: LabConfig) -> str:
     `dataclasses.replace` and write them with this, rather than editing TOML text.
     """
     lab = {"name": config.name, "simulated": config.simulated,
-           "time_scale": config.time_scale, "seed": config.seed}
+           "time_scale": config.time_scale, "seed": config.seed,
+           "require_check_h": config.require_check_h}
     lines = ["# normbox-lab lab config (written by normbox-lab)", ""]
     lines += _toml_table("lab", lab)
     for role, inst in config.instruments.items():
         lines += _toml_table(f"instruments.{role}",
-                             {"driver": inst.driver, "port": inst.port, **inst.options})
+                             {"driver": inst.driver, "port": inst.port,
+                              "serial_number": inst.serial_number or None, **inst.options})
+        cal = inst.calibration
+        if cal is not None:
+            lines += _toml_table(f"instruments.{role}.calibration", {
+                "certificate": cal.certificate, "date": cal.date, "due": cal.due,
+                "laboratory": cal.laboratory, "uncertainty_percent": cal.uncertainty_percent,
+                "coverage_k": cal.coverage_k, "responsivity_file": cal.responsivity_file or None})
     lines += _toml_table("geometry", {f.name: getattr(config.geometry, f.name)
                                       for f in fields(config.geometry)})
     lines += _toml_table("render", config.render)
