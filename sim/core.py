@@ -335,25 +335,47 @@ def instance(name: str, key: str | None = None, **kwargs: Any) -> Emulator:
     return emu
 
 
+@dataclass(frozen=True)
+class EmulatorEntry:
+    """One emulated device: the module that makes it, the lab role it plays, and the module's
+    factory function (``""``: the module calls `register` itself when imported)."""
+
+    module: str
+    role: str
+    factory: str = ""
+
+
+#: the emulator registry: device name (``sim://NAME``, ``sim serve NAME``) → entry.  The CLI's
+#: device lists, the campaign's instrument choices and the tests' model lists come from here.
+EMULATORS: dict[str, EmulatorEntry] = {
+    "cs1000a": EmulatorEntry("normbox_lab.sim.cs1000", "radiometer"),
+    "cs2000a": EmulatorEntry("normbox_lab.sim.cs2000", "radiometer"),
+    "specbos1211": EmulatorEntry("normbox_lab.sim.specbos", "radiometer", "factory"),
+    "rotator-apt": EmulatorEntry("normbox_lab.sim.rotator_apt", "rotator"),
+    "rotator-zaber": EmulatorEntry("normbox_lab.sim.rotator_zaber", "rotator"),
+    "sphere": EmulatorEntry("normbox_lab.sim.sphere", "sphere"),
+}
 #: modules that register their emulators when imported (a module not written yet is skipped)
-BUILTIN_MODULES: tuple[str, ...] = (
-    "normbox_lab.sim.cs1000",
-    "normbox_lab.sim.cs2000",
-    "normbox_lab.sim.rotator_apt",
-    "normbox_lab.sim.rotator_zaber",
-    "normbox_lab.sim.sphere",
-)
+BUILTIN_MODULES: tuple[str, ...] = tuple(dict.fromkeys(e.module for e in EMULATORS.values()))
+
+
+def devices_for(role: str) -> tuple[str, ...]:
+    """The emulated devices that play lab role `role`, in registry order (no import)."""
+    return tuple(name for name, e in EMULATORS.items() if e.role == role)
 
 
 def _load_builtin() -> None:
     import importlib
 
-    for mod in BUILTIN_MODULES:
+    for name, e in EMULATORS.items():
         try:
-            importlib.import_module(mod)
+            module = importlib.import_module(e.module)
         except ModuleNotFoundError as exc:
-            if exc.name != mod:
+            if exc.name != e.module:
                 raise
+            continue
+        if e.factory and name not in _FACTORIES:
+            _FACTORIES[name] = getattr(module, e.factory)
 
 
 # --- what the emulators ask of the world -------------------------------------------------------

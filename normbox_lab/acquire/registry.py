@@ -78,6 +78,10 @@ class DriverEntry:
     internal: tuple[str, ...] = ()
     #: how `lab discover` asks the instrument who it is (None: it cannot be discovered)
     identification: Identification | None = None
+    #: the line rates a config's ``baud`` may name (empty: any of `acquire.config.BAUD_RATES`)
+    baud_rates: tuple[int, ...] = ()
+    #: the values of its ``data_format`` option, the default first (empty: no such option)
+    data_formats: tuple[str, ...] = ()
 
 
 _RADIOMETER = ("radiometer",)
@@ -96,14 +100,26 @@ DRIVERS: dict[str, DriverEntry] = {
                                "parse_identification",
                                (_FLUSH, Exchange(b"RMT,1\n", expect=b"OK"), Exchange(b"STR\n"),
                                 Exchange(b"RMT,0\n")),
-                               bauds=(9600, 19200, 4800))),
+                               bauds=(9600, 19200, 4800)),
+                           data_formats=("ascii", "binary")),
     # CS-2000A: remote on without flash writes, IDDR (name, variation, serial), remote off
     "cs2000a": DriverEntry("normbox_lab.drivers.cs2000", "CS2000A", _RADIOMETER,
                            identification=Identification(
                                "parse_identification",
                                (_FLUSH, Exchange(b"RMTS,2\n", expect=b"OK00"),
                                 Exchange(b"IDDR\n"), Exchange(b"RMTS,0\n")),
-                               bauds=(115200,), rtscts=True)),
+                               bauds=(115200,), rtscts=True),
+                           baud_rates=(115200,), data_formats=("ascii", "hex")),
+    # JETI specbos 1211: an empty line (its NAK ignored), *IDN?, serial number, firmware
+    "specbos1211": DriverEntry("normbox_lab.drivers.specbos", "Specbos1211", _RADIOMETER,
+                               identification=Identification(
+                                   "parse_identification",
+                                   (Exchange(b"\r", reply_end=None),
+                                    Exchange(b"*IDN?\r", b"\r", expect=b"JETI_SB"),
+                                    Exchange(b"*PARA:SERNO?\r", b"\r"),
+                                    Exchange(b"*VERS?\r", b"\r")),
+                                   bauds=(921600, 115200, 38400)),
+                               baud_rates=(921600, 115200, 38400)),
     # APT: HW_REQ_INFO (0x0005) → HW_GET_INFO (0x0006, 90 bytes); MOD_IDENTIFY would flash the LED
     "apt-k10cr1": DriverEntry("normbox_lab.drivers.rotator_apt", "AptRotationStage", _STAGE,
                               internal=("connect",),
