@@ -31,14 +31,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr = bsub.add_parser("predict", help="fast spectral prediction vs stock Mitsuba "
                          "(normbox_lab.predict.bench)")
     pr.add_argument("--target", type=float, default=None,
-                    help="relative standard error per band to reach (default 0.002)")
-    pr.add_argument("--executor", default=None, choices=("inprocess", "dask"))
-    pr.add_argument("--workers", type=int, default=None, help="cluster workers (dask/ray)")
-    pr.add_argument("--address", default=None, help="an existing dask/ray cluster")
-    pr.add_argument("--quick", action="store_true", help="a smoke run (4 patches × 3 angles)")
-    pr.add_argument("--baseline-spp", default=None,
-                    help="stock samples per pixel per batch, at least three, comma-separated "
-                         "(default 64,256,1024: t = a + b·N is fitted over them)")
+                    help="band-RMS relative noise per band to reach (default 0.002)")
+    pr.add_argument("--target-luminance", type=float, default=None,
+                    help="relative noise of the luminance to reach (default 0.002)")
+    pr.add_argument("--target-de00", type=float, default=None,
+                    help="RMS ΔE00 noise to reach (default 0.04)")
+    pr.add_argument("--seeds", type=int, default=None,
+                    help="independent fast renders per path count (default 12)")
+    pr.add_argument("--no-amortised", action="store_true",
+                    help="only the configuration rendered alone (not all patches per path)")
+    pr.add_argument("--quick", action="store_true", help="a smoke run (2 configurations, "
+                    "loose targets, one repeat)")
     pr.add_argument("--repeats", type=int, default=None, help="repeats (default 3)")
     pr.add_argument("--seed", type=int, default=None)
     pr.set_defaults(handler=_predict)
@@ -244,6 +247,6 @@ def _predict(args: argparse.Namespace) -> int:
             raise
         print("normbox-lab: bench predict is not available in this installation")
         return 2
-    argv = _forward(args, ("target", "executor", "workers", "address", "quick", "baseline-spp",
-                           "repeats", "seed"))
+    argv = _forward(args, ("target", "target-luminance", "target-de00", "seeds",
+                           "no-amortised", "quick", "repeats", "seed"))
     return int(run_bench_predict(sys.stdout, argv=argv) or 0)

@@ -1,282 +1,362 @@
-"""`normbox-lab bench predict`: the fast band-vector renderer against stock Mitsuba, equal noise.
+"""`normbox-lab bench predict`: the fast band-vector renderer against stock Mitsuba, both
+rendered *to* the same noise and timed there.
 
-Scene: the virtual Normbox (`normbox_lab.predict.scene`), lamp `render.Lamp()`, the 24 ColorChecker
-patches × 13 sample angles (30…90 step 5) = 312 configurations, with materials of the fit-model
-family (`materials.truth_patch(n, "model")`, `truth_wall("model")`: what the pipeline predicts
-with).  Bands: 81 triangular 5 nm hats, 380–780 nm.
+Scene: the virtual Normbox (`normbox_lab.predict.scene`), lamp `render.Lamp()`, materials of
+the fit-model family (`materials.truth_patch(n, "model")`, `truth_wall("model")`); 81 bands
+(5 nm hats, 380–780 nm).  Baseline configurations (default: patch 19 at 30°, 13 at 60°, 24 at
+90°).  Equal noise is asked of three quantities, each with its own target:
 
-- Fast: `fastrender.predict_spectra` renders all configurations to the target (largest relative
-  standard error over the bands ≤ `target`, 0.2 % by default), all patches per path
-  (`patchset`: one set of paths per angle serves every patch), in process or with
-  `--executor dask`; its wall time for all of them is the headline figure.
-- Baseline, in the same run: stock Mitsuba `llvm_ad_spectral` (4 hero wavelengths per path,
-  `specfilm` with the same 81 hats, the project's `normbox` BSDF; `render.render_view`,
-  uncached) on a few configurations (default 3: patch 19 at 30°, 13 at 60°, 24 at 90°), each at
-  three sample counts (default 64, 256, 1024 spp × 100 px × 16 batches).  Its time is fitted as
-  t = a + b·N over the three, and only the slope b counts (the per-call overhead a is left to
-  stock's credit); its noise per path is that of the largest sample count, ε²·N.
-- Equal noise: each renderer's time is scaled to the target, t · (ε / target)², with ε the RMS
-  over the bands of the relative standard error (the same statistic for both).  Stock at the
-  target: b · N · (ε_N / target)².  Fast, amortised: the baseline configuration's angle
-  rendered for all the sweep's patches at once (`FastNormbox.render_patches`, timed on its
-  own), scaled by the *limiting* patch of that angle (the largest ε of them: every patch gets
-  the paths it needs) and divided by the number of patches.  Fast, per configuration: the
-  configuration rendered alone (`render_patches` with one patch), scaled by its own ε.
-- Agreement: z = (fast alone − stock) / combined SE per band; its mean and RMS (not the
-  spread around its own mean: errors common to all bands would hide there).
-- Three repeats (seeds seed, seed+1, seed+2; `--repeats`), each with its own fast sweep and
-  stock renders: the ratios' median and range.
+- `band`: the RMS over the bands of the relative noise per band (default 0.2 %);
+- `Y`: the relative noise of the luminance (CIE 1931 Y of the band spectrum; default 0.2 %);
+- `ΔE00`: the RMS ΔE00 between a render and its expectation (XYZ normalised by the white
+  patch at 30°, Lab D65; default 0.04, what 0.2 % of luminance makes on a bright neutral).
 
-Every time is taken twice: wall clock and this process's CPU time (all its threads); with other
-processes on the machine the CPU-time ratio is the steadier one.  Last line: ``ratio: R``
-(median over the repeats of the amortised stock / fast CPU-time ratio at equal noise).
+The fast renderer's band errors are correlated (every path carries every band), stock's are
+nearly independent (hero wavelengths), so the band target and the colour targets give
+different ratios; all three are printed.
+
+**Fast, to the target.**  The noise is measured, not taken from a law: K independent renders
+(seeds; `--seeds`, default 12) at each path count of a ladder 1024·2^j, each quantity's noise
+their spread (randomised QMC: the noise falls faster than 1/√N, differently per angle, so no
+power law is assumed).  The path count at the target is interpolated between the two ladder
+points around it (log–log), then K fresh renders at that count are timed and their noise
+measured again; where it misses the target by more than 10 % the count is raised and the step
+repeated.  The figure is the median time of one render there, and the noise it reached is
+printed beside it.  Where the smallest count (1024 paths) already beats a target, the fast
+time is that of 1024 paths and the ratio a lower bound ("≥").  Two ways: the configuration
+rendered alone, and amortised (`--amortised`, default on: all 24 patches of the angle from one
+set of paths, `FastNormbox.render_patches`, the *limiting* patch's noise against the target,
+the time divided by 24).
+
+**Stock, to the target.**  `render.render_view` (`llvm_ad_spectral`, specfilm with the same 81
+hats, the project's `normbox` BSDF, 10×10 px, uncached) in independent batches: a pilot (64 spp
+× 16 batches) gives each quantity's noise per batch; the batch count (≥ 16) at the largest
+spp of 16/64/256/1024 whose count stays ≥ 16 follows, and that render is timed (its kernel
+compiled beforehand, untimed); its noise is the spread over its batches / √batches.  Missed by
+more than 10 %: more batches, again.
+
+Every time is taken as wall clock and as this process's CPU time (all its threads; the steadier
+figure on a shared machine).  Repeats (`--repeats`, default 3) use their own seeds; each ratio
+is printed per repeat and as median (range) with its spread, (max − min) / median.  The first
+line names the machine (`core.machine.machine_header`).  Last line: ``ratio: R``, the median
+over the repeats of the per-band CPU-time ratio, amortised (alone with ``--no-amortised``).
 """
 
 from __future__ import annotations
 
 import argparse
-import os
+import itertools
+import math
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
 from typing import Any, TextIO
 
 import numpy as np
 
-ANGLES_DEG = tuple(float(a) for a in range(30, 91, 5))
-PATCHES = tuple(range(1, 25))
 BASELINE = ((19, 30.0), (13, 60.0), (24, 90.0))
-BASELINE_SPP = (64, 256, 1024)
+PATCHES = tuple(range(1, 25))
+QUANTITIES = ("band", "Y", "ΔE00")
+#: the fast renderer's smallest path count (whole sub-batches) and the ladder's top
+FAST_MIN_PATHS = 1024
+FAST_MAX_PATHS = 1 << 21
+FAST_PATH_STEP = 512
+STOCK_SPP = (16, 64, 256, 1024)
+STOCK_MIN_BATCHES = 16
+#: a render within this factor of the target counts as at the target
+TOLERANCE = 1.10
+CLOCKS = ("wall", "CPU")
 
 
-def band_rms_rel_se(radiance: np.ndarray, std_error: np.ndarray) -> float:
-    """RMS over the bands with signal of the relative standard error."""
-    rad = np.asarray(radiance)
-    sig = np.abs(rad) > 1e-6 * max(float(np.max(np.abs(rad))), 1e-300)
-    rel = np.asarray(std_error)[sig] / np.abs(rad[sig])
-    return float(np.sqrt(np.mean(rel * rel))) if rel.size else 0.0
+class Colour:
+    """Luminance and Lab of band spectra [..., band], normalised by a white's Y."""
+
+    def __init__(self, band_centres_nm: np.ndarray, white: np.ndarray) -> None:
+        from normbox_lab.core.colorimetry import spectra_to_XYZ
+
+        self.wl = np.asarray(band_centres_nm, dtype=float)
+        self.y_white = float(spectra_to_XYZ(np.asarray(white, dtype=float), self.wl)[1])
+
+    def xyz(self, spectra: np.ndarray) -> np.ndarray:
+        from normbox_lab.core.colorimetry import spectra_to_XYZ
+
+        return spectra_to_XYZ(np.asarray(spectra, dtype=float), self.wl) / self.y_white
+
+    def lab(self, spectra: np.ndarray) -> np.ndarray:
+        from normbox_lab.core.colorimetry import XYZ_to_Lab_D65
+
+        return XYZ_to_Lab_D65(self.xyz(spectra))
 
 
-def linear_fit(n: Sequence[float], t: Sequence[float]) -> tuple[float, float]:
-    """Least-squares (a, b) of t = a + b·n."""
-    b, a = np.polyfit(np.asarray(n, dtype=np.float64), np.asarray(t, dtype=np.float64), 1)
-    return float(a), float(b)
+def noise(samples: np.ndarray, colour: Colour, *, of_mean: bool) -> dict[str, np.ndarray]:
+    """Each quantity's noise from independent samples [k, ..., band]: of one sample (K seeded
+    renders, `of_mean` False) or of their mean (a render's batches, True: / √k).  Per leading
+    index after k: band (RMS over bands with signal of the relative SD), Y (relative SD),
+    ΔE00 (RMS ΔE00 of a sample against the samples' mean, ddof 1)."""
+    from normbox_lab.core.colorimetry import delta_e00
+
+    s = np.asarray(samples, dtype=float)
+    k = s.shape[0]
+    if k < 2:
+        raise ValueError("noise needs at least two independent samples")
+    div = math.sqrt(k) if of_mean else 1.0
+    mean = s.mean(axis=0)
+    sig = np.abs(mean) > 1e-6 * np.max(np.abs(mean), axis=-1, keepdims=True)
+    rel = np.where(sig, s.std(axis=0, ddof=1) / np.where(sig, np.abs(mean), 1.0), 0.0)
+    band = np.sqrt(np.sum(rel ** 2, axis=-1) / np.maximum(np.sum(sig, axis=-1), 1))
+    y = colour.xyz(s)[..., 1]
+    y_rel = y.std(axis=0, ddof=1) / np.abs(y.mean(axis=0))
+    lab = colour.lab(s)
+    de = delta_e00(np.broadcast_to(colour.lab(mean), lab.shape), lab)
+    de_rms = np.sqrt(np.sum(de ** 2, axis=0) / (k - 1))
+    return {"band": band / div, "Y": y_rel / div, "ΔE00": de_rms / div}
+
+
+@dataclass
+class AtTarget:
+    """One side's render of one quantity at its target."""
+
+    quantity: str
+    target: float
+    achieved: float              # the noise measured there
+    size: str                    # "8192 paths" / "256 spp × 40 batches"
+    time_s: dict[str, float]     # per configuration, wall and CPU
+    lower_bound: bool = False    # fast only: the smallest count already beat the target
+    ladder: list[tuple[int, float]] = field(default_factory=list)
+
+
+def interpolate_count(ladder: Sequence[tuple[int, float]], target: float) -> tuple[int, bool]:
+    """The path count where the measured noise crosses `target`, log–log between the two
+    ladder points around it: (count, lower_bound); lower_bound when the first point already
+    beats it.  Never beyond the ladder's ends."""
+    n0, e0 = ladder[0]
+    if e0 <= target:
+        return int(n0), True
+    for (na, ea), (nb, eb) in itertools.pairwise(ladder):
+        if eb <= target:
+            if ea <= eb:                          # noise did not fall: take the larger count
+                return int(nb), False
+            f = (math.log(ea) - math.log(target)) / (math.log(ea) - math.log(eb))
+            return round(math.exp(math.log(na) + f * (math.log(nb) - math.log(na)))), False
+    raise ValueError(f"the ladder never reached {target} (last {ladder[-1]})")
+
+
+def _round_paths(n: float) -> int:
+    return max(FAST_MIN_PATHS, math.ceil(n / FAST_PATH_STEP) * FAST_PATH_STEP)
+
+
+def _timed(fn: Callable[[], Any]) -> tuple[Any, dict[str, float]]:
+    t0, c0 = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, {"wall": time.perf_counter() - t0, "CPU": time.process_time() - c0}
+
+
+def fast_to_target(render: Callable[[int, int], np.ndarray], colour: Colour,
+                   targets: dict[str, float], *, seeds: Sequence[int], per_config: int
+                   ) -> dict[str, AtTarget]:
+    """`render(n_paths, seed)` → spectra [patch, band] (one patch, or all of an angle);
+    the limiting patch's noise counts; times divided by `per_config`."""
+
+    def measure(n: int, seed_list: Sequence[int]) -> tuple[dict[str, float], dict[str, float]]:
+        outs, times = [], []
+        for s in seed_list:
+            r, t = _timed(lambda s=s: render(n, s))
+            outs.append(r)
+            times.append(t)
+        nz = noise(np.array(outs), colour, of_mean=False)
+        worst = {q: float(np.max(nz[q])) for q in QUANTITIES}
+        med = {c: float(np.median([t[c] for t in times])) / per_config for c in CLOCKS}
+        return worst, med
+
+    ladder: list[tuple[int, dict[str, float]]] = []
+    n = FAST_MIN_PATHS
+    while True:
+        worst, _ = measure(n, seeds)
+        ladder.append((n, worst))
+        if all(worst[q] <= targets[q] for q in QUANTITIES) or n >= FAST_MAX_PATHS:
+            break
+        n *= 2
+    out = {}
+    fresh = [s + 7919 for s in seeds]
+    for q in QUANTITIES:
+        lad = [(m, w[q]) for m, w in ladder]
+        count, lower = interpolate_count(lad, targets[q])
+        count = _round_paths(count)
+        for _ in range(4):
+            worst, med = measure(count, fresh)
+            if lower or worst[q] <= TOLERANCE * targets[q]:
+                break
+            count = _round_paths(count * (worst[q] / targets[q]) ** 2)
+        out[q] = AtTarget(q, targets[q], worst[q], f"{count} paths", med, lower, lad)
+    return out
+
+
+def stock_to_target(render: Callable[[int, int, int], Any], colour: Colour,
+                    targets: dict[str, float], *, seed: int) -> dict[str, AtTarget]:
+    """`render(spp, batches, seed)` → a `RenderResult` with its batches [batch, band]."""
+    pilot_spp, pilot_b = 64, STOCK_MIN_BATCHES
+    pilot = render(pilot_spp, pilot_b, seed)
+    per_batch = {q: float(v) * math.sqrt(pilot_b) for q, v in
+                 noise(pilot.batches, colour, of_mean=True).items()}
+    out = {}
+    for qi, q in enumerate(QUANTITIES):
+        # the fewest samples in all (≥ 16 batches; a tie goes to the larger spp: fewer calls)
+        options = []
+        for s in STOCK_SPP:
+            need = (per_batch[q] * math.sqrt(pilot_spp / s) / targets[q]) ** 2
+            b = max(STOCK_MIN_BATCHES, math.ceil(need))
+            options.append((b * s, -s, s, b))
+        _, _, spp, batches = min(options)
+        render(spp, 1, seed)                      # the kernel for this spp (not timed)
+        for attempt in range(4):
+            res, t = _timed(lambda spp=spp, b=batches, s=seed + 100 * qi + 10 * attempt + 1:
+                            render(spp, b, s))
+            got = float(noise(res.batches, colour, of_mean=True)[q][()])
+            if got <= TOLERANCE * targets[q]:
+                break
+            batches = math.ceil(batches * (got / targets[q]) ** 2 * 1.05)
+        out[q] = AtTarget(q, targets[q], got, f"{spp} spp × {batches} batches", t)
+    return out
 
 
 def spread(values: Sequence[float], fmt: str = "{:.0f}") -> str:
-    """'median (min–max)' of a few repeats."""
+    """'median× (min–max, ±x %)' of a few repeats (x: half the range over the median)."""
     v = np.asarray(values, dtype=np.float64)
-    return (f"{fmt.format(float(np.median(v)))} ({fmt.format(float(v.min()))}–"
-            f"{fmt.format(float(v.max()))})")
+    med = float(np.median(v))
+    half = 50.0 * float(v.max() - v.min()) / med if med else 0.0
+    return (f"{fmt.format(med)}× ({fmt.format(float(v.min()))}–{fmt.format(float(v.max()))}"
+            f", ±{half:.0f} %)")
+
+
+def _fmt_noise(q: str, x: float) -> str:
+    return f"{x:.3f}" if q == "ΔE00" else f"{100 * x:.3f} %"
 
 
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="normbox-lab bench predict", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--target", type=float, default=0.002,
-                   help="relative standard error per band to reach (default 0.002)")
-    p.add_argument("--executor", default="inprocess", choices=("inprocess", "dask"))
-    p.add_argument("--workers", type=int, default=2, help="cluster workers (dask)")
-    p.add_argument("--address", default=None,
-                   help="an existing dask cluster's scheduler, e.g. tcp://scheduler:8786")
+                   help="band-RMS relative noise per band (default 0.002)")
+    p.add_argument("--target-luminance", type=float, default=0.002,
+                   help="relative noise of the luminance Y (default 0.002)")
+    p.add_argument("--target-de00", type=float, default=0.04,
+                   help="RMS ΔE00 noise (default 0.04)")
+    p.add_argument("--seeds", type=int, default=12,
+                   help="independent fast renders per path count (default 12)")
+    p.add_argument("--no-amortised", action="store_true",
+                   help="only the configuration rendered alone")
     p.add_argument("--quick", action="store_true",
-                   help="4 patches × 3 angles, one repeat and a small baseline (a smoke run)")
-    p.add_argument("--baseline-spp", default=",".join(map(str, BASELINE_SPP)),
-                   help="stock samples per pixel per batch, ≥ 3 square numbers (10×10 px, "
-                        "16 batches; default 64,256,1024)")
+                   help="patch 19 at 30° and 24 at 90°, targets 1 % / 1 % / 0.2, one repeat,"
+                        " 6 seeds (a smoke run)")
     p.add_argument("--repeats", type=int, default=3)
     p.add_argument("--seed", type=int, default=0)
     return p
 
 
-def run_bench_predict(out: TextIO = sys.stdout,
-                      configs: Sequence[tuple[int, float]] | None = None, *,
-                      argv: Sequence[str] | None = None, target_rel_se: float | None = None,
-                      executor: str | None = None, workers: int | None = None,
-                      baseline: Sequence[tuple[int, float]] | None = None,
-                      baseline_spp: Sequence[int] | None = None, quick: bool | None = None,
-                      repeats: int | None = None, seed: int | None = None) -> int:
-    """Run the benchmark; `configs`: (patch number, angle) pairs (default all 312)."""
+def run_bench_predict(out: TextIO = sys.stdout, *, argv: Sequence[str] | None = None,
+                      baseline: Sequence[tuple[int, float]] | None = None) -> int:
+    """Run the benchmark (options as on the command line); print to `out`."""
+    from normbox_lab.core.machine import machine_header
+
     a = _parser().parse_args(list(argv) if argv is not None else [])
-    target = float(target_rel_se if target_rel_se is not None else a.target)
-    kind = executor or a.executor
-    n_workers = int(workers or a.workers)
-    quick = bool(a.quick if quick is None else quick)
-    spps = [int(s) for s in (baseline_spp or str(a.baseline_spp).split(","))]
-    n_rep = int(repeats if repeats is not None else (1 if quick else a.repeats))
-    seed = int(a.seed if seed is None else seed)
-    if configs is None:
-        configs = ([(p, ang) for ang in (30.0, 60.0, 90.0) for p in (1, 13, 19, 24)] if quick
-                   else [(p, ang) for ang in ANGLES_DEG for p in PATCHES])
-    if baseline is None:
-        baseline = BASELINE
-    if quick:
-        spps = [16, 36, 64]
-    if len(spps) < 3:
-        raise ValueError("the stock baseline needs at least three sample counts")
+    header = machine_header()                 # before the first render: cache cold / warm
+    targets = {"band": a.target, "Y": a.target_luminance, "ΔE00": a.target_de00}
+    n_rep, n_seeds = a.repeats, a.seeds
+    configs = list(baseline or BASELINE)
+    if a.quick:
+        targets = {"band": 0.01, "Y": 0.01, "ΔE00": 0.2}
+        n_rep, n_seeds = 1, 6
+        configs = list(baseline or ((19, 30.0), (24, 90.0)))
+    amortised = not a.no_amortised
 
     from normbox_lab.predict import materials as mats
-    from normbox_lab.predict.executors import make_executor
-    from normbox_lab.predict.fastrender import FastNormbox, predict_spectra
+    from normbox_lab.predict.fastrender import FastNormbox
     from normbox_lab.predict.mitsuba_setup import jit_variant
-    from normbox_lab.predict.render import Lamp, Quality, ensure_variant, render_view
+    from normbox_lab.predict.render import BAND_CENTRES_NM, Lamp, Quality, ensure_variant
+    from normbox_lab.predict.render import render_view as stock_view
 
     def emit(line: str = "") -> None:
         print(line, file=out, flush=True)
 
+    emit(header)
     wall = mats.truth_wall("model")
     lamp = Lamp()
-    patch_numbers = sorted({p for p, _ in configs} | {p for p, _ in baseline})
-    patch_mat = {p: mats.truth_patch(p, "model") for p in patch_numbers}
-    angles = sorted({float(x) for _, x in configs})
-    by_patch = {p: sorted(x for q, x in configs if q == p) for p in {q for q, _ in configs}}
-    if any(v != angles for v in by_patch.values()):
-        raise ValueError("bench predict renders full patch × angle grids")
-    sweep = [patch_mat[p] for p in sorted(by_patch)]
-    emit(f"bench predict: {len(configs)} configurations ({len(by_patch)} patches"
-         f" × {len(angles)} angles), fit-family materials, 81 bands (5 nm hats, 380–780 nm),"
-         f" target {100 * target:.2f} % relative standard error in the worst band, "
-         f"{n_rep} repeat(s)")
-    emit(f"machine: {os.cpu_count()} CPUs; fast variant {jit_variant('mono')}, executor {kind}"
-         + (f" ({n_workers} workers)" if kind != "inprocess" else "")
-         + f"; load average (1 min) at start {os.getloadavg()[0]:.2f}")
-
-    # -- warm-up (kernel compilation, the scene of this process; not timed) -------------------
-    t0 = time.perf_counter()
+    sweep = [mats.truth_patch(p, "model") for p in PATCHES]
     box = FastNormbox()
-    box.render_patches(patches=sweep[:2], wall=wall, angle_deg=angles[0], lamp=lamp,
-                       n_paths=4096)
-    if kind == "inprocess":
-        predict_spectra(sweep[:2], angles[:1], wall=wall, lamp=lamp, n_paths=4096)
-    emit(f"fast warm-up {time.perf_counter() - t0:.1f} s")
-
-    # -- fast sweeps --------------------------------------------------------------------------
-    sweeps = []
-    ex = make_executor(kind, workers=n_workers, address=a.address)
-    try:
-        for r in range(n_rep):
-            t0 = time.perf_counter()
-            c0 = time.process_time()
-            res = predict_spectra(sweep, angles, wall=wall, lamp=lamp, target_rel_se=target,
-                                  seed=seed + r, executor=ex)
-            sweeps.append((res, time.perf_counter() - t0, time.process_time() - c0,
-                           os.getloadavg()[0]))
-    finally:
-        ex.close()
-    for r, (res, wall_s, cpu_s, load) in enumerate(sweeps):
-        emit(f"fast sweep {r + 1}: {res.radiance.shape[0] * res.radiance.shape[1]} "
-             f"configurations in {wall_s:.2f} s wall"
-             + (f", {cpu_s:.2f} CPU·s" if kind == "inprocess" else "")
-             + f" (load {load:.2f})")
-    res0 = sweeps[0][0]
-    worst = np.max(res0.std_error / np.maximum(res0.radiance, 1e-300), axis=2)
-    emit(f"fast: worst-band relative SE median {100 * np.median(worst):.3f} %, max "
-         f"{100 * worst.max():.3f} %")
-    # per angle: paths, time, and the limiting patch (largest band-RMS relative SE)
-    for j, ang in enumerate(res0.angles_deg):
-        eps = [band_rms_rel_se(res0.radiance[i, j], res0.std_error[i, j])
-               for i in range(len(res0.patch_names))]
-        emit(f"  {ang:4.0f}°: {int(res0.n_paths[0, j]):7d} paths, "
-             f"{np.sum(res0.render_time_s[:, j]):.3f} s for the angle, limiting patch "
-             f"{res0.patch_names[int(np.argmax(eps))]} (band-RMS SE {100 * max(eps):.3f} %)")
-
-    # -- baseline: stock Mitsuba, same scene and materials -----------------------------------
-    variant = ensure_variant()
     t0 = time.perf_counter()
-    for spp in spps:     # the sample count is part of Mitsuba's compiled kernel: warm each
-        render_view(patch=patch_mat[baseline[0][0]], wall=wall, angle_deg=baseline[0][1],
-                    lamp=lamp, quality=Quality("warm", spp=spp, batches=1), cache=False)
-    emit(f"baseline: stock Mitsuba {variant} (hero wavelengths, specfilm), 16 batches × "
-         f"{'/'.join(map(str, spps))} spp × 100 px; t = a + b·N fitted per configuration and "
-         f"repeat, b used (warm-up {time.perf_counter() - t0:.1f} s)")
-    clocks = ("wall", "CPU")
-    amortised = {k: [] for k in clocks}
-    per_config = {k: [] for k in clocks}
-    zs = []
-    rows = {(p, ang): [] for p, ang in baseline}
-
-    def timed(fn: Any, **kw: Any) -> tuple[Any, dict[str, float]]:
-        t0, c0 = time.perf_counter(), time.process_time()
-        out = fn(**kw)
-        return out, {"wall": time.perf_counter() - t0, "CPU": time.process_time() - c0}
-
+    white = box.render_view(patch=sweep[18], wall=wall, angle_deg=30.0, lamp=lamp,
+                            n_paths=1 << 17, seed=99).radiance
+    colour = Colour(BAND_CENTRES_NM, white)
+    emit(f"bench predict: {len(configs)} configurations, {n_rep} repeat(s), fit-family "
+         f"materials, 81 bands; targets band {100 * targets['band']:.2f} %, Y "
+         f"{100 * targets['Y']:.2f} %, ΔE00 {targets['ΔE00']:.3f}; fast {jit_variant('mono')}"
+         f" ({n_seeds} seeds a path count), stock {ensure_variant()}; set-up and fast warm-up "
+         f"{time.perf_counter() - t0:.1f} s")
+    emit("  each row: the noise reached (target), the size that reached it, the time of one "
+         "configuration wall / CPU, the ratio stock / fast wall / CPU")
+    ratios: dict[tuple[str, str, str], list[float]] = {}   # (way, quantity, clock) → repeats
+    per_config: dict[tuple[int, float, str, str], list[float]] = {}
     for r in range(n_rep):
-        sums = {k: [0.0, 0.0] for k in clocks}
-        alone_ratios: dict[str, list[float]] = {k: [] for k in clocks}
-        for p, ang in baseline:
-            name = patch_mat[p].name
-            times, eps = [], []
-            for spp in spps:
-                st, t = timed(render_view, patch=patch_mat[p], wall=wall, angle_deg=ang,
-                              lamp=lamp, quality=Quality("bench", spp=spp, batches=16),
-                              cache=False, seed=1000 * (seed + r) + spp)
-                times.append(t)
-                eps.append(band_rms_rel_se(st.radiance, st.std_error))
-            n = [16 * 100 * s for s in spps]
-            box.render_patches(patches=sweep[:1], wall=wall, angle_deg=ang, lamp=lamp,
-                               n_paths=4096)          # the scene at this angle (not timed)
-            together, t_ang = timed(box.render_patches, patches=sweep, wall=wall,
-                                    angle_deg=ang, lamp=lamp, target_rel_se=target,
-                                    seed=seed + r)
-            e_lim = max(band_rms_rel_se(x.radiance, x.std_error) for x in together)
-            alone, t_alone = timed(box.render_patches, patches=[patch_mat[p]], wall=wall,
-                                   angle_deg=ang, lamp=lamp, target_rel_se=target,
-                                   seed=seed + r)
-            alone = alone[0]
-            e_alone = band_rms_rel_se(alone.radiance, alone.std_error)
-            z = (alone.radiance - st.radiance) / np.maximum(
-                np.hypot(alone.std_error, st.std_error), 1e-300)
-            zs.append(z)
-            row = {}
-            for k in clocks:
-                a_s, b_s = linear_fit(n, [t[k] for t in times])
-                if b_s <= 0.0:        # overhead-bound (tiny sample counts): no slope to fit
-                    a_s, b_s = 0.0, times[-1][k] / n[-1]
-                stock_at = b_s * n[-1] * (eps[-1] / target) ** 2
-                share_at = t_ang[k] * (e_lim / target) ** 2 / len(sweep)
-                alone_at = t_alone[k] * (e_alone / target) ** 2
-                sums[k][0] += stock_at
-                sums[k][1] += share_at
-                alone_ratios[k].append(stock_at / alone_at)
-                row[k] = (a_s, b_s, stock_at, share_at, alone_at)
-            rows[(p, ang)].append(row)
-            w, c = row["wall"], row["CPU"]
-            emit(f"  repeat {r + 1} {name}@{ang:g}: stock wall t = {w[0]:.2f} s + "
-                 f"{1e6 * w[1]:.3f} µs·N ({', '.join(f'{t[clocks[0]]:.2f}' for t in times)} s; "
-                 f"band-RMS SE {', '.join(f'{100 * e:.3f}' for e in eps)} %) → {w[2]:.2f} s "
-                 f"wall / {c[2]:.2f} CPU·s at {100 * target:.2f} %; fast amortised "
-                 f"{1e3 * w[3]:.2f} / {1e3 * c[3]:.2f} ms, alone {1e3 * w[4]:.1f} / "
-                 f"{1e3 * c[4]:.1f} ms (wall / CPU); ratios wall {w[2] / w[3]:.0f}× / "
-                 f"{w[2] / w[4]:.0f}×, CPU {c[2] / c[3]:.0f}× / {c[2] / c[4]:.0f}× (amortised /"
-                 f" alone); z vs stock mean {np.mean(z):+.2f}, RMS {np.sqrt(np.mean(z * z)):.2f}")
-        for k in clocks:
-            amortised[k].append(sums[k][0] / sums[k][1])
-            per_config[k].append(float(np.median(alone_ratios[k])))
-    emit("per baseline configuration over the repeats, wall-time and CPU-time ratios: "
-         "amortised / per configuration")
-    for (p, ang), rr in rows.items():
-        emit(f"  {patch_mat[p].name}@{ang:g}: wall "
-             f"{spread([x['wall'][2] / x['wall'][3] for x in rr])}× / "
-             f"{spread([x['wall'][2] / x['wall'][4] for x in rr])}×; CPU "
-             f"{spread([x['CPU'][2] / x['CPU'][3] for x in rr])}× / "
-             f"{spread([x['CPU'][2] / x['CPU'][4] for x in rr])}×")
-    zz = np.concatenate(zs)
-    emit(f"agreement, fast alone vs stock over {len(zs)} renders × {zs[0].size} bands: z mean "
-         f"{np.mean(zz):+.3f}, RMS {np.sqrt(np.mean(zz * zz)):.3f}, |z| > 3: "
-         f"{int(np.sum(np.abs(zz) > 3))}")
-    walls = [w for _, w, _, _ in sweeps]
-    cpus = [c for _, _, c, _ in sweeps]
-    emit(f"fast, all {len(configs)} configurations: {spread(walls, '{:.2f}')} s wall, "
-         f"{spread(cpus, '{:.2f}')} CPU·s; stock at equal noise ≈ "
-         f"{np.median(amortised['wall']) * np.median(walls):.0f} s wall (the amortised ratio "
-         f"× the sweep)")
-    for k in clocks:
-        emit(f"{k}-time ratios: per configuration (rendered alone) "
-             f"{spread(per_config[k])}×; amortised (all patches per path, limiting patch per "
-             f"angle) {spread(amortised[k])}×")
-    emit(f"load average (1 min) at the end {os.getloadavg()[0]:.2f}: with other processes on "
-         f"the CPUs the CPU-time ratio is the steadier figure")
-    emit(f"ratio: {np.median(amortised['CPU']):.1f}")
+        sums: dict[tuple[str, str, str], list[float]] = {}
+        for p, ang in configs:
+            mat = sweep[p - 1]
+            seeds = [1000 * (a.seed + r) + k for k in range(n_seeds)]
+
+            def alone(n: int, s: int, mat: Any = mat, ang: float = ang) -> np.ndarray:
+                return box.render_view(patch=mat, wall=wall, angle_deg=ang, lamp=lamp,
+                                       n_paths=n, seed=s).radiance[None]
+
+            def together(n: int, s: int, ang: float = ang) -> np.ndarray:
+                return np.array([x.radiance for x in box.render_patches(
+                    patches=sweep, wall=wall, angle_deg=ang, lamp=lamp, n_paths=n, seed=s)])
+
+            box.render_patches(patches=sweep, wall=wall, angle_deg=ang, lamp=lamp,
+                               n_paths=FAST_MIN_PATHS)          # this angle's scene, untimed
+            fast = {"alone": fast_to_target(alone, colour, targets, seeds=seeds, per_config=1)}
+            if amortised:
+                fast["amortised"] = fast_to_target(together, colour, targets, seeds=seeds,
+                                                   per_config=len(sweep))
+
+            def stock(spp: int, b: int, s: int, mat: Any = mat, ang: float = ang) -> Any:
+                return stock_view(patch=mat, wall=wall, angle_deg=ang, lamp=lamp,
+                                  quality=Quality("bench", spp=spp, batches=b), cache=False,
+                                  seed=s)
+
+            st = stock_to_target(stock, colour, targets, seed=100000 * (a.seed + r + 1))
+            for q in QUANTITIES:
+                s_at = st[q]
+                emit(f"  repeat {r + 1} {mat.name}@{ang:g} {q}: stock "
+                     f"{_fmt_noise(q, s_at.achieved)} ({_fmt_noise(q, s_at.target)}) at "
+                     f"{s_at.size}, {s_at.time_s['wall']:.2f} / {s_at.time_s['CPU']:.2f} s")
+                for way, res in fast.items():
+                    f_at = res[q]
+                    rat = {c: s_at.time_s[c] / max(f_at.time_s[c], 1e-9) for c in CLOCKS}
+                    ge = "≥" if f_at.lower_bound else ""
+                    emit(f"      fast {way:9s} {_fmt_noise(q, f_at.achieved)} at {f_at.size}"
+                         f", {1e3 * f_at.time_s['wall']:.2f} / {1e3 * f_at.time_s['CPU']:.2f}"
+                         f" ms → {ge}{rat['wall']:.0f}× / {ge}{rat['CPU']:.0f}×")
+                    for c in CLOCKS:
+                        acc = sums.setdefault((way, q, c), [0.0, 0.0])
+                        acc[0] += s_at.time_s[c]
+                        acc[1] += f_at.time_s[c]
+                        per_config.setdefault((p, ang, way, q + " " + c), []).append(rat[c])
+        for key, (s_sum, f_sum) in sums.items():
+            ratios.setdefault(key, []).append(s_sum / max(f_sum, 1e-12))
+    emit("ratio stock / fast at equal noise, median (range) ±half-range over the repeats; "
+         "per configuration, then the sum of the stock times over the sum of the fast ones")
+    ways = ["alone"] + (["amortised"] if amortised else [])
+    for way in ways:
+        for q in QUANTITIES:
+            cells = [f"{sweep[p - 1].name}@{ang:g} CPU "
+                     f"{spread(per_config[(p, ang, way, q + ' CPU')])}"
+                     for p, ang in configs]
+            emit(f"  {way:9s} {q:4s}: " + "; ".join(cells))
+            emit(f"  {way:9s} {q:4s}: all, wall {spread(ratios[(way, q, 'wall')])}, CPU "
+                 f"{spread(ratios[(way, q, 'CPU')])}")
+    emit(machine_header().replace("machine:", "machine at the end:", 1))
+    head = "amortised" if amortised else "alone"
+    emit(f"ratio: {np.median(ratios[(head, 'band', 'CPU')]):.1f}")
     return 0
 
 
