@@ -86,6 +86,9 @@ class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMT"
     device_faults = ("device-error", "busy", "over-range")
+    #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
+    #: first reply, its last reply)
+    latency_script = (b"RMT,1\n", b"\n", b"MES,1\n", b"\n", b"OK\n")
     terminators = (b"\n",)
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,

@@ -122,6 +122,9 @@ class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMTS"
     device_faults = ("device-error", "busy", "over-range")
+    #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
+    #: first reply, its last reply)
+    latency_script = (b"RMTS,1\n", b"\n", b"MEAS,1\n", b"\n", b"OK00\n")
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
                  scene: Scene | None = None, world: Any = None, noise: str | bool = "on",

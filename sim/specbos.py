@@ -104,9 +104,9 @@ class SpecbosEmulator(core.LineEmulator):
     replies_in_order = True         # one command at a time: a late reply holds back the next
     device_faults = ("device-error", "over-range")
     terminators = (b"\r",)
-    #: `sim latency`: the bytes that take the line, start one measurement, end its first reply
-    #: and end its last one
-    latency_script = (b"*IDN?\r", b"*INIT\r", ACK, BEL)
+    #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
+    #: first reply, its last reply)
+    latency_script = (b"*IDN?\r", b"\r", b"*INIT\r", ACK, BEL)
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
                  scene: Scene | None = None, world: Any = None, noise: str | bool = "on",

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 
 SERVE_EPILOG = """\
 The emulator is loaded completely (colour-science included) before the endpoint line is
@@ -15,6 +16,8 @@ IPv6 loopback: --tcp ::1:0 (printed as tcp: [::1]:PORT)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
+    from normbox_lab.sim.core import EMULATORS, devices_for
+
     p = sub.add_parser("sim", help="serve simulated instruments to outside programs")
     simsub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
     s = simsub.add_parser(
@@ -24,7 +27,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "stdout names the endpoint: 'pty: /dev/pts/N' or 'tcp: 127.0.0.1:PORT'.",
         epilog=SERVE_EPILOG)
     s.add_argument("device", metavar="DEVICE",
-                   help="cs1000a, cs2000a, rotator-apt, rotator-zaber, sphere")
+                   help=", ".join(EMULATORS))
     where = s.add_mutually_exclusive_group(required=True)
     where.add_argument("--pty", action="store_true",
                        help="create a pseudo-terminal (no RTS/DTR: use --tcp for clients "
@@ -49,8 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "the default 100 cd/m² light), connect as soon as the endpoint line "
                     "appears, enter remote mode and time the first measurement against the "
                     "emulator's timing model. Last line: the ratio measured / model.")
-    lat.add_argument("device", choices=("cs1000a", "cs2000a"), metavar="DEVICE",
-                     help="cs1000a or cs2000a")
+    lat.add_argument("device", choices=devices_for("radiometer"), metavar="DEVICE",
+                     help=" or ".join(devices_for("radiometer")))
     lat.set_defaults(handler=_latency)
     camp = simsub.add_parser(
         "campaign", help="deterministic simulation testing of the whole lab",
@@ -148,6 +151,23 @@ def _campaign(args: argparse.Namespace) -> int:
     return 1 if any(r.violations for r in results) else 0
 
 
+def _read_to(stream: Any, end: bytes) -> bytes:
+    """Bytes up to and including `end` (or what came before the connection closed)."""
+    buf = b""
+    while not buf.endswith(end):
+        byte = stream.read(1)
+        if not byte:
+            break
+        buf += byte
+    return buf
+
+
+def _shown(reply: bytes) -> str:
+    """A reply for the console: its text, or the name of a control byte (ACK, BEL, NAK)."""
+    names = {b"\x06": "ACK", b"\x07": "BEL", b"\x15": "NAK"}
+    return names.get(reply.strip(), reply.strip().decode(errors="replace"))
+
+
 def _latency(args: argparse.Namespace) -> int:
     import socket
     import subprocess
@@ -156,9 +176,9 @@ def _latency(args: argparse.Namespace) -> int:
     from normbox_lab.sim import core
     from normbox_lab.sim.radiometer_common import DEFAULT_LUMINANCE_CD_M2
 
-    remote, measure, final = {"cs1000a": (b"RMT,1\n", b"MES,1\n", b"OK\n"),
-                              "cs2000a": (b"RMTS,1\n", b"MEAS,1\n", b"OK00\n")}[args.device]
     model = core.create(args.device, noise="off")
+    # the emulator says which bytes take the line, start a measurement and end its replies
+    remote, remote_end, measure, first_end, final = type(model).latency_script
     module = sys.modules[type(model).__module__]
     model_s = (model.measure_time_s(DEFAULT_LUMINANCE_CD_M2)
                + module.COMMAND_DELAY_S * model.time_factor + model.line_time_s(len(final)))
@@ -175,19 +195,19 @@ def _latency(args: argparse.Namespace) -> int:
         with socket.create_connection(("127.0.0.1", port), timeout=60) as conn:
             lines = conn.makefile("rb")
             conn.sendall(remote)
-            lines.readline()
+            _read_to(lines, remote_end)
             t_meas = time.monotonic()
             conn.sendall(measure)
-            first = lines.readline()
+            first = _read_to(lines, first_end)
             t_first = time.monotonic() - t_meas
-            last = lines.readline()
+            last = _read_to(lines, final)
             took_s = time.monotonic() - t_meas
     finally:
         proc.terminate()
         proc.wait(timeout=10)
     print(f"{args.device}: endpoint line after {ready_s:.2f} s (cold start)")
-    print(f"first reply {first.strip().decode(errors='replace')} after {t_first:.3f} s; "
-          f"final {last.strip().decode(errors='replace')} after {took_s:.3f} s")
+    print(f"first reply {_shown(first)} after {t_first:.3f} s; "
+          f"final {_shown(last)} after {took_s:.3f} s")
     print(f"timing model {model_s:.3f} s (pre-measurement + measurement + final reply)")
     print(f"ratio {took_s / model_s:.3f}")
     return 0
