@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import typing
 
 from normbox_lab import __version__
 
@@ -37,8 +38,19 @@ Start with:  normbox-lab init lab.toml --sim   then   normbox-lab run reference-
 """
 
 
+class OneLineParser(argparse.ArgumentParser):
+    """A parser whose refusal of the command line is one line and exit 2 (argparse prints its
+    usage first; scripts and the operator want the line that says what is wrong).  Subcommand
+    parsers are made of the same class."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        flat = " ".join(str(message).split())
+        self.exit(2, f"normbox-lab: error: {self.prog.removeprefix('normbox-lab ')}: {flat}\n"
+                  if self.prog != "normbox-lab" else f"normbox-lab: error: {flat}\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="normbox-lab",
         description="Acquisition, instrument control and validation for the Normbox "
                     "(spectral ground truth for predictive rendering).",

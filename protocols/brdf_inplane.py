@@ -19,6 +19,7 @@ from normbox_lab.protocols._common import (
     Positive,
     Role,
     check_parameters,
+    material_key,
     signed_key,
 )
 
@@ -36,12 +37,14 @@ LIMITS = {"materials": Patches(names=True), "theta_i_deg": Angles(role="gonio_li
           "gonio": Role()}
 
 
-def material_key(m: Any) -> str:
-    return f"p{int(m):02d}" if isinstance(m, int) or str(m).isdigit() else str(m)
+def _is_patch(m: Any) -> bool:
+    if isinstance(m, (int, float)) and not isinstance(m, bool):
+        return True
+    return str(m).isascii() and str(m).isdigit()
 
 
 def material_label(m: Any) -> str:
-    if isinstance(m, int) or str(m).isdigit():
+    if _is_patch(m):
         return f"patch {int(m)} ({patch_name(int(m))})"
     return f"{m} paint"
 
@@ -52,7 +55,7 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
     out: list[Step] = []
     for m in params["materials"]:
         mk = material_key(m)
-        material = int(m) if isinstance(m, int) or str(m).isdigit() else str(m)
+        material = int(m) if _is_patch(m) else str(m)
         out.append(prompt(f"{mk}/mount", f"mount {material_label(m)} on the gonioreflectometer",
                           action="mount_gonio_material", material=material,
                           sets={"gonio_sample": mk}))

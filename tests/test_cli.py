@@ -66,7 +66,22 @@ def test_bad_import_reports_place(tmp_path, capsys, monkeypatch):
 
 @pytest.mark.parametrize("params, expect", [
     (["angles_deg=[30,Infinity]", "patches=[7]"], "angles_deg: Infinity is not a finite number"),
-    (["angles_deg=[1e400]"], "angles_deg: Infinity is not a finite number"),
+    (["angles_deg=[1e400]"], "angles_deg: 1e400 is not a finite number"),
+    # issue 36: each of these crashed, exited 1, or failed only at planning
+    (["angles_deg=[" + "9" * 309 + "]"], "angles_deg: a 309-character number is too long"),
+    (["patches=" + "9" * 5000], "patches: 5000 characters is too long"),
+    (["lamp_timeout_s=" + "9" * 400], "lamp_timeout_s: a 400-character number is too long"),
+    (["angles_deg=[30,,60]"], "angles_deg: '[30,,60]' has an empty item"),
+    (["angles_deg=30,,60"], "angles_deg: '30,,60' has an empty item"),
+    (["angles_deg=[٣٠]"], "angles_deg: '٣٠' has digits of another script; use the digits 0-9"),
+    (["angles_deg=[30,30]"], "angles_deg: 30 is given twice"),
+    (["angles_deg=[30,30.0000001]"],
+     "angles_deg: 30.0000001 is given next to 30 (both are reading key a30)"),
+    (["patches=[7,7]"], "patches: 7 is given twice"),
+    (["lamp_timeout_s=NaN"], "lamp_timeout_s: NaN is not a finite number"),
+    (["bogus=1"], "unknown parameter 'bogus'; known: angles_deg"),
+    (["angles_deg"], "--param expects K=V, got 'angles_deg'"),
+    (["patches=[7]", "patches=[8]"], "--param patches is given twice"),
     (["angles_deg=[-30,60]"], ("angles_deg: -30° is outside 0…95° (the rotator's range, "
                                "lab config)")),
     (["angles_deg=[30,400]"], "angles_deg: 400° is outside 0…95°"),
@@ -86,6 +101,71 @@ def test_a_bad_parameter_value_is_one_line_and_exit_2(tmp_path, capsys, monkeypa
     assert out.err == f"normbox-lab: error: {expect}\n" or out.err.startswith(
         f"normbox-lab: error: {expect}"), out.err
     assert out.err.count("\n") == 1 and "Traceback" not in out.err and out.out == ""
+
+
+@pytest.mark.parametrize("params, expect", [
+    (["repeats=NaN"], "repeats: NaN is not a finite number"),
+    (["repeats=" + "9" * 309], "repeats: a 309-character number is too long"),
+    (["repeats=1e6"], "repeats: 1000000 is outside 1…100000"),
+    (["repeats=2.5"], "repeats: 2.5 is not a whole number"),
+    (["patch=٧"], "patch: '٧' has digits of another script"),
+])
+def test_repeatability_bad_values_are_exit_2(tmp_path, capsys, monkeypatch, params, expect):
+    monkeypatch.chdir(tmp_path)
+    main(["init", "lab.toml", "--sim"])
+    capsys.readouterr()
+    argv = ["run", "repeatability", "--dry-run", "--world", "analytic"]
+    for p in params:
+        argv += ["--param", p]
+    assert main(argv) == 2
+    out = capsys.readouterr()
+    assert out.err.startswith(f"normbox-lab: error: {expect}"), out.err
+    assert out.err.count("\n") == 1 and out.out == ""
+
+
+@pytest.mark.parametrize("argv, expect", [
+    (["run", "reference-sweep", "--time-scale", "-1"],
+     "run: argument --time-scale: -1 must be ≥ 0"),
+    (["run", "reference-sweep", "--time-scale", "1e400"],
+     "run: argument --time-scale: 1e400 is not a finite number"),
+    (["run", "reference-sweep", "--time-scale", "NaN"],
+     "run: argument --time-scale: NaN is not a finite number"),
+    (["tui", "--time-scale", "٢"],
+     "tui: argument --time-scale: '٢' has digits of another script"),
+    (["sim", "campaign", "--max-faults", "99999999999999999999"],
+     "sim campaign: argument --max-faults: 99999999999999999999 is above 100"),
+    (["sim", "campaign", "--scenarios", "9" * 5000],
+     "sim campaign: argument --scenarios: a 5000-character number is too long"),
+    (["sim", "campaign", "--normbox-share", "1.5"],
+     "sim campaign: argument --normbox-share: 1.5 is above 1"),
+    (["fit", "1", "-w", "inf"], "fit: argument -w/--weight-exponent: Infinity is not a finite"),
+    (["image", "camera", "--patch", "25"], "image camera: argument --patch: 25 is above 24"),
+    (["image", "whitebalance", "--size", "9" * 400 + "x10"], (
+        "image whitebalance: argument --size: size must be WIDTHxHEIGHT (e.g. 320x240): a "
+        "400-character number is too long")),
+])
+def test_every_numeric_option_goes_through_the_one_parser(capsys, argv, expect):
+    """Issue 37 §4: options that bypassed the checks (traceback, OverflowError, accepted NaN,
+    accepted 1e20 fault rules) are one line and exit 2, before anything runs."""
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    out = capsys.readouterr()
+    assert out.err.startswith(f"normbox-lab: error: {expect}"), out.err
+    assert out.err.count("\n") == 1 and out.out == ""
+
+
+@pytest.mark.parametrize("spec, expect", [
+    ("garble@-1", "--faults garble@-1: -1 must be ≥ 1"),
+    ("garble=NaN", "--faults garble=NaN: NaN is not a finite number"),
+    ("no-reply=2", "--faults no-reply=2: 2 is above 1"),
+    ("late-reply=0.2:1e999", "--faults late-reply=0.2:1e999: 1e999 is not a finite number"),
+])
+def test_sim_serve_fault_numbers_go_through_the_one_parser(capsys, spec, expect):
+    assert main(["sim", "serve", "cs1000a", "--tcp", "127.0.0.1:0", "--faults", spec]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"normbox-lab: {expect}"), err
+    assert err.count("\n") == 1
 
 
 def test_repeatability_with_negative_repeats_is_exit_2(tmp_path, capsys, monkeypatch):

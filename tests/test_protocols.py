@@ -68,16 +68,30 @@ def test_parameters_from_lab_defaults_and_overrides(tmp_path):
 
 
 @pytest.mark.parametrize("default, text, expect", [
-    ([30, 35], "[30,", "angles_deg: '[30,' is not a valid value (JSON, e.g. [30, 35])"),
-    ([30, 35], "[30, \"x\"]", "angles_deg: expected a list of numbers"),
-    (1.0, "abc", "angles_deg: expected a number (e.g. 1.0), got 'abc'"),
-    (10, "2.5", "angles_deg: expected a whole number"),
-    (True, "yes", "angles_deg: expected true or false"),
+    ([30, 35], "[30,", "angles_deg: '[30,' has an unbalanced bracket"),
+    ([30, 35], "[30, \"x\"]", "angles_deg: '\"x\"' is not a number"),
+    (1.0, "abc", "angles_deg: 'abc' is not a number"),
+    (10, "2.5", "angles_deg: 2.5 is not a whole number"),
+    (True, "yes", "angles_deg: expected true or false, got 'yes'"),
+    # one reading of a list with or without brackets; digits of other scripts never numbers
+    ([30, 35], "30,,60", "angles_deg: '30,,60' has an empty item"),
+    ([30, 35], "[30,,60]", "angles_deg: '[30,,60]' has an empty item"),
+    ([30, 35], "[٣]", "angles_deg: '٣' has digits of another script; use the digits 0-9"),
+    (10, "٤٥", "angles_deg: '٤٥' has digits of another script"),
+    (10, "9" * 309, "angles_deg: a 309-character number is too long (at most 40 characters)"),
+    (10, "9" * 5000, "angles_deg: 5000 characters is too long (at most 4000)"),
+    ([30, 35], "[" + "9" * 400 + "]", "angles_deg: a 400-character number is too long"),
+    (10, "NaN", "angles_deg: NaN is not a finite number"),
+    (1.0, "-Infinity", "angles_deg: -Infinity is not a finite number"),
+    (1.0, "1e309", "angles_deg: 1e309 is not a finite number"),
 ])
 def test_a_bad_parameter_is_named_with_what_it_expects(default, text, expect):
-    with pytest.raises(eng.PlanError) as exc:
+    from normbox_lab.acquire.params import ParameterError
+
+    with pytest.raises(ParameterError) as exc:
         eng.coerce_param(default, text, "angles_deg")
-    assert expect in str(exc.value)
+    assert str(exc.value).startswith(expect), str(exc.value)
+    assert "\n" not in str(exc.value) and exc.value.exit_code == 2
 
 
 def test_a_user_protocol_file(tmp_path):

@@ -121,66 +121,27 @@ def load_protocol(name_or_path: str) -> ModuleType:
     return module
 
 
-def coerce_param(default: Any, text: str, name: str = "parameter") -> Any:
-    """`--param K=V` (and the console's parameter form): parse V like the default — JSON for
-    lists, numbers and booleans; a list may also be written "30,60".  A value of the wrong
-    kind raises `PlanError` naming the parameter and what it expects."""
-    if isinstance(default, str):
-        return text
-    example = json.dumps(default if not isinstance(default, list) else default[:3])
-    try:
-        value = json.loads(text)
-    except json.JSONDecodeError:
-        if isinstance(default, list) and not any(c in text for c in "[]{}"):
-            parts = [p.strip() for p in text.split(",") if p.strip()]
-            value = []
-            for p in parts:
-                try:
-                    value.append(json.loads(p))
-                except json.JSONDecodeError:
-                    value.append(p)
-        elif isinstance(default, list):
-            raise PlanError(f"{name}: {text!r} is not a valid value (JSON, e.g. {example})"
-                            ) from None
-        else:
-            value = text                      # the type checks below name what is expected
+def coerce_param(default: Any, text: str, name: str = "parameter", kind: Any = None) -> Any:
+    """`--param K=V` (and the console's parameter form): the text parsed like the default
+    by the one parser of `normbox_lab.acquire.params` (a number, a list as ``[30, 60]`` or
+    ``30, 60``, true/false, a name).  Text that is no value of its kind raises
+    `ParameterError` (a `PlanError`, exit 2) naming the parameter and what it expects."""
+    from normbox_lab.acquire.params import parse_param
 
-    def number(v: Any) -> bool:
-        return isinstance(v, (int, float)) and not isinstance(v, bool)
-
-    if isinstance(default, bool):
-        if not isinstance(value, bool):
-            raise PlanError(f"{name}: expected true or false, got {text!r}")
-    elif number(default):
-        if not number(value):
-            raise PlanError(f"{name}: expected a number (e.g. {example}), got {text!r}")
-        if isinstance(default, float):
-            value = float(value)
-        elif isinstance(value, float):
-            if not value.is_integer():
-                raise PlanError(f"{name}: expected a whole number, got {text!r}")
-            value = int(value)
-    elif isinstance(default, list):
-        if not isinstance(value, list):
-            value = [value]
-        numeric = bool(default) and all(number(v) for v in default)
-        for v in value:
-            ok = number(v) if numeric else (number(v) or isinstance(v, str))
-            if not ok:
-                kind = "numbers" if numeric else "numbers or names"
-                raise PlanError(f"{name}: expected a list of {kind} (e.g. {example}), got "
-                                f"{text!r} ({json.dumps(v)} is not one)")
-    return value
+    return parse_param(default, text, name, kind)
 
 
 def resolve_parameters(module: ModuleType, lab_defaults: Mapping[str, Any] | None = None,
                        overrides: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """Protocol defaults ← lab config `[protocols.NAME]` ← command-line overrides."""
+    from normbox_lab.acquire.params import ParameterError, show
+
     params = dict(module.PARAMETERS)
     for source in (lab_defaults or {}, overrides or {}):
         for k, v in source.items():
             if k not in params:
-                raise PlanError(f"unknown parameter {k!r}; known: {', '.join(params)}")
+                raise ParameterError(f"unknown parameter {show(k)}; known: "
+                                     f"{', '.join(params)}")
             params[k] = v
     return params
 

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
 from normbox_lab.acquire.store import ReadingRecord, brdf_record, spectral_record
+from normbox_lab.core import errors
 from normbox_lab.core.capabilities import (
     BrdfReadable,
     Calibratable,
@@ -33,13 +34,10 @@ from normbox_lab.core.capabilities import (
     Switchable,
 )
 from normbox_lab.core.clock import Clock
-from normbox_lab.core.errors import NormboxError, NotReady, OperatorAbort
+from normbox_lab.core.errors import NotReady, OperatorAbort
 from normbox_lab.core.types import BrdfReading
 
-
-class PlanError(NormboxError):
-    """A protocol declared an inconsistent plan (duplicate keys, unsatisfiable requirements,
-    or a step an instrument has no capability for)."""
+PlanError = errors.PlanError   # defined with the hierarchy (core.errors); here by its old name
 
 
 C = TypeVar("C")

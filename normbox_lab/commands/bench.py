@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import argparse
 
+from normbox_lab.acquire.params import Number, option
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("bench", help="benchmarks (figures; last line: ratio to a baseline)")
@@ -21,12 +23,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     e.add_argument("--store", default=None, metavar="FILE",
                    help="durable store file (default: a temporary file)")
-    e.add_argument("--repeat", type=int, default=2, help="sweeps per variant (best is kept)")
+    e.add_argument("--repeat", type=option(Number(1, 1000, whole=True), "--repeat"),
+                   default=2, help="sweeps per variant (best is kept)")
     e.set_defaults(handler=_engine)
     f = bsub.add_parser("fit", help="BRDF fit benchmark (normbox_lab.analyze.bench)")
-    f.add_argument("--grid-step-nm", type=float, default=None, help="wavelength grid step")
-    f.add_argument("--materials", type=int, default=None, help="number of materials")
-    f.add_argument("--w", type=float, default=None, help="cos^w θi weight exponent")
+    f.add_argument("--grid-step-nm",
+                   type=option(Number(0, 50, unit="nm", above=True), "--grid-step-nm"),
+                   default=None, help="wavelength grid step")
+    f.add_argument("--materials", type=option(Number(1, 25, whole=True), "--materials"),
+                   default=None, help="number of materials")
+    f.add_argument("--w", type=option(Number(0, 10), "--w"),
+                   default=None, help="cos^w θi weight exponent")
     f.set_defaults(handler=_fit)
     pr = bsub.add_parser("predict", help="fast spectral prediction vs stock Mitsuba "
                          "(normbox_lab.predict.bench)")

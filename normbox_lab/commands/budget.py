@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 
+from normbox_lab.acquire.params import Number, option
 from normbox_lab.commands.common import add_store_argument, require_store
 
 
@@ -22,9 +23,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sources", metavar="SPEC",
                    help="names (e.g. angle,cs1000,fit: only these, magnitudes kept) or a full "
                         "error spec (angle=1,cs1000=0.02; see docs/error-budget.md)")
-    p.add_argument("--paths", type=int, default=1 << 14,
+    p.add_argument("--paths", type=option(Number(1, 1 << 30, whole=True), "--paths"),
+                   default=1 << 14,
                    help="paths per derivative render (default 16384)")
-    p.add_argument("--draws", type=int, default=64, help="draws per source (default 64)")
+    p.add_argument("--draws", type=option(Number(2, 100_000, whole=True), "--draws"),
+                   default=64, help="draws per source (default 64)")
     p.add_argument("--renderer", metavar="NAME",
                    help="the budget of an imported renderer's prediction (`normbox-lab import "
                         "prediction`; compare it first); default: ours")

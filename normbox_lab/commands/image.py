@@ -8,25 +8,40 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from normbox_lab.acquire.params import SEED, Number, option
 from normbox_lab.commands.common import add_store_argument, require_store
+
+#: the kinds of the image commands' numeric options (normbox_lab.acquire.params)
+PATCH = Number(1, 24, whole=True)
+ANGLE = Number(-180, 180, unit="°")
+SPP = Number(1, 1 << 20, whole=True)
 
 
 def _size(text: str) -> tuple[int, int]:
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError as exc:
+    from normbox_lab.acquire.params import ParameterError, parse_number
+
+    parts = text.lower().split("x")
+    if len(parts) != 2:
         raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT (e.g. 320x240), "
-                                         f"got {text!r}") from exc
+                                         f"got {text[:24]!r}")
+    try:
+        w, h = (parse_number(v, "size", whole=True) for v in parts)
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(f"size must be WIDTHxHEIGHT (e.g. 320x240): "
+                                         f"{str(exc).removeprefix('size: ')}") from None
     if not (8 <= w <= 4096 and 8 <= h <= 4096):
         raise argparse.ArgumentTypeError(f"size {w}x{h} out of range (8…4096 per side)")
-    return w, h
+    return int(w), int(h)
 
 
 def _w(text: str) -> float:
+    from normbox_lab.acquire.params import ParameterError, parse_number
     from normbox_lab.images.whitebalance import check_w
 
     try:
-        return check_w(float(text))
+        return check_w(float(parse_number(text, "w")))
+    except ParameterError as exc:
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("w: ")) from None
     except ValueError as exc:
         raise argparse.ArgumentTypeError(str(exc)) from exc
 
@@ -43,8 +58,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                  "and write a multilayer spectral OpenEXR (radiance, diffuse, "
                                  "specular, indirect, depth, normal, preview) and a "
                                  "white-balanced sRGB PNG.")
-    c.add_argument("--patch", type=int, default=7, help="ColorChecker patch 1…24 (default 7)")
-    c.add_argument("--angle", type=float, default=45.0, help="sample angle in degrees "
+    c.add_argument("--patch", type=option(PATCH, "--patch"),
+                   default=7, help="ColorChecker patch 1…24 (default 7)")
+    c.add_argument("--angle", type=option(ANGLE, "--angle"),
+                   default=45.0, help="sample angle in degrees "
                    "(0 = facing the light, 90 = facing the radiometer; default 45)")
     c.add_argument("--materials", choices=("truth", "fitted"), default="truth",
                    help="truth (the virtual world's) or fitted (latest fits in --store)")
@@ -66,8 +83,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                                  "as PNGs (+ the truth image as spectral EXR).")
     f.add_argument("run", metavar="REFERENCE_RUN_ID", nargs="?",
                    help="reference sweep (default: the latest)")
-    f.add_argument("--patch", type=int, default=7, help="patch on the holder (default 7)")
-    f.add_argument("--angle", type=float, default=45.0, help="sample angle (default 45°)")
+    f.add_argument("--patch", type=option(PATCH, "--patch"),
+                   default=7, help="patch on the holder (default 7)")
+    f.add_argument("--angle", type=option(ANGLE, "--angle"),
+                   default=45.0, help="sample angle (default 45°)")
     f.add_argument("--truth", choices=("default", "model"), default="default")
     f.add_argument("--light-map", metavar="RUN_ID",
                    help="take the lamp luminance from this light-map run")
@@ -91,16 +110,22 @@ def register(sub: argparse._SubParsersAction) -> None:
                      description="Render the radiometer's view with three wavelengths per "
                                  "render in Mitsuba's RGB variant and compare with the spectral "
                                  "renderer band by band (z-scores of the difference).")
-    t.add_argument("--patch", type=int, default=15, help="patch (model-family truth; default 15)")
-    t.add_argument("--angle", type=float, default=30.0, help="sample angle (default 30°)")
-    t.add_argument("--every", type=int, default=3, help="every N-th 5 nm band (default 3)")
-    t.add_argument("--spp", type=int, default=64, help="samples per pixel per batch")
-    t.add_argument("--batches", type=int, default=10, help="independent batches (default 10)")
-    t.add_argument("--reference-spp", type=int, default=1024,
+    t.add_argument("--patch", type=option(PATCH, "--patch"),
+                   default=15, help="patch (model-family truth; default 15)")
+    t.add_argument("--angle", type=option(ANGLE, "--angle"),
+                   default=30.0, help="sample angle (default 30°)")
+    t.add_argument("--every", type=option(Number(1, 81, whole=True), "--every"),
+                   default=3, help="every N-th 5 nm band (default 3)")
+    t.add_argument("--spp", type=option(SPP, "--spp"),
+                   default=64, help="samples per pixel per batch")
+    t.add_argument("--batches", type=option(Number(2, 10_000, whole=True), "--batches"),
+                   default=10, help="independent batches (default 10)")
+    t.add_argument("--reference-spp", type=option(SPP, "--reference-spp"), default=1024,
                    help="stock spectral reference: samples per pixel per batch (10 batches)")
-    t.add_argument("--false-alarm", type=float, default=0.001,
+    t.add_argument("--false-alarm", type=option(Number(0, 0.5, above=True), "--false-alarm"),
+                   default=0.001,
                    help="chance that the check fails when both renderers agree (default 0.001)")
-    t.add_argument("--seed", type=int, default=0)
+    t.add_argument("--seed", type=option(SEED, "--seed"), default=0)
     t.set_defaults(handler=_triplet)
 
     wb = s.add_parser("whitebalance", help="Wilkie & Weidlich vs gray world on a coloured room",
@@ -108,14 +133,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                                   "--lamp-k kelvin, estimate the illuminant by Wilkie & Weidlich "
                                   "(CWNI/NWCI images, 1−Chroma weights) and by plain gray world, "
                                   "and compare both with the light on the white cube's lit face.")
-    wb.add_argument("--lamp-k", type=float, default=1800.0, help="lamp temperature (default 1800)")
+    wb.add_argument("--lamp-k", type=option(Number(500, 50_000, unit="K"), "--lamp-k"),
+                    default=1800.0, help="lamp temperature (default 1800)")
     wb.add_argument("--room", choices=("coloured", "cornell"), default="coloured",
                     help="coloured: green/teal walls (the acceptance test's room); cornell: "
                          "red/green/grey walls")
     wb.add_argument("--w", type=_w, default=2.0, help="1−Chroma exponent w, 1…4 (default 2)")
     wb.add_argument("--size", type=_size, default=(96, 72), help="WIDTHxHEIGHT (default 96x72)")
-    wb.add_argument("--spp", type=int, default=64)
-    wb.add_argument("--seed", type=int, default=1)
+    wb.add_argument("--spp", type=option(SPP, "--spp"), default=64)
+    wb.add_argument("--seed", type=option(SEED, "--seed"), default=1)
     wb.add_argument("-o", "--out", metavar="DIR", help="also write raw and balanced PNGs here")
     wb.set_defaults(handler=_whitebalance)
 
@@ -126,9 +152,9 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _render_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--size", type=_size, default=(320, 240), help="WIDTHxHEIGHT (default 320x240)")
-    p.add_argument("--spp", type=int, default=None,
+    p.add_argument("--spp", type=option(SPP, "--spp"), default=None,
                    help="samples per pixel (default 96)")
-    p.add_argument("--seed", type=int, default=1)
+    p.add_argument("--seed", type=option(SEED, "--seed"), default=1)
     p.add_argument("--w", type=_w, default=2.0, help="W&W 1−Chroma exponent, 1…4 (default 2)")
     p.add_argument("-o", "--out", metavar="DIR", default="images",
                    help="output folder (default ./images)")

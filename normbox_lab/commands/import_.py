@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from normbox_lab.acquire.params import Number, option
 from normbox_lab.commands.common import add_store_argument, require_store
 
 
@@ -18,7 +19,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "Stored as a run of protocol import-brdf-json.")
     b.add_argument("file", metavar="FILE")
     b.add_argument("--material", help="material name (default: the file name)")
-    b.add_argument("--tilt-deg", type=float, default=0.0,
+    b.add_argument("--tilt-deg", type=option(Number(-45, 45, unit="°"), "--tilt-deg"), default=0.0,
                    help="out-of-plane tilt of the arms during that measurement")
     add_store_argument(b)
     b.set_defaults(handler=_import_brdf)

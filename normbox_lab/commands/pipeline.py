@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from normbox_lab.acquire.params import WORKERS, Number, option
 from normbox_lab.commands.common import add_store_argument, require_store
 
 
@@ -13,7 +14,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Fit every material of a brdf-inplane (or imported) run; "
                                    "the fits are stored as artifacts.")
     f.add_argument("run", metavar="BRDF_RUN_ID")
-    f.add_argument("-w", "--weight-exponent", type=float, default=2.0,
+    f.add_argument("-w", "--weight-exponent", type=option(Number(0, 10), "--weight-exponent"),
+                   default=2.0,
                    help="cost weight cos^w θi (paper: 1…4, sometimes 6; default 2)")
     _accept_flagged(f)
     add_store_argument(f)
@@ -28,7 +30,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="predict with the fast band-vector renderer, as independent jobs in "
                         "this process or on a dask.distributed cluster (default: the stock "
                         "Mitsuba renderer, one configuration after the other)")
-    p.add_argument("--workers", type=int, default=2, metavar="N",
+    p.add_argument("--workers", type=option(WORKERS, "--workers"), default=2, metavar="N",
                    help="dask: worker processes of a new local cluster (default 2)")
     p.add_argument("--address", metavar="URL", default=None,
                    help="dask: an existing cluster's scheduler, e.g. tcp://scheduler:8786")

@@ -16,6 +16,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from normbox_lab.acquire.params import TIME_SCALE, option
+
 #: the exit status of a run that ended paused, resumable, with readings missing
 EXIT_PAUSED = 3
 #: the exit status after Ctrl-C at a prompt (the shell's 128 + SIGINT)
@@ -51,7 +53,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     help="ask the prompts on the terminal, also in a simulated lab")
     p.add_argument("--fault-policy", choices=("retry", "skip", "abort"), default="retry",
                    help="the virtual operator's answer to a persistent fault (default retry)")
-    p.add_argument("--time-scale", type=float, default=None, metavar="S",
+    p.add_argument("--time-scale", type=option(TIME_SCALE, "--time-scale"),
+                   default=None, metavar="S",
                    help="simulated labs: override the lab's time scale (0 = instant)")
     p.add_argument("--plain", action="store_true",
                    help="one line per reading instead of a progress bar")
@@ -80,36 +83,45 @@ def _load_lab_config(args: argparse.Namespace):
 
 
 def _parse_overrides(protocol: str | None, items: list[str]) -> dict:
-    from normbox_lab.acquire.engine import PlanError, coerce_param, load_protocol
+    """`--param K=V ...` through the one parser (`normbox_lab.acquire.params`): a refusal is
+    one line and exit 2."""
+    from normbox_lab.acquire.engine import coerce_param, load_protocol
+    from normbox_lab.acquire.params import ParameterError, show
 
     if not items:
         return {}
     if not protocol:
-        raise PlanError("--param needs a PROTOCOL")
-    parameters = load_protocol(protocol).PARAMETERS
+        raise ParameterError("--param needs a PROTOCOL")
+    module = load_protocol(protocol)
+    parameters = module.PARAMETERS
+    limits = vars(module).get("LIMITS") or {}
     out = {}
     for item in items:
         key, sep, value = item.partition("=")
         key = key.strip()
         if not sep or not key:
-            raise PlanError(f"--param expects K=V, got {item!r}")
+            raise ParameterError(f"--param expects K=V, got {show(item)}")
         if key not in parameters:
-            raise PlanError(f"unknown parameter {key!r}; known: {', '.join(parameters)}")
-        out[key] = coerce_param(parameters[key], value, key)
+            raise ParameterError(f"unknown parameter {show(key)}; known: "
+                                 f"{', '.join(parameters)}")
+        if key in out:
+            raise ParameterError(f"--param {key} is given twice")
+        out[key] = coerce_param(parameters[key], value, key, limits.get(key))
     return out
 
 
 def _run(args: argparse.Namespace) -> int:
     import signal
 
-    from normbox_lab.acquire.engine import PlanError, open_run
+    from normbox_lab.acquire.engine import open_run
+    from normbox_lab.acquire.params import ParameterError
     from normbox_lab.acquire.store import DEFAULT_STORE
 
     if args.resume and args.param:
-        raise PlanError("--param cannot change a resumed run (its parameters are stored with "
+        raise ParameterError("--param cannot change a resumed run (its parameters are stored with "
                         "it)")
     if not args.resume and not args.protocol:
-        raise PlanError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
+        raise ParameterError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
                         "repeatability, or a .py file), or --resume RUN_ID")
     overrides = _parse_overrides(args.protocol, args.param)
     config = _load_lab_config(args)

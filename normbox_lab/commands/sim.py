@@ -6,6 +6,16 @@ import argparse
 import sys
 from typing import Any
 
+from normbox_lab.acquire.params import (
+    PROBABILITY,
+    SEED,
+    WORKERS,
+    Number,
+    ParameterError,
+    option,
+    read,
+)
+
 SERVE_EPILOG = """\
 The emulator is loaded completely (colour-science included) before the endpoint line is
 printed, and it keeps running while no client is connected. A new TCP connection, or a client
@@ -41,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "colour-specio work; socket:// reports at most 1 byte")
     s.add_argument("--faults", default="", metavar="SPEC",
                    help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7'")
-    s.add_argument("--seed", type=int, default=0, help="seed of the emulator's randomness")
+    s.add_argument("--seed", type=option(SEED, "--seed"),
+                   default=0, help="seed of the emulator's randomness")
     s.add_argument("--option", action="append", default=[], metavar="K=V",
                    help="an emulator option, as in the sim:// URL (e.g. noise=off, "
                         "time_factor=0.05 for the radiometers); repeatable")
@@ -65,20 +76,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "state, exact resume.  A failing scenario is shrunk and printed with the "
                     "command that reproduces it.  Last line: 'N scenarios: V violations' "
                     "(V counts scenario x violation class); exit 1 when V > 0.")
-    camp.add_argument("--scenarios", type=int, default=30, metavar="N",
+    camp.add_argument("--scenarios", type=option(Number(1, 1_000_000, whole=True), "--scenarios"),
+                      default=30, metavar="N",
                       help="number of scenarios (default 30)")
-    camp.add_argument("--seed", type=int, default=0, metavar="S",
+    camp.add_argument("--seed", type=option(SEED, "--seed"), default=0, metavar="S",
                       help="campaign seed (scenario i of seed S is always the same)")
-    camp.add_argument("--jobs", type=int, default=1, metavar="J",
+    camp.add_argument("--jobs", type=option(WORKERS, "--jobs"), default=1, metavar="J",
                       help="scenarios run in J parallel processes")
     camp.add_argument("--keep", metavar="DIR",
                       help="keep every scenario's lab, store, output and journals under DIR")
     camp.add_argument("--replay", metavar="JSON",
                       help="run one scenario given as JSON (what a failure prints)")
-    camp.add_argument("--normbox-share", type=float, default=0.1, metavar="P",
+    camp.add_argument("--normbox-share", type=option(PROBABILITY, "--normbox-share"),
+                      default=0.1, metavar="P",
                       help="share of radiometer scenarios on the Mitsuba world, the others "
                            "on the analytic world (default 0.1)")
-    camp.add_argument("--max-faults", type=int, default=3, metavar="K",
+    camp.add_argument("--max-faults", type=option(Number(0, 100, whole=True), "--max-faults"),
+                      default=3, metavar="K",
                       help="at most K fault rules per scenario (default 3)")
     camp.add_argument("--no-shrink", dest="shrink", action="store_false",
                       help="report failing scenarios without shrinking them")
@@ -91,6 +105,27 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _fail(message: str) -> int:
     print(f"normbox-lab: {message}", file=sys.stderr)
     return 2
+
+
+#: the numbers of a fault rule: KIND=P (a probability per opportunity), KIND@N (once, at the
+#: N-th opportunity), :X (the kind's parameter: seconds late, a fraction of full scale,
+#: counts/s of drift …)
+FAULT_AT = Number(1, 1_000_000_000, whole=True)
+FAULT_PARAMETER = Number(-1e12, 1e12)
+
+
+def check_fault_spec(spec: str) -> None:
+    """Every number of a `--faults` spec through the one parser (``garble@-1`` never fired,
+    ``garble=NaN`` never fired either): a refusal is one line naming the rule."""
+    for item in filter(None, (s.strip() for s in spec.split(","))):
+        head, colon, param = item.partition(":")
+        field = f"--faults {item[:24]}"
+        if colon:
+            read(param, FAULT_PARAMETER, field)
+        if "@" in head:
+            read(head.partition("@")[2], FAULT_AT, field)
+        elif "=" in head:
+            read(head.partition("=")[2], PROBABILITY, field)
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -114,6 +149,10 @@ def _serve(args: argparse.Namespace) -> int:
             endpoint = serve.parse_tcp_endpoint(args.tcp)
         except serve.EndpointError as exc:
             return _fail(str(exc))
+    try:
+        check_fault_spec(args.faults)
+    except ParameterError as exc:
+        return _fail(str(exc))
     try:
         emulator = core.create(args.device, clock=RealClock(), faults=args.faults,
                                seed=args.seed, **options)

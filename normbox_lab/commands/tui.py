@@ -7,6 +7,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from normbox_lab.acquire.params import TIME_SCALE, option
+
 DEFAULT_STORE = "normbox.sqlite"     # = normbox_lab.acquire.store.DEFAULT_STORE, without importing numpy
 
 
@@ -24,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--world", choices=("normbox", "analytic", "none"), default="normbox",
                    help="simulated labs: the virtual Normbox (Mitsuba, loaded after the first "
                         "paint), the closed-form analytic world, or none")
-    p.add_argument("--time-scale", type=float, default=None, metavar="S",
+    p.add_argument("--time-scale", type=option(TIME_SCALE, "--time-scale"),
+                   default=None, metavar="S",
                    help="simulated labs: override the lab's time scale (0 = instant)")
     p.add_argument("--virtual-operator", action="store_true",
                    help="simulated labs: let the virtual operator answer prompts (default: "

@@ -10,6 +10,8 @@
     ├── ConfigError             a lab config problem; names file, line and field
     ├── DataError               an imported data file is malformed; names file and location
     ├── StoreError              the measurement store cannot do what was asked
+    ├── PlanError               a protocol's plan cannot be built (acquire.steps)
+    │   └── ParameterError      a value outside its kind or limits (acquire.params; exit 2)
     └── OperatorAbort           the operator (or an abort request) stopped the run
 """
 
@@ -86,3 +88,9 @@ class StoreError(NormboxError):
 
 class OperatorAbort(NormboxError):
     """The operator aborted (or an abort was requested programmatically)."""
+
+
+class PlanError(NormboxError):
+    """A protocol declared an inconsistent plan (duplicate keys, unsatisfiable requirements,
+    or a step an instrument has no capability for).  Here (not in `acquire.steps`) so that the
+    parameter parser (`acquire.params`) stays importable without numpy for the command line."""

@@ -279,7 +279,8 @@ class NormboxConsole(App):
         from normbox_lab.acquire import engine as eng
 
         module = eng.load_protocol(self.protocol)
-        return {key: eng.coerce_param(module.PARAMETERS[key], text, key)
+        limits = vars(module).get("LIMITS") or {}
+        return {key: eng.coerce_param(module.PARAMETERS[key], text, key, limits.get(key))
                 for key, text in self.pane(RunPane).parameter_texts().items()}
 
     def set_parameter(self, key: str, value: str) -> None:

@@ -222,7 +222,7 @@ class Session:
     def angle_limits_deg(self, role: str) -> tuple[float, float, str]:
         """(min, max, where from) of the instrument of `role`: the lab config's range, else its
         driver's default (what the go-to dialog offers)."""
-        from normbox_lab.protocols._common import angle_limits_deg
+        from normbox_lab.acquire.params import angle_limits_deg
 
         found = angle_limits_deg(self.config, role)
         if found is None:

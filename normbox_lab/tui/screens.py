@@ -221,6 +221,7 @@ class NumberScreen(ModalScreen[float | None]):
     NumberScreen > Vertical { width: 60; height: auto; border: thick $accent; padding: 0 1;
                               background: $panel; }
     NumberScreen #number-error { color: $error; height: auto; }
+    NumberScreen #number-title { width: 100%; height: auto; }
     """
 
     def __init__(self, question: str, low: float, high: float, value: float | None = None
@@ -232,7 +233,8 @@ class NumberScreen(ModalScreen[float | None]):
         from normbox_lab.tui.tabs.common import StopSafeInput
 
         with Vertical():
-            yield Label(f"{self.question}: {self.low:g} … {self.high:g}")
+            # a Static wraps: the question and its range are never cut at 80 columns
+            yield Static(f"{self.question}: {self.low:g} … {self.high:g}", id="number-title")
             yield StopSafeInput("" if self.value is None else f"{self.value:g}", id="number")
             yield Static("", id="number-error")
             yield Label("[dim]Enter: go · Esc: cancel[/dim]")
@@ -243,15 +245,13 @@ class NumberScreen(ModalScreen[float | None]):
         self.query_one("#number", Input).focus()
 
     def on_input_submitted(self, event: Any) -> None:
-        text = str(event.value).strip()
+        from normbox_lab.acquire.params import Number, ParameterError, read
+
         try:
-            value = float(text)
-        except ValueError:
-            self.query_one("#number-error", Static).update(f"not a number: {text!r}")
-            return
-        if not self.low <= value <= self.high:
+            value = float(read(str(event.value), Number(self.low, self.high), "value"))
+        except ParameterError as exc:       # the same parser as --param and the form
             self.query_one("#number-error", Static).update(
-                f"{value:g} is outside {self.low:g} … {self.high:g}")
+                str(exc).removeprefix("value: "))
             return
         self.dismiss(value)
 

@@ -276,16 +276,16 @@ class RunPane(TabPane):
     def check_one(self, key: str, text: str) -> Any:
         """The value of one field: parsed like its default, then checked against the
         protocol's declared limits (the other fields as typed, or their defaults)."""
+        from normbox_lab.acquire.params import check_parameters
         from normbox_lab.acquire.plan import PlanError, coerce_param
-        from normbox_lab.protocols._common import check_parameters
 
-        value = coerce_param(self.defaults[key], text, key)
+        value = coerce_param(self.defaults[key], text, key, self.limits.get(key))
         if key in self.limits:
             others = dict(self.defaults)
             for k, t in self.parameter_texts().items():
                 if k != key and k in self.defaults:
                     try:
-                        others[k] = coerce_param(self.defaults[k], t, k)
+                        others[k] = coerce_param(self.defaults[k], t, k, self.limits.get(k))
                     except PlanError:
                         pass
             others[key] = value
