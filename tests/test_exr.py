@@ -1,4 +1,4 @@
-"""Multilayer spectral OpenEXR (normbox_lab.images.exr): exact round trip, Fichet et al. 2021
+"""Multilayer spectral OpenEXR (normbox_lab.core.exr): exact round trip, Fichet et al. 2021
 channel names, and the file checked by an independent header parser and colour-science's regex."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from normbox_lab.images import exr
+from normbox_lab.core import exr
 
 WAVELENGTH_NM = np.arange(380.0, 781.0, 5.0)
 

@@ -39,7 +39,7 @@ def test_figure1_needs_a_store(tmp_path, capsys):
 
 
 def test_camera_writes_png_and_a_spectral_exr_whose_layers_sum(tmp_path, capsys):
-    from normbox_lab.images.exr import read_spectral_exr
+    from normbox_lab.core.exr import read_spectral_exr
 
     assert main(["image", "camera", "--size", "32x24", "--spp", "4", "-o", str(tmp_path)]) == 0
     out = capsys.readouterr().out
@@ -80,7 +80,7 @@ def test_seeded_image_commands_repeat_their_numbers(tmp_path, capsys):
     """Each seeded image command, run twice with the same --seed, prints the same numbers and
     writes the same pixels (the triplet check's RGB scene used to load its 25 emitting panel
     cells in a different order each time, so emitter sampling drew other random numbers)."""
-    from normbox_lab.images.exr import read_spectral_exr
+    from normbox_lab.core.exr import read_spectral_exr
 
     runs = []
     for k in range(2):

@@ -244,7 +244,7 @@ def test_broken_prediction_files_are_refused_with_one_line_and_nothing_stored(
 
 
 def test_exr_directory_is_read_as_pixel_means(exported, tmp_path):
-    from normbox_lab.images.exr import write_spectral_exr
+    from normbox_lab.core.exr import write_spectral_exr
     from normbox_lab.predict.renderers import read_prediction
 
     _store, _ref, _, _ = exported

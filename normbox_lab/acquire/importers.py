@@ -1,4 +1,4 @@
-"""Import of measured BRDF data.
+"""Imports into the store: measured BRDF data, and other renderers' predictions (at the end).
 
 Format (the layout of the TH Köln group's later in-plane data, read by vgonio's `clausen.rs`;
 see [LOW12] in docs/references.md): a JSON array whose element 0 is
@@ -18,10 +18,12 @@ import leaves nothing behind.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -193,3 +195,65 @@ def store_brdf(store, imported: ImportedBrdf, tilt_deg: float = 0.0) -> int:
         "import-brdf-json", parameters={"material": imported.material, "tilt_deg": tilt_deg},
         readings=readings, instrument="import")
     return run.id
+
+
+# --- another renderer's prediction of a reference run (`normbox-lab import prediction`) -------
+
+def import_prediction(store: Any, path: str | Path, ref_run: int | str, renderer: str, *,
+                      renderer_version: str | None = None) -> tuple[int, int]:
+    """Check `path` against `ref_run` and store it; (import run id, prediction artifact id).
+    Raises `PredictionFileError` (every problem, nothing stored)."""
+    from normbox_lab.acquire.queries import reference_data
+    from normbox_lab.predict.renderers import (
+        IMPORT_PROTOCOL,
+        RENDERER_NAME_RE,
+        PredictionFileError,
+        artifact_name,
+        check_prediction,
+        read_prediction,
+    )
+
+    if not RENDERER_NAME_RE.match(renderer or ""):
+        raise PredictionFileError(str(path), [
+            f"renderer name {renderer!r}: letters, digits and . _ + - only (≤ 64)"])
+    run = store.get_run(ref_run)
+    ref = reference_data(store, run.id)
+    pf = read_prediction(path)
+    problems = check_prediction(pf, ref.patches, ref.angle_deg, ref.wavelength_nm, run.id)
+    if problems:
+        raise PredictionFileError(str(path), problems)
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    rad = np.zeros((n_p, n_a, ref.wavelength_nm.size))
+    err = np.full_like(rad, np.nan)
+    for pi, p in enumerate(ref.patches):
+        for ai, a in enumerate(ref.angle_deg):
+            wl, r, se = pf.spectra[(int(p), float(a))]
+            rad[pi, ai] = np.interp(ref.wavelength_nm, wl, r)
+            if se is not None and np.isfinite(se).all():
+                err[pi, ai] = np.interp(ref.wavelength_nm, wl, se)
+    version = renderer_version or pf.header.get("renderer_version") or "unknown"
+    digest = hashlib.sha256()
+    p = Path(path)
+    for f in ([p] if p.is_file() else sorted(p.glob("*.exr"))):
+        digest.update(f.read_bytes())
+    params = {"renderer": renderer, "renderer_version": version, "reference_run": run.id,
+              "file": str(path), "sha256": digest.hexdigest(),
+              "header": pf.header, "configurations": len(pf.spectra),
+              "std_error": bool(np.isfinite(err).all())}
+    imp = store.create_complete_run(IMPORT_PROTOCOL, parameters=params, readings=[])
+    arrays = {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
+              "patches": np.array(ref.patches, dtype=float), "radiance": rad,
+              "std_error": err}
+    ours = store.artifacts("prediction", artifact_name(run.id))
+    shares_from = None
+    if ours and "direct_white" in ours[-1].arrays:
+        arrays["direct_white"] = ours[-1].arrays["direct_white"]
+        arrays["full_white"] = ours[-1].arrays["full_white"]
+        shares_from = ours[-1].id
+    aid = store.add_artifact(
+        "prediction", artifact_name(run.id, renderer), arrays,
+        metadata={"renderer": renderer, "renderer_version": version, "import_run": imp.id,
+                  "quality": f"imported ({renderer})", "light_shares_from": shares_from,
+                  "white_patch": 19 if 19 in ref.patches else ref.patches[0]},
+        run_ref=run.id)
+    return imp.id, aid

@@ -374,7 +374,7 @@ def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
     if exr:
         import colour
 
-        from normbox_lab.images.exr import write_spectral_exr
+        from normbox_lab.core.exr import write_spectral_exr
 
         linear = np.clip(whitebalance.adapt_to_display(fig.truth_XYZ, est.illuminant_XYZ)
                          / white_Y, 0.0, None)

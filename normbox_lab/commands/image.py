@@ -211,7 +211,7 @@ def _camera(args: argparse.Namespace) -> int:
           f"{100 * img.info.get('median_rel_se_luminance', float('nan')):.1f} %")
     print(f"png: {png}")
     if not args.no_exr:
-        from normbox_lab.images.exr import write_spectral_exr
+        from normbox_lab.core.exr import write_spectral_exr
 
         path = write_spectral_exr(out / f"{stem}.exr", img,
                                   extra_spectral={"emission": img.emission},
@@ -400,7 +400,7 @@ def _whitebalance(args: argparse.Namespace) -> int:
 
 
 def _exr_info(args: argparse.Namespace) -> int:
-    from normbox_lab.images.exr import read_spectral_exr
+    from normbox_lab.core.exr import read_spectral_exr
 
     d = read_spectral_exr(args.path)
     wl = d["wavelength_nm"]

@@ -60,8 +60,9 @@ def _register_prediction(isub: argparse._SubParsersAction) -> None:
 def _import_prediction(args: argparse.Namespace) -> int:
     import sys
 
+    from normbox_lab.acquire.importers import import_prediction
     from normbox_lab.acquire.store import Store
-    from normbox_lab.predict.renderers import PredictionFileError, import_prediction
+    from normbox_lab.predict.renderers import PredictionFileError
 
     require_store(args.store)
     with Store(args.store) as store:

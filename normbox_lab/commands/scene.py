@@ -30,12 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _export(args: argparse.Namespace) -> int:
     from pathlib import Path
 
+    from normbox_lab.acquire.queries import scene_package_inputs
     from normbox_lab.acquire.store import Store
-    from normbox_lab.predict.scene_package import export_scene_package
+    from normbox_lab.predict.scene_package import write_scene_package
 
     require_store(args.store)
     with Store(args.store) as store:
-        s = export_scene_package(store, args.run, args.out, light_map_run=args.light_map)
+        inputs = scene_package_inputs(store, args.run, light_map_run=args.light_map)
+    s = write_scene_package(inputs, args.out)
     print(f"scene package of run {s.ref_run}: {len(s.configurations)} configurations, "
           f"{len(s.files)} files in {s.out_dir}")
     print(f"render: python {Path(s.out_dir) / 'render_mitsuba.py'} --spp 256 --out "

@@ -11,6 +11,12 @@ from typing import Any
 import numpy as np
 
 
+def fit_key(patch: int | str) -> str:
+    """The name of a material's fit (the store's fit artifact, the brdf-inplane protocol's
+    material key): ``p01``…``p24`` for a patch number, any other name (``wall``) as it is."""
+    return f"p{int(patch):02d}" if str(patch).isdigit() else str(patch)
+
+
 def _as_1d_float(name: str, value: Any) -> np.ndarray:
     arr = np.asarray(value, dtype=np.float64)
     if arr.ndim != 1:

@@ -1,4 +1,6 @@
-"""Other renderers' predictions of a reference run: read, check, store (`import prediction`).
+"""Other renderers' predictions of a reference run: read and check them (`import prediction`;
+`normbox_lab.acquire.importers.import_prediction` stores them: this module never reads or
+writes the store itself, except `renderers`, which lists the stored artifacts it is given).
 
 A prediction file is what a renderer returns for a scene package (`scene_package.py`):
 
@@ -25,7 +27,6 @@ of the scene, not of the renderer: they are copied from our prediction when ther
 from __future__ import annotations
 
 import csv
-import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -141,7 +142,7 @@ _EXR_NAME = re.compile(r"^p(?P<patch>\d+)_s(?P<angle>[0-9.]+)\.exr$", re.IGNOREC
 
 def read_exr_dir(path: str | Path) -> PredictionFile:
     """A directory of per-configuration spectral EXRs (pNN_s<angle>.exr); pixel means."""
-    from normbox_lab.images.exr import read_spectral_exr
+    from normbox_lab.core.exr import read_spectral_exr
 
     path = Path(path)
     spectra = {}
@@ -243,55 +244,3 @@ def check_prediction(pf: PredictionFile, patches: list[int], angle_deg: Any,
         more = f" and {len(where) - 1} more configurations" if len(where) > 1 else ""
         problems.append(f"{text}: {_where(*where[0])}{more}")
     return problems
-
-
-def import_prediction(store: Any, path: str | Path, ref_run: int | str, renderer: str, *,
-                      renderer_version: str | None = None) -> tuple[int, int]:
-    """Check `path` against `ref_run` and store it; (import run id, prediction artifact id).
-    Raises `PredictionFileError` (every problem, nothing stored)."""
-    from normbox_lab.analyze.queries import reference_data
-
-    if not RENDERER_NAME_RE.match(renderer or ""):
-        raise PredictionFileError(str(path), [
-            f"renderer name {renderer!r}: letters, digits and . _ + - only (≤ 64)"])
-    run = store.get_run(ref_run)
-    ref = reference_data(store, run.id)
-    pf = read_prediction(path)
-    problems = check_prediction(pf, ref.patches, ref.angle_deg, ref.wavelength_nm, run.id)
-    if problems:
-        raise PredictionFileError(str(path), problems)
-    n_p, n_a = len(ref.patches), ref.angle_deg.size
-    rad = np.zeros((n_p, n_a, ref.wavelength_nm.size))
-    err = np.full_like(rad, np.nan)
-    for pi, p in enumerate(ref.patches):
-        for ai, a in enumerate(ref.angle_deg):
-            wl, r, se = pf.spectra[(int(p), float(a))]
-            rad[pi, ai] = np.interp(ref.wavelength_nm, wl, r)
-            if se is not None and np.isfinite(se).all():
-                err[pi, ai] = np.interp(ref.wavelength_nm, wl, se)
-    version = renderer_version or pf.header.get("renderer_version") or "unknown"
-    digest = hashlib.sha256()
-    p = Path(path)
-    for f in ([p] if p.is_file() else sorted(p.glob("*.exr"))):
-        digest.update(f.read_bytes())
-    params = {"renderer": renderer, "renderer_version": version, "reference_run": run.id,
-              "file": str(path), "sha256": digest.hexdigest(),
-              "header": pf.header, "configurations": len(pf.spectra),
-              "std_error": bool(np.isfinite(err).all())}
-    imp = store.create_complete_run(IMPORT_PROTOCOL, parameters=params, readings=[])
-    arrays = {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
-              "patches": np.array(ref.patches, dtype=float), "radiance": rad,
-              "std_error": err}
-    ours = store.artifacts("prediction", artifact_name(run.id))
-    shares_from = None
-    if ours and "direct_white" in ours[-1].arrays:
-        arrays["direct_white"] = ours[-1].arrays["direct_white"]
-        arrays["full_white"] = ours[-1].arrays["full_white"]
-        shares_from = ours[-1].id
-    aid = store.add_artifact(
-        "prediction", artifact_name(run.id, renderer), arrays,
-        metadata={"renderer": renderer, "renderer_version": version, "import_run": imp.id,
-                  "quality": f"imported ({renderer})", "light_shares_from": shares_from,
-                  "white_patch": 19 if 19 in ref.patches else ref.patches[0]},
-        run_ref=run.id)
-    return imp.id, aid

@@ -27,6 +27,8 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.core.types import fit_key
+
 PACKAGE_FORMAT = "normbox-scene-package/1"
 #: every spectrum the scene uses is defined on 360–830 nm (Mitsuba's CIE range); the bands
 #: a renderer returns are 380…780 nm every 5 nm, triangular hats of half-width 5 nm
@@ -59,67 +61,26 @@ def config_name(patch: int, angle_deg: float) -> str:
     return f"p{int(patch):02d}_s{float(angle_deg):g}"
 
 
-# --- what the prediction used ------------------------------------------------------------------
+# --- what the package is made of ---------------------------------------------------------------
 
-def prediction_inputs(store: Any, ref_run: int | str, *, light_map_run: int | str | None = None
-                      ) -> tuple[Any, Any, dict[str, Any]]:
-    """(geometry, lamp, provenance) our prediction of `ref_run` used: the prediction artifact's
-    recorded lamp and geometry; else the light-map run (given, or the latest finished one) and
-    the reference run's lab config; else the Normbox defaults."""
-    from normbox_lab.predict.render import Lamp
-    from normbox_lab.predict.scene import as_geometry
+@dataclass
+class PackageInputs:
+    """What a scene package is written from (read from the store by
+    `normbox_lab.acquire.queries.scene_package_inputs`): the reference run, its spectra
+    (`ref`: patches, angle_deg, wavelength_nm, patch_names), the fits of its patches (``p01``…)
+    and the wall, the geometry, the lamp, where they came from (`provenance`) and the measured
+    light-map spectrum (wavelength_nm, radiance) if any."""
 
-    run = store.get_run(ref_run)
-    prov: dict[str, Any] = {}
-    md: dict[str, Any] = {}
-    found = store.artifacts("prediction", f"ref-run-{run.id}")
-    if found:
-        md = dict(found[-1].metadata)
-        prov["prediction_artifact"] = found[-1].id
-    geometry = None
-    if isinstance(md.get("geometry"), dict):
-        geometry = as_geometry(_Obj(md["geometry"]))
-        prov["geometry_from"] = "prediction"
-    elif run.lab_config:
-        from normbox_lab.acquire.config import parse_config
-
-        geometry = parse_config(run.lab_config, f"run {run.id} lab config").geometry
-        prov["geometry_from"] = f"run {run.id} lab config"
-    else:
-        geometry = as_geometry(None)
-        prov["geometry_from"] = "Normbox defaults"
-    if isinstance(md.get("lamp"), dict):
-        lamp = Lamp(**{k: float(v) for k, v in md["lamp"].items()})
-        prov["lamp_from"] = "prediction"
-    else:
-        from normbox_lab.analyze.queries import lamp_from_light_map
-
-        lm = light_map_run
-        if lm is None:
-            done = [r for r in store.runs() if r.protocol == "light-map" and r.status == "done"]
-            lm = done[-1].id if done else None
-        lamp = lamp_from_light_map(store, lm)
-        prov["lamp_from"] = f"light-map run {store.get_run(lm).id}" if lm is not None \
-            else "nominal lamp"
-    return geometry, lamp, prov
-
-
-class _Obj:
-    def __init__(self, d: dict[str, Any]) -> None:
-        self.__dict__.update(d)
-
-
-def measured_light(store: Any, light_map_run: int | str | None) -> tuple[np.ndarray, np.ndarray] | None:
-    """Mean measured panel spectrum of a light-map run (wavelength_nm, radiance)."""
-    if light_map_run is None:
-        return None
-    rows = list(store.readings(light_map_run, kind="spectral"))
-    if not rows:
-        return None
-    wl = rows[0].arrays["wavelength_nm"]
-    rad = np.mean([np.interp(wl, r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
-                   for r in rows], axis=0)
-    return wl, rad
+    run_id: int
+    run_uuid: str
+    protocol: str
+    code_version: str
+    ref: Any
+    fits: dict[str, Any]
+    geometry: Any
+    lamp: Any
+    provenance: dict[str, Any] = field(default_factory=dict)
+    measured_light: tuple[np.ndarray, np.ndarray] | None = None
 
 
 # --- writers ----------------------------------------------------------------------------------
@@ -254,36 +215,16 @@ def _package_source(module: str) -> str:
 
 # --- the export -------------------------------------------------------------------------------
 
-def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
-                         light_map_run: int | str | None = None, fits: dict[str, Any] | None = None,
-                         max_depth: int = 12) -> PackageSummary:
-    """Write the scene package of `ref_run` into `out_dir` (created; existing files replaced)."""
+def write_scene_package(inputs: PackageInputs, out_dir: str | Path, *,
+                        max_depth: int = 12) -> PackageSummary:
+    """Write the scene package of `inputs` (`normbox_lab.acquire.queries.scene_package_inputs`)
+    into `out_dir` (created; existing files replaced): materials, light, the radiometer's view,
+    the Mitsuba scenes and OBJ geometry, the stand-alone BSDF and renderer, manifest, README and
+    the SHA256 of every file."""
     import mitsuba as mi
-
-    from normbox_lab.analyze.queries import fit_key, latest_fits, reference_data
-    from normbox_lab.core.errors import StoreError
-    from normbox_lab.core.spectral import WHITE_PATCH
-    from normbox_lab.predict.materials import Material, holder_material
-    from normbox_lab.predict.render import BAND_CENTRES_NM, BAND_WIDTH_NM, LAMP_GRID_NM
-    from normbox_lab.predict.scene import (
-        band_film,
-        panel_map,
-        radiometer_position_m,
-        sample_centre_m,
-        sample_normal,
-        scene_dict,
-    )
 
     if not mi.variant():
         mi.set_variant("scalar_spectral")
-    run = store.get_run(ref_run)
-    ref = reference_data(store, run.id)
-    fits = fits if fits is not None else latest_fits(store)
-    need = [fit_key(p) for p in ref.patches] + ["wall"]
-    missing = [n for n in need if n not in fits]
-    if missing:
-        raise StoreError(f"no fits for {', '.join(missing)}: run `normbox-lab fit` first")
-    geometry, lamp, prov = prediction_inputs(store, run.id, light_map_run=light_map_run)
     out = Path(out_dir)
     for sub in ("geometry", "light", "materials", "scenes/common"):
         (out / sub).mkdir(parents=True, exist_ok=True)
@@ -293,29 +234,62 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
         (out / rel).write_text(text, encoding="utf-8")
         files.append(rel)
 
+    materials = _write_materials(inputs, write)
+    lamp_wl, lamp_values = _write_light(inputs, out, files)
+    write("radiometer.json", json.dumps(_radiometer_view(inputs), indent=1) + "\n")
+    configs = _write_scenes(inputs, materials, lamp_wl, lamp_values, max_depth, write)
+    _csv(out / "configurations.csv", ["patch", "angle_deg", "scene"],
+         [[p, a, s] for p, a, s in configs],
+         [("one row per patch × sample angle of the reference run; a renderer returns the "
+          "band radiance of each (README.md)")])
+    files.append("configurations.csv")
+    write("normbox_bsdf.py", _package_source("standalone_bsdf"))
+    write("render_mitsuba.py", _package_source("standalone_render"))
+    write("manifest.json", json.dumps(_manifest(inputs, max_depth), indent=1) + "\n")
+    write("README.md", _readme(inputs.run_id, inputs.ref, inputs.geometry, inputs.lamp,
+                               inputs.provenance, len(configs)))
+    digest = hashlib.sha256()
+    for rel in sorted(files):
+        digest.update(rel.encode() + b"\0" + (out / rel).read_bytes())
+    (out / "SHA256").write_text(digest.hexdigest() + "\n", encoding="utf-8")
+    return PackageSummary(out, inputs.run_id, configs, sorted(files), asdict(inputs.lamp),
+                          asdict(inputs.geometry))
+
+
+def _write_materials(inputs: PackageInputs, write: Any) -> dict[str, Any]:
+    """materials/*.json and geometry/materials.mtl; the patches' materials by fit name."""
+    from normbox_lab.predict.materials import Material, holder_material
+
+    ref, fits = inputs.ref, inputs.fits
     materials = {fit_key(p): Material.from_fit(fits[fit_key(p)]) for p in ref.patches}
     wall = Material.from_fit(fits["wall"])
-    holder = holder_material()
-    # materials
     for p in ref.patches:
         k = fit_key(p)
         write(f"materials/{k}.json", json.dumps(_material_json(materials[k], f"patch {p}",
                                                                fits[k]), indent=1) + "\n")
     write("materials/wall.json", json.dumps(_material_json(wall, "wall", fits["wall"]),
                                             indent=1) + "\n")
-    write("materials/holder.json", json.dumps(_material_json(holder, "holder (black paint, "
-                                                             "not fitted: flat kd 0.04, ks 0)"),
+    write("materials/holder.json", json.dumps(_material_json(holder_material(), "holder (black "
+                                                             "paint, not fitted: flat kd 0.04, "
+                                                             "ks 0)"),
                                               indent=1) + "\n")
     mtl = ["# material names used by the OBJ files; the BRDFs are in materials/*.json"]
     for name in ["wall", "holder", "panel", *materials]:
         mtl += [f"newmtl {name}", "Kd 0.5 0.5 0.5" if name != "panel" else "Ke 1 1 1"]
     write("geometry/materials.mtl", "\n".join(mtl) + "\n")
-    # light
+    return {**materials, "wall": wall, "holder": holder_material()}
+
+
+def _write_light(inputs: PackageInputs, out: Path, files: list[str]
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """light/spectrum.csv and light/panel_map.csv; the lamp's grid and values."""
+    from normbox_lab.predict.render import LAMP_GRID_NM
+    from normbox_lab.predict.scene import panel_map
+
+    lamp, geometry, prov = inputs.lamp, inputs.geometry, inputs.provenance
     lamp_wl = np.asarray(LAMP_GRID_NM, dtype=np.float64)
     lamp_values = lamp.radiance(lamp_wl)
-    measured = measured_light(store, light_map_run if light_map_run is not None else
-                              (prov["lamp_from"].split()[-1] if prov.get("lamp_from", "")
-                               .startswith("light-map run") else None))
+    measured = inputs.measured_light
     header = ["wavelength_nm", "radiance_W_sr_m2_nm"]
     rows: list[list[Any]] = [[float(w), float(v)] for w, v in zip(lamp_wl, lamp_values)]
     comments = [("the opal panel's mean spectral radiance, W·sr⁻¹·m⁻²·nm⁻¹, as the scene uses "
@@ -347,13 +321,20 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
           "cells; centres in mm from the aperture centre (x along the rotation axis, y into "
           "the box); radiance = relative_radiance × spectrum.csv (mean factor 1)")])
     files.append("light/panel_map.csv")
-    # the radiometer
+    return lamp_wl, lamp_values
+
+
+def _radiometer_view(inputs: PackageInputs) -> dict[str, Any]:
+    """radiometer.json: where the radiometer stands, what it sees and how bands are formed."""
+    from normbox_lab.predict.scene import radiometer_position_m, sample_centre_m, sample_normal
+
+    geometry, angles = inputs.geometry, inputs.ref.angle_deg
     origin = radiometer_position_m(geometry)
     target = sample_centre_m(geometry)
     direction = (target - origin) / np.linalg.norm(target - origin)
     dist = float(np.linalg.norm(target - origin))
     spot = 2 * dist * math.tan(math.radians(geometry.radiometer_view_deg / 2))
-    view = {
+    return {
         "instrument": "spectroradiometer (Konica Minolta CS-1000A class), 1° acceptance",
         "position_m": [float(x) for x in origin], "target_m": [float(x) for x in target],
         "direction": [float(x) for x in direction], "up": [0.0, 0.0, 1.0],
@@ -365,20 +346,64 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
         "spot_diameter_on_sample_mm_at_normal_view": spot * 1000.0,
         "spot_length_on_sample_mm": {f"{a:g}": spot * 1000.0 / max(math.sin(math.radians(a)),
                                                                    1e-9)
-                                     for a in ref.angle_deg},
-        "view_angle_from_sample_normal_deg": {f"{a:g}": 90.0 - float(a) for a in ref.angle_deg},
+                                     for a in angles},
+        "view_angle_from_sample_normal_deg": {f"{a:g}": 90.0 - float(a) for a in angles},
         "bands": {"centres_nm": [BAND_START_NM, BAND_STOP_NM, BAND_STEP_NM],
                   "shape": "triangular, unit height, half-width 5 nm: band value = ∫ hat(λ) L(λ) "
                            "dλ / 5 nm (the band-averaged radiance)"},
         "sample_normal_at_angle": {f"{a:g}": [float(x) for x in sample_normal(a)]
-                                   for a in ref.angle_deg}}
-    write("radiometer.json", json.dumps(view, indent=1) + "\n")
-    # Mitsuba scenes: a common part, two sensors, one file per configuration
-    placeholders = {"patch": "PATCH", "wall": "wall", "holder": "holder", "post": "holder"}
+                                   for a in angles}}
+
+
+def _write_scenes(inputs: PackageInputs, materials: dict[str, Any], lamp_wl: np.ndarray,
+                  lamp_values: np.ndarray, max_depth: int, write: Any
+                  ) -> list[tuple[int, float, str]]:
+    """scenes/common/*.xml, geometry/normbox_s*.obj and one scenes/pNN_sA.xml per
+    configuration; the configurations (patch, angle_deg, scene file)."""
+    from normbox_lab.predict.render import BAND_CENTRES_NM, BAND_WIDTH_NM
+    from normbox_lab.predict.scene import band_film, scene_dict
+
+    geometry, ref = inputs.geometry, inputs.ref
     film = band_film(BAND_CENTRES_NM, BAND_WIDTH_NM, PIXELS)
-    d0 = scene_dict(geometry, angle_deg=0.0, patch_bsdf=placeholders["patch"],
+    d0 = scene_dict(geometry, angle_deg=0.0, patch_bsdf="PATCH",
                     wall_bsdf="wall", holder_bsdf="holder", lamp_values=lamp_values,
                     lamp_grid_nm=lamp_wl, film=film, max_depth=max_depth, post_bsdf="holder")
+    write("scenes/common/box.xml", _common_box_xml(d0, materials, max_depth))
+    for name, text in _sensor_xml(d0["sensor"]).items():
+        write(f"scenes/common/{name}.xml", text)
+    configs: list[tuple[int, float, str]] = []
+    for a in ref.angle_deg:
+        d = scene_dict(geometry, angle_deg=float(a), patch_bsdf="PATCH", wall_bsdf="wall",
+                       holder_bsdf="holder", lamp_values=lamp_values, lamp_grid_nm=lamp_wl,
+                       film=film, max_depth=max_depth, post_bsdf="holder")
+        shapes = {k: (d[k], d[k]["bsdf"] if isinstance(d[k]["bsdf"], str) else "panel")
+                  for k in d if k not in ("type", "integrator", "sensor")}
+        shapes = {k: (s, "panel" if k.startswith("panel_") else ("patch" if m == "PATCH" else m))
+                  for k, (s, m) in shapes.items()}
+        write(f"geometry/normbox_s{float(a):g}.obj", _obj_text(shapes, float(a), geometry))
+        for p in ref.patches:
+            name = config_name(p, float(a))
+            text = ['<?xml version="1.0" encoding="utf-8"?>',
+                    (f"<!-- patch {p} ({ref.patch_names[ref.patches.index(p)]}) at sample angle "
+                    f"{float(a):g}°: the radiometer sees it at {90 - float(a):g}° from its "
+                    "normal. Render with the normbox_fit BSDF registered (normbox_bsdf.py); "
+                    "sensor=sensor_rgb for an RGB variant. -->"),
+                    '<scene version="3.0.0">',
+                    '    <default name="sensor" value="sensor_spectral"/>',
+                    '    <include filename="common/box.xml"/>',
+                    '    <include filename="common/$sensor.xml"/>',
+                    _bsdf_xml("patch_bsdf", materials[fit_key(p)]).rstrip("\n"),
+                    _shape_xml("patch", d["patch"], "patch_bsdf").rstrip("\n"),
+                    _shape_xml("holder_plate", d["holder_plate"], "holder").rstrip("\n"),
+                    "</scene>"]
+            write(f"scenes/{name}.xml", "\n".join(text) + "\n")
+            configs.append((int(p), float(a), f"scenes/{name}.xml"))
+    return configs
+
+
+def _common_box_xml(d0: dict[str, Any], materials: dict[str, Any], max_depth: int) -> str:
+    """The box without the sample (walls, ceiling, the 25 emitting panel cells, the post) and
+    the integrator, included by every configuration's scene."""
     fixed = [k for k in d0 if k not in ("type", "integrator", "sensor", "patch", "holder_plate")]
     common = ['<?xml version="1.0" encoding="utf-8"?>',
               ("<!-- The Normbox without the sample: walls, ceiling with aperture, the opal panel "
@@ -388,10 +413,10 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
               (f'    <integrator type="path">\n        <integer name="max_depth" value="'
               f'{int(max_depth)}"/>\n        <integer name="rr_depth" value="6"/>\n'
               '        <boolean name="hide_emitters" value="false"/>\n    </integrator>'),
-              _bsdf_xml("wall", wall).rstrip("\n"), _bsdf_xml("holder", holder).rstrip("\n")]
+              _bsdf_xml("wall", materials["wall"]).rstrip("\n"),
+              _bsdf_xml("holder", materials["holder"]).rstrip("\n")]
     for k in fixed:
         shape = d0[k]
-        emitter = ""
         if "emitter" in shape:
             rad = shape["emitter"]["radiance"]
             vals = [float(x) for x in rad["values"].split(",")]
@@ -402,8 +427,13 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
         else:
             common.append(_shape_xml(k, shape, shape["bsdf"]).rstrip("\n"))
     common.append("</scene>")
-    write("scenes/common/box.xml", "\n".join(common) + "\n")
-    sensor = d0["sensor"]
+    return "\n".join(common) + "\n"
+
+
+def _sensor_xml(sensor: dict[str, Any]) -> dict[str, str]:
+    """The two sensors (``sensor_spectral``: one band per film channel; ``sensor_rgb``)."""
+    from normbox_lab.predict.render import BAND_CENTRES_NM, BAND_WIDTH_NM
+
     sens_tr = _transform_xml(_matrix(sensor["to_world"]), "        ")
     sens_head = ('<?xml version="1.0" encoding="utf-8"?>\n<scene version="3.0.0">\n'
                  '    <sensor type="perspective">\n'
@@ -417,76 +447,40 @@ def export_scene_package(store: Any, ref_run: int | str, out_dir: str | Path, *,
     bands = "".join(f'            <spectrum name="b{k:04d}" value="{_fmt(lam - BAND_WIDTH_NM)}:0,'
                     f' {_fmt(lam)}:1, {_fmt(lam + BAND_WIDTH_NM)}:0"/>\n'
                     for k, lam in enumerate(BAND_CENTRES_NM))
-    write("scenes/common/sensor_spectral.xml",
-          sens_head + '        <film type="specfilm">\n'
-          f'            <integer name="width" value="{PIXELS}"/>\n'
-          f'            <integer name="height" value="{PIXELS}"/>\n'
-          '            <string name="component_format" value="float32"/>\n'
-          '            <rfilter type="box"/>\n' + bands +
-          "        </film>\n    </sensor>\n</scene>\n")
-    write("scenes/common/sensor_rgb.xml",
-          sens_head + '        <film type="hdrfilm">\n'
-          f'            <integer name="width" value="{PIXELS}"/>\n'
-          f'            <integer name="height" value="{PIXELS}"/>\n'
-          '            <string name="pixel_format" value="rgb"/>\n'
-          '            <string name="component_format" value="float32"/>\n'
-          '            <rfilter type="box"/>\n'
-          "        </film>\n    </sensor>\n</scene>\n")
-    configs: list[tuple[int, float, str]] = []
-    for ai, a in enumerate(ref.angle_deg):
-        d = scene_dict(geometry, angle_deg=float(a), patch_bsdf="PATCH", wall_bsdf="wall",
-                       holder_bsdf="holder", lamp_values=lamp_values, lamp_grid_nm=lamp_wl,
-                       film=film, max_depth=max_depth, post_bsdf="holder")
-        shapes = {k: (d[k], d[k]["bsdf"] if isinstance(d[k]["bsdf"], str) else "panel")
-                  for k in d if k not in ("type", "integrator", "sensor")}
-        shapes = {k: (s, "panel" if k.startswith("panel_") else ("patch" if m == "PATCH" else m))
-                  for k, (s, m) in shapes.items()}
-        write(f"geometry/normbox_s{float(a):g}.obj", _obj_text(shapes, float(a), geometry))
-        for p in ref.patches:
-            k = fit_key(p)
-            name = config_name(p, float(a))
-            text = ['<?xml version="1.0" encoding="utf-8"?>',
-                    (f"<!-- patch {p} ({ref.patch_names[ref.patches.index(p)]}) at sample angle "
-                    f"{float(a):g}°: the radiometer sees it at {90 - float(a):g}° from its "
-                    "normal. Render with the normbox_fit BSDF registered (normbox_bsdf.py); "
-                    "sensor=sensor_rgb for an RGB variant. -->"),
-                    '<scene version="3.0.0">',
-                    '    <default name="sensor" value="sensor_spectral"/>',
-                    '    <include filename="common/box.xml"/>',
-                    '    <include filename="common/$sensor.xml"/>',
-                    _bsdf_xml("patch_bsdf", materials[k]).rstrip("\n"),
-                    _shape_xml("patch", d["patch"], "patch_bsdf").rstrip("\n"),
-                    _shape_xml("holder_plate", d["holder_plate"], "holder").rstrip("\n"),
-                    "</scene>"]
-            write(f"scenes/{name}.xml", "\n".join(text) + "\n")
-            configs.append((int(p), float(a), f"scenes/{name}.xml"))
-    _csv(out / "configurations.csv", ["patch", "angle_deg", "scene"],
-         [[p, a, s] for p, a, s in configs],
-         [("one row per patch × sample angle of the reference run; a renderer returns the "
-          "band radiance of each (README.md)")])
-    files.append("configurations.csv")
-    write("normbox_bsdf.py", _package_source("standalone_bsdf"))
-    write("render_mitsuba.py", _package_source("standalone_render"))
+    return {
+        "sensor_spectral": sens_head + '        <film type="specfilm">\n'
+        f'            <integer name="width" value="{PIXELS}"/>\n'
+        f'            <integer name="height" value="{PIXELS}"/>\n'
+        '            <string name="component_format" value="float32"/>\n'
+        '            <rfilter type="box"/>\n' + bands +
+        "        </film>\n    </sensor>\n</scene>\n",
+        "sensor_rgb": sens_head + '        <film type="hdrfilm">\n'
+        f'            <integer name="width" value="{PIXELS}"/>\n'
+        f'            <integer name="height" value="{PIXELS}"/>\n'
+        '            <string name="pixel_format" value="rgb"/>\n'
+        '            <string name="component_format" value="float32"/>\n'
+        '            <rfilter type="box"/>\n'
+        "        </film>\n    </sensor>\n</scene>\n"}
+
+
+def _manifest(inputs: PackageInputs, max_depth: int) -> dict[str, Any]:
+    from normbox_lab.core.spectral import WHITE_PATCH
+
+    ref, lamp = inputs.ref, inputs.lamp
     wp = WHITE_PATCH if WHITE_PATCH in ref.patches else ref.patches[0]
-    manifest = {
-        "format": PACKAGE_FORMAT, "reference_run": run.id, "reference_run_uuid": run.uuid,
-        "protocol": run.protocol, "code_version": run.code_version,
+    return {
+        "format": PACKAGE_FORMAT, "reference_run": inputs.run_id,
+        "reference_run_uuid": inputs.run_uuid,
+        "protocol": inputs.protocol, "code_version": inputs.code_version,
         "patches": ref.patches, "angle_deg": [float(a) for a in ref.angle_deg],
         "reference_wavelength_nm": [float(ref.wavelength_nm.min()),
                                     float(ref.wavelength_nm.max())],
         "white_patch": wp, "units": {"length": "m", "radiance": "W·sr⁻¹·m⁻²·nm⁻¹",
                                      "wavelength": "nm", "angle": "deg", "brdf": "sr⁻¹"},
-        "geometry_mm_deg": asdict(geometry),
+        "geometry_mm_deg": asdict(inputs.geometry),
         "lamp": {"cct_K": lamp.cct_K, "luminance_cd_m2": lamp.luminance_cd_m2,
                  "relative_output": lamp.relative_output},
-        "provenance": prov, "max_depth": int(max_depth)}
-    write("manifest.json", json.dumps(manifest, indent=1) + "\n")
-    write("README.md", _readme(run.id, ref, geometry, lamp, prov, len(configs)))
-    digest = hashlib.sha256()
-    for rel in sorted(files):
-        digest.update(rel.encode() + b"\0" + (out / rel).read_bytes())
-    (out / "SHA256").write_text(digest.hexdigest() + "\n", encoding="utf-8")
-    return PackageSummary(out, run.id, configs, sorted(files), asdict(lamp), asdict(geometry))
+        "provenance": inputs.provenance, "max_depth": int(max_depth)}
 
 
 def _readme(run_id: int, ref: Any, geometry: Any, lamp: Any, prov: dict[str, Any],

@@ -1,4 +1,5 @@
 """Multilayer spectral OpenEXR: radiance, its diffuse / specular / indirect parts, depth, normal.
+In `core`: a file format that the images, the renderers' import and the pipeline all read.
 
 Channel names follow "An OpenEXR Layout for Spectral Images" (Fichet, Pacanowski & Wilkie, JCGT
 10(3), 2021, http://jcgt.org/published/0010/03/01/): an emissive spectral channel is
