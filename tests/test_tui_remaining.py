@@ -45,9 +45,15 @@ class OperatorWallClock:
         self.person_s += duration_s
 
 
-def simulate(time_scale: float, tmp: Path) -> list[dict[str, Any]]:
+def simulate(time_scale: float, tmp: Path, person_s: float = PERSON_S,
+             first_extra_s: float = 0.0, overhead_s: float = 0.0,
+             pause: bool = True) -> list[dict[str, Any]]:
     """One run; for every reading: done, the estimate shown right after it, the truth, and
-    what the old estimate (the segment's plain average) would have said."""
+    what the old estimate (the segment's plain average) would have said.  `person_s`: the
+    operator's answer time per prompt; `first_extra_s`: one-off console-clock seconds of the
+    first measurement (its set-up, which no timing model knows); `overhead_s`: console-clock
+    seconds every measurement costs beyond the model × the time scale (drivers, emulators,
+    the store on a loaded machine)."""
     config = replace(parse_config(SIM_CONFIG_TEMPLATE, "<sim>"), time_scale=0.0)
     lab = build_lab(config, world="analytic", operator_response_s=0.0)
     clock = OperatorWallClock(lab.clock, time_scale)
@@ -55,7 +61,7 @@ def simulate(time_scale: float, tmp: Path) -> list[dict[str, Any]]:
 
     def person(req: Any) -> str:
         if req.kind == "operator":
-            clock.sleep(PERSON_S)
+            clock.sleep(person_s)
         return virtual(req)
 
     progress = RunProgress(clock)
@@ -66,19 +72,25 @@ def simulate(time_scale: float, tmp: Path) -> list[dict[str, Any]]:
                   operator=person) as opened:
         engine = opened.engine
 
+        measured: list[str] = []
+
         def on_event(ev: Any) -> None:
             progress.on_event(ev.kind, ev.data)
+            if ev.kind == "step-started" and ev.data.get("kind") == "measure":
+                clock.sleep(overhead_s + (0.0 if measured else first_extra_s))
+                measured.append(ev.key)
             if ev.kind == "run-started":
-                progress.started(ev.data["done"], ev.data["planned"], float(ev.data["eta_s"]))
+                progress.started(ev.data["done"], ev.data["planned"], float(ev.data["eta_s"]),
+                                 ev.data)
                 start.append(clock.now_s())
             elif ev.kind == "progress":
                 progress.progressed(ev.data["done"], float(ev.data["eta_s"]),
-                                    ev.data.get("remaining_estimate_s"))
+                                    ev.data.get("remaining_estimate_s"), ev.data)
                 rows.append({"done": ev.data["done"], "t": clock.now_s(),
                              "shown": progress.remaining_s(time_scale),
                              "old": (clock.now_s() - start[0]) / ev.data["done"]
                              * (ev.data["planned"] - ev.data["done"])})
-                if ev.data["done"] == PAUSE_AFTER:        # the engine waits at its checkpoint
+                if pause and ev.data["done"] == PAUSE_AFTER:   # the engine waits here
                     progress.on_event("paused", {})
                     progress.status = "paused"
                     rows[-1]["while_paused"] = progress.remaining_s(time_scale)
@@ -92,7 +104,7 @@ def simulate(time_scale: float, tmp: Path) -> list[dict[str, Any]]:
         lab.close()
     assert result.status == "done" and result.done == 9
     end = clock.now_s()
-    paused_until = next(r["t"] for r in rows if r["done"] == PAUSE_AFTER)
+    paused_until = next(r["t"] for r in rows if r["done"] == PAUSE_AFTER) if pause else 0.0
     for r in rows:
         # what the run then took, the operator's later pause left out (no one can know it)
         r["truth"] = end - r["t"] - (PAUSE_S if r["t"] < paused_until else 0.0)
@@ -112,6 +124,60 @@ def test_remaining_time_within_25_percent_after_the_first_reading(tmp_path, time
     assert rows[-1]["shown"] == 0.0
     assert rows[PAUSE_AFTER - 1]["while_paused"] is None
     assert rows[0]["old"] > 3 * rows[0]["truth"]         # what the console used to show
+
+
+@pytest.mark.parametrize("person_s", [1.8, 6.5])
+def test_remaining_time_within_15_percent_from_the_first_reading(tmp_path, person_s):
+    """Issue 36: at ×0.2 the first reading took 10–16 s against about 3.6 s for every later
+    one (the first measurement's set-up, which no model knows), and the operator's answer time
+    was not modelled: the estimate after reading 1 was +207 % (answers in 1.8 s) and +74 %
+    (6.5 s).  Here the first measurement costs 7 s more, every measurement 0.3 s beyond the
+    model, and the estimate is within ±15 % from the first reading on."""
+    rows = simulate(0.2, tmp_path, person_s=person_s, first_extra_s=7.0, overhead_s=0.3,
+                    pause=False)
+    for r in rows[:-1]:
+        assert r["shown"] == pytest.approx(r["truth"], rel=0.15), r
+    assert rows[0]["old"] > 1.5 * rows[0]["truth"]       # the segment's plain average
+
+
+def _recorded(first_s: float, later_s: float, answer_s: float, model_s: float,
+              scale: float = 0.2, n: int = 9) -> list[tuple[float, float]]:
+    """(estimate, truth) after each reading of a recorded run: every reading's console time
+    (the first `first_s`, the others `later_s`, each with one prompt answered in `answer_s`)
+    and the model's lab seconds per reading (`model_s`, prompts excluded)."""
+    from normbox_lab.acquire.estimate import RemainingTime
+
+    est = RemainingTime()
+    times = [first_s] + [later_s] * (n - 1)
+    now = 0.0
+    est.start(now, model_s * n, n)
+    est.set_active(now, True)
+    out = []
+    for i, took in enumerate(times):
+        est.prompt(now)
+        now += answer_s
+        est.answered(now)
+        now += took - answer_s
+        est.reading(now, model_s * (n - i - 1), n - i - 1)
+        left = n - i - 1
+        if left:
+            out.append((est.remaining_s(now, scale, left), sum(times[i + 1:])))
+    return out
+
+
+@pytest.mark.parametrize("run, first_s, later_s, answer_s", [
+    ("A (answers in 1.8 s)", 11.05, 3.6, 1.8),      # the issue's run A: +207 % after reading 1
+    ("B (answers in 6.5 s)", 14.4, 8.3, 6.5),       # run B: +74 %
+    ("answers in 0.5 s", 9.0, 2.3, 0.5),
+    ("answers in 20 s", 28.0, 21.8, 20.0),
+])
+def test_the_issues_recorded_runs_are_within_15_percent_from_reading_1(run, first_s, later_s,
+                                                                        answer_s):
+    """The two runs of the issue (first reading 11–14 s, later ones 3.6 s and 8.3 s; 1.8 s of
+    instruments a reading, the model 8 lab s × 0.2 = 1.6 s of it), and two other answer
+    times: every estimate from reading 1 on within ±15 %."""
+    for shown, truth in _recorded(first_s, later_s, answer_s, model_s=8.0):
+        assert shown == pytest.approx(truth, rel=0.15), (run, shown, truth)
 
 
 def test_no_estimate_while_paused_and_counting_down_within_a_reading():
@@ -160,5 +226,21 @@ def _table() -> None:
                   "before the first reading -->")
 
 
+def _issue_table() -> None:
+    """The issue's table again: ×0.2, 3 angles × 3 patches, answers in 1.8 s and 6.5 s, the
+    first measurement 7 s dearer, 0.3 s a measurement beyond the model."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as tmp:
+        runs = {p: simulate(0.2, Path(tmp), person_s=p, first_extra_s=7.0, overhead_s=0.3,
+                            pause=False) for p in (1.8, 6.5)}
+    print("| after reading | answers in 1.8 s | answers in 6.5 s |")
+    print("|---|---|---|")
+    for i in range(8):
+        cells = [f"{100.0 * (runs[p][i]['shown'] / runs[p][i]['truth'] - 1.0):+.1f} %"
+                 for p in (1.8, 6.5)]
+        print(f"| {i + 1}/9 | {cells[0]} | {cells[1]} |")
+
+
 if __name__ == "__main__":
-    sys.exit(_table())
+    sys.exit(_issue_table() if "--issue" in sys.argv else _table())

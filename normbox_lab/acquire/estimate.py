@@ -117,4 +117,138 @@ def dry_run(plan: Plan, est: EstimateContext,
     return DryRun(plan, executed, prepare_s, total, remaining), per_key
 
 
-__all__ = ["DryRun", "StepEstimate", "dry_run", "format_duration", "initial_state"]
+def prompts_left(plan: Plan, committed: Iterable[str]) -> int:
+    """Operator prompts the readings still to take will ask: a prompt counts when a reading it
+    serves (up to the next prompt that sets the same state) is not committed.  A reference
+    sweep asks one per reading, a BRDF run one per material, repeatability one in all."""
+    done = set(committed)
+    steps = plan.steps
+    count = 0
+    for i, s in enumerate(steps):
+        if s.kind != "prompt":
+            continue
+        sets = set(s.sets)
+        for later in steps[i + 1:]:
+            if later.kind == "prompt" and sets & set(later.sets):
+                break
+            if later.commits and later.key not in done:
+                count += 1
+                break
+    return count
+
+
+class RemainingTime:
+    """The time a run still takes on the console's clock, right from its first reading.
+
+    A reading's time is the operator's (answering its prompts: not scaled, measured per
+    prompt) plus the instruments' (the timing model's lab seconds × the time scale, plus a
+    per-reading overhead: drivers, emulators, the store).  The first reading of a segment also
+    pays one-off costs the model does not know (first move from wherever the stage stood, the
+    first measurement's set-up): it is kept out of the instruments' rate as soon as a later
+    reading tells it, and only the model (× the time scale) prices the rest until then.  The
+    operator's answer time is the mean over this segment's prompts, × the prompts left.
+    One-off waits (preparation, lamp warm-ups, suspensions, pauses) count for nothing.
+
+    Times are console-clock seconds passed in by the caller (no clock here); model costs are lab
+    seconds of the engine's timing model, prompts excluded.
+    """
+
+    def __init__(self) -> None:
+        self.start(0.0)
+
+    def start(self, now_s: float, model_left_s: float | None = None,
+              prompts_left: int | None = None) -> None:
+        """A segment starts (its preparation is a one-off wait until `active`)."""
+        self.active = False                 # measuring (not in a one-off wait)
+        self.active_since_s = now_s
+        self.active_total_s = 0.0           # active time before `active_since_s`
+        self.prompt_since_s: float | None = None
+        self.answers_s: list[float] = []
+        self.person_in_reading_s = 0.0      # prompt time within the reading under way
+        self.prompts_in_reading = 0
+        self.last_reading_active_s = 0.0
+        self.model_left_s = model_left_s
+        self.prompts_left = prompts_left
+        #: per reading: (model lab s, instrument console s), the segment's first reading first
+        self.readings: list[tuple[float | None, float]] = []
+
+    # --- what happens ---------------------------------------------------------------------
+    def active_s(self, now_s: float) -> float:
+        return self.active_total_s + (now_s - self.active_since_s if self.active else 0.0)
+
+    def set_active(self, now_s: float, on: bool) -> None:
+        """`on`: measuring; off: a one-off wait (preparation, warm-up, suspension, pause)."""
+        if on and not self.active:
+            self.active, self.active_since_s = True, now_s
+        elif not on and self.active:
+            self.active_total_s += now_s - self.active_since_s
+            self.active = False
+
+    def prompt(self, now_s: float) -> None:
+        if self.prompt_since_s is None:
+            self.prompt_since_s = now_s
+
+    def answered(self, now_s: float) -> None:
+        if self.prompt_since_s is not None:
+            took = max(0.0, now_s - self.prompt_since_s)
+            self.answers_s.append(took)
+            self.person_in_reading_s += took
+            self.prompts_in_reading += 1
+            self.prompt_since_s = None
+
+    def reading(self, now_s: float, model_left_s: float | None,
+                prompts_left: int | None) -> None:
+        """A reading was stored; `model_left_s`: the model's instrument lab seconds of the
+        readings left; `prompts_left`: their prompts."""
+        active = self.active_s(now_s)
+        took = active - self.last_reading_active_s
+        self.last_reading_active_s = active
+        model = None
+        if model_left_s is not None and self.model_left_s is not None:
+            model = max(0.0, self.model_left_s - model_left_s)
+        self.readings.append((model, max(0.0, took - self.person_in_reading_s)))
+        self.person_in_reading_s, self.prompts_in_reading = 0.0, 0
+        self.model_left_s, self.prompts_left = model_left_s, prompts_left
+
+    # --- the estimate ---------------------------------------------------------------------
+    def answer_s(self) -> float | None:
+        """The operator's mean answer time so far (None before the first answer)."""
+        return sum(self.answers_s) / len(self.answers_s) if self.answers_s else None
+
+    def instrument_model(self, time_scale: float) -> tuple[float, float]:
+        """(a, b): a reading's instrument time = a + b × its model cost (lab s).  From the
+        readings after the segment's first (whose one-off costs would inflate the rate):
+        b = the time scale, a = their mean overhead; with only the first reading, a = 0."""
+        steady = self.readings[1:]
+        if not steady:
+            return 0.0, time_scale
+        if all(m is not None for m, _ in steady):
+            over = [t - time_scale * float(m) for m, t in steady]
+            return max(0.0, sum(over) / len(over)), time_scale
+        # no model: the plain mean of the steady readings
+        return sum(t for _, t in steady) / len(steady), 0.0
+
+    def remaining_s(self, now_s: float, time_scale: float, left: int) -> float | None:
+        """The estimate (None before the segment's first reading)."""
+        if not self.readings:
+            return None
+        if left <= 0:
+            return 0.0
+        a, b = self.instrument_model(time_scale)
+        if b > 0 and self.model_left_s is not None:
+            instruments = a * left + b * self.model_left_s
+        elif b == 0 and len(self.readings) > 1:
+            instruments = a * left
+        else:                                   # no model at all: the readings so far
+            instruments = sum(t for _, t in self.readings) / len(self.readings) * left
+        answer = self.answer_s()
+        prompts = self.prompts_left if self.prompts_left is not None else left
+        person = (answer or 0.0) * prompts
+        estimate = instruments + person
+        # the reading under way counts down (never below what one more reading takes)
+        under_way = self.active_s(now_s) - self.last_reading_active_s
+        return max(estimate * (left - 1) / left, estimate - max(0.0, under_way))
+
+
+__all__ = ["DryRun", "RemainingTime", "StepEstimate", "dry_run", "format_duration",
+           "initial_state", "prompts_left"]

@@ -23,7 +23,7 @@ import threading
 from collections.abc import Callable, Iterable, Mapping
 from typing import Any, Protocol
 
-from normbox_lab.acquire.estimate import DryRun, dry_run
+from normbox_lab.acquire.estimate import DryRun, dry_run, prompts_left
 from normbox_lab.acquire.events import EngineEvent, Operator, PromptRequest, RunResult
 from normbox_lab.acquire.plan import Plan
 from normbox_lab.acquire.quality import LAMP_SAMPLES, RunGates, limits_from_text
@@ -359,7 +359,7 @@ class Engine:
         self._remaining_s = sum(self._estimates.values())
         self._emit("run-started", run_uuid=self.run_uuid, segment=self.segment,
                    planned=self.plan.planned, done=len(self._committed), eta_s=eta_s,
-                   resumed=resume is not None)
+                   resumed=resume is not None, **self._time_model())
         try:
             self._check_preconditions()
             self._prepare()
@@ -608,7 +608,18 @@ class Engine:
                 self._store_event("flag", key=step.key, message=message)
                 self._emit("warning", step.key, message=message, flag=True)
         self._emit("progress", step.key, done=len(self._committed), planned=self.plan.planned,
-                   eta_s=remaining * self._ratio, remaining_estimate_s=remaining)
+                   eta_s=remaining * self._ratio, remaining_estimate_s=remaining,
+                   **self._time_model())
+
+    def _time_model(self) -> dict[str, Any]:
+        """What a remaining-time estimate needs (`estimate.RemainingTime`): the timing
+        model's lab seconds of the readings left (prompts included at `prompt_model_s` each)
+        and the prompts they will ask."""
+        if len(self._committed) >= self.plan.planned:
+            return {"remaining_model_s": 0.0, "prompts_left": 0, "prompt_model_s": 0.0}
+        return {"remaining_model_s": self._remaining_s,
+                "prompts_left": prompts_left(self.plan, self._committed),
+                "prompt_model_s": self.estimate_context().prompt_time_s}
 
     def _lamp_monitors(self, step: Step) -> dict[str, list[float]]:
         """`LAMP_SAMPLES` readings of the monitor of each lamp the step requires stable that

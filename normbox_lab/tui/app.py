@@ -518,7 +518,7 @@ class NormboxConsole(App):
         if k in ("run-started", "step-finished", "suspended", "unsuspended"):
             self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
-            self.progress.started(d["done"], d["planned"], float(d["eta_s"]))
+            self.progress.started(d["done"], d["planned"], float(d["eta_s"]), d)
             self.progress.step = "preparing the instruments (remote mode, homing)"
             self._bar(d["done"], d["planned"])
             self._update_run_info()
@@ -530,7 +530,7 @@ class NormboxConsole(App):
             self._update_run_info()
         elif k == "progress":
             self.progress.progressed(d["done"], float(d["eta_s"]),
-                                     d.get("remaining_estimate_s"))
+                                     d.get("remaining_estimate_s"), d)
             self._bar(d["done"], d["planned"])
             self._update_run_info()
         elif k == "reading-stored":

@@ -18,147 +18,110 @@ class RunProgress:
     """The run's state and progress as the Run tab shows them, from the engine's events (no
     Textual: the app feeds it with `on_event`, the pane draws `info_markup`).
 
-    The remaining time in a simulated lab is the time one reading takes *while the run
-    measures* × the readings left: the preparation (homing), lamp warm-ups, suspensions and
-    pauses are one-off waits, kept out of the rate (they made the estimate 10–20× too long);
-    the reading under way counts what it has already taken.  No estimate while paused."""
+    The remaining time in a simulated lab is `normbox_lab.acquire.estimate.RemainingTime`:
+    the instruments' time from the timing model × the time scale (+ the overhead the readings
+    after the first show; the first reading's one-off costs kept out), plus the operator's
+    measured answer time × the prompts left.  Preparation, lamp warm-ups, suspensions and
+    pauses are one-off waits.  The reading under way counts down.  No estimate while paused."""
 
     #: statuses during which a remaining time is shown (none after an abort, a failure, the end,
     #: or while paused: a pause lasts as long as the operator wants)
     ACTIVE = ("running", "suspended", "pausing…")
 
     def __init__(self, clock: Clock) -> None:
+        from normbox_lab.acquire.estimate import RemainingTime
+
         self.clock = clock
         self.status = "idle"
         self.done = 0
         self.planned = 0
         self.step = ""
-        self.segment_start: tuple[float, int] | None = None   # (clock s, done) at its start
         self.lab_remaining_s: float | None = None             # the engine's timing model
         #: the segment has ended (also `paused`: an emergency stop, a quit): nothing to estimate
         self.ended = False
-        self.idle_since: float | None = None   # clock s a one-off wait began (None: measuring)
-        self.idle_s = 0.0                      # one-off waits of this segment so far
-        self.last_reading_active_s = 0.0       # active time at the latest reading
         self.warming = False                   # a lamp warm-up (or suspension) under way
-        #: per reading after the segment's first: (the timing model's cost, the time it took).
-        #: A reading's time = the person's (not scaled) + the instruments' (the model's cost ×
-        #: the time scale): fitted as a + b × cost once three readings tell, so a move or a
-        #: darker patch (a longer integration) costs what the model says it does
-        self.samples: list[tuple[float, float]] = []
-        self.model_remaining_s: float | None = None
+        self.paused = False
+        self.estimator = RemainingTime()
 
-    def started(self, done: int, planned: int, lab_remaining_s: float) -> None:
-        """A segment starts: the observed rate is measured from here (preparing the
-        instruments is a one-off wait, until the first step that is not a lamp warm-up)."""
+    @staticmethod
+    def _model(data: Any) -> tuple[float | None, int | None]:
+        """(the model's instrument lab seconds left, the prompts left) of an event."""
+        if not isinstance(data, dict) or "remaining_model_s" not in data:
+            return None, None
+        try:
+            model = float(data["remaining_model_s"])
+            prompts = int(data.get("prompts_left", 0))
+            model -= prompts * float(data.get("prompt_model_s", 0.0) or 0.0)
+        except (TypeError, ValueError):
+            return None, None
+        return (max(0.0, model) if math.isfinite(model) else None), prompts
+
+    def started(self, done: int, planned: int, lab_remaining_s: float,
+                data: Any = None) -> None:
+        """A segment starts (`data`: the run-started event's, with the time model)."""
         self.done, self.planned, self.status = done, planned, "running"
         self.ended = False
-        now = self.clock.now_s()
-        self.segment_start = (now, done)
         self.lab_remaining_s = lab_remaining_s
-        self.idle_since, self.idle_s, self.last_reading_active_s = now, 0.0, 0.0
-        self.warming = False
-        self.samples = []
-        self.model_remaining_s = None
+        self.warming = self.paused = False
+        model, prompts = self._model(data)
+        self.estimator.start(self.clock.now_s(), model, prompts)
 
     def progressed(self, done: int, lab_remaining_s: float,
-                   model_remaining_s: float | None = None) -> None:
-        """A reading was stored; `model_remaining_s`: the timing model's instrument and
-        operator time of the readings left (the engine's ``remaining_estimate_s``)."""
+                   model_remaining_s: float | None = None, data: Any = None) -> None:
+        """A reading was stored (`data`: the progress event's, with the time model)."""
         self.done, self.lab_remaining_s = done, lab_remaining_s
-        if self.idle_since is not None and not self.warming:
-            self.idle_since = None     # measured without a step event: it was no wait
-        previous_active_s = self.last_reading_active_s
-        self.last_reading_active_s = self.active_s()
-        model = None if model_remaining_s is None else float(model_remaining_s)
-        if model is not None and math.isnan(model):       # NaN: no model
-            model = None
-        if model is not None and self.model_remaining_s is not None:
-            self.samples.append((self.model_remaining_s - model,
-                                 self.last_reading_active_s - previous_active_s))
-        self.model_remaining_s = model
-
-    def _wait(self, on: bool) -> None:
         now = self.clock.now_s()
-        if on and self.idle_since is None:
-            self.idle_since = now
-        elif not on and self.idle_since is not None:
-            self.idle_s += now - self.idle_since
-            self.idle_since = None
-
-    def active_s(self) -> float:
-        """Seconds of this segment spent measuring (one-off waits left out)."""
-        if self.segment_start is None:
-            return 0.0
-        now = self.clock.now_s()
-        idle = self.idle_s + (now - self.idle_since if self.idle_since is not None else 0.0)
-        return max(0.0, now - self.segment_start[0] - idle)
+        if not self.estimator.active and not self.warming and not self.paused:
+            self.estimator.set_active(now, True)   # measured without a step event: no wait
+        model, prompts = self._model(data)
+        if model is None and model_remaining_s is not None:
+            m = float(model_remaining_s)
+            model = m if math.isfinite(m) else None
+        self.estimator.reading(now, model, prompts)
 
     def on_event(self, kind: str, data: Any) -> None:
-        """An engine event's effect on the one-off waits (the app calls it for every event)."""
+        """An engine event's effect on the estimate (the app calls it for every event)."""
+        now = self.clock.now_s()
+        est = self.estimator
         if kind == "step-started":
-            warm = data.get("kind") == "wait-stable"
-            self.warming = warm
-            self._wait(warm)
+            self.warming = data.get("kind") == "wait-stable"
+            est.set_active(now, not self.warming and not self.paused)
         elif kind == "step-finished" and data.get("kind") == "wait-stable":
             self.warming = False
-            self._wait(False)
+            est.set_active(now, not self.paused)
         elif kind == "suspended":
             self.warming = True
-            self._wait(True)
+            est.set_active(now, False)
         elif kind == "unsuspended":
             self.warming = False
-            self._wait(False)
+            est.set_active(now, not self.paused)
         elif kind == "paused":
-            self._wait(True)
+            self.paused = True
+            est.set_active(now, False)
         elif kind == "resumed":
-            self._wait(False)
+            self.paused = False
+            est.set_active(now, not self.warming)
+        elif kind == "prompt":
+            est.prompt(now)
+        elif kind == "answer":
+            est.answered(now)
 
     def remaining_s(self, lab_time_scale: float | None) -> float | None:
         """The estimate in seconds (None: not known yet); see `remaining_text`."""
         if self.status not in self.ACTIVE or self.ended:
             return None
-        left = max(0, self.planned - self.done)
         if lab_time_scale is None:
             return self.lab_remaining_s
-        done0 = self.segment_start[1] if self.segment_start else self.done
-        taken = self.done - done0
-        if taken <= 0:
-            return None
-        if left == 0:
-            return 0.0
-        under_way_s = self.active_s() - self.last_reading_active_s
-        estimate_s = self.last_reading_active_s / taken * left
-        fitted = self._fit()
-        if fitted is not None and self.model_remaining_s is not None:
-            a, b = fitted
-            estimate_s = a * left + b * self.model_remaining_s
-        return max(estimate_s * (left - 1) / left, estimate_s - under_way_s)
-
-    def _fit(self) -> tuple[float, float] | None:
-        """(a, b) of time = a + b × modelled cost over the readings so far; None until three
-        readings with different costs tell, or when the fit makes no physical sense."""
-        n = len(self.samples)
-        if n < 3:
-            return None
-        mx = sum(m for m, _ in self.samples) / n
-        my = sum(t for _, t in self.samples) / n
-        var = sum((m - mx) ** 2 for m, _ in self.samples)
-        if var <= (0.05 * mx) ** 2 * n:
-            return None
-        b = sum((m - mx) * (t - my) for m, t in self.samples) / var
-        a = my - b * mx
-        if a < 0 or b < 0:
-            return None
-        return a, b
+        return self.estimator.remaining_s(self.clock.now_s(), lab_time_scale,
+                                          max(0, self.planned - self.done))
 
     def remaining_text(self, lab_time_scale: float | None) -> str:
         """"remaining 0:04:10 · done ≈ 14:32" while a run goes; "" when none does (paused,
         after an abort or the end no estimate is shown).  On a real clock (`lab_time_scale`
         None) the remaining time is the engine's timing model (instrument and operator time);
-        on a virtual clock (a simulated lab) it is the observed time per reading on the
-        console's clock, one-off waits left out, × the readings left, since the lab clock says
-        nothing about how long a person waits."""
+        on a virtual clock (a simulated lab) it is `RemainingTime` on the console's clock
+        (the model × the time scale, the operator's measured answer time), since the lab clock
+        says nothing about how long a person waits."""
         import datetime
 
         from normbox_lab.acquire.estimate import format_duration
