@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "tui",
     "image",
     "scene",
+    "lab",
 )
 
 EPILOG = """\

@@ -97,6 +97,7 @@ PROTOCOL_NAMES = {
     "brdf-inplane": "normbox_lab.protocols.brdf_inplane",
     "light-map": "normbox_lab.protocols.light_map",
     "repeatability": "normbox_lab.protocols.repeatability",
+    "lab-check": "normbox_lab.protocols.lab_check",
 }
 
 

@@ -337,8 +337,10 @@ class RunGates:
         """The per-reading gates; records and returns the flags."""
         if kind == "brdf":
             specs = brdf_flags(key, metadata, arrays, self.limits)
-        else:
+        elif kind == "spectral":
             specs = spectral_flags(key, metadata, arrays, self.limits)
+        else:                           # e.g. a lab check's result: it flags itself
+            specs = []
         specs += self._lamp(key, metadata)
         return self._record(specs)
 
