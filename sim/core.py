@@ -337,12 +337,13 @@ def instance(name: str, key: str | None = None, **kwargs: Any) -> Emulator:
 
 @dataclass(frozen=True)
 class EmulatorEntry:
-    """One emulated device: the module that makes it, the lab role it plays, and the module's
-    factory function (``""``: the module calls `register` itself when imported)."""
+    """One emulated device: the module that makes it, the lab role it plays, and its emulator
+    class, called as ``cls(clock, faults, seed, world=world, **options)`` (``""``: the module
+    calls `register` itself when imported)."""
 
     module: str
     role: str
-    factory: str = ""
+    cls: str = ""
 
 
 #: the emulator registry: device name (``sim://NAME``, ``sim serve NAME``) → entry.  The CLI's
@@ -350,7 +351,7 @@ class EmulatorEntry:
 EMULATORS: dict[str, EmulatorEntry] = {
     "cs1000a": EmulatorEntry("normbox_lab.sim.cs1000", "radiometer"),
     "cs2000a": EmulatorEntry("normbox_lab.sim.cs2000", "radiometer"),
-    "specbos1211": EmulatorEntry("normbox_lab.sim.specbos", "radiometer", "factory"),
+    "specbos1211": EmulatorEntry("normbox_lab.sim.specbos", "radiometer", "SpecbosEmulator"),
     "rotator-apt": EmulatorEntry("normbox_lab.sim.rotator_apt", "rotator"),
     "rotator-zaber": EmulatorEntry("normbox_lab.sim.rotator_zaber", "rotator"),
     "sphere": EmulatorEntry("normbox_lab.sim.sphere", "sphere"),
@@ -364,6 +365,23 @@ def devices_for(role: str) -> tuple[str, ...]:
     return tuple(name for name, e in EMULATORS.items() if e.role == role)
 
 
+def emulator_class(name: str) -> type[Emulator] | None:
+    """The emulator class an entry names (its module is imported now); None for a module
+    that registers a factory itself."""
+    import importlib
+
+    e = EMULATORS[name]
+    return getattr(importlib.import_module(e.module), e.cls) if e.cls else None
+
+
+def _class_factory(cls: type[Emulator]) -> EmulatorFactory:
+    def factory(clock: Clock | None = None, faults: str = "", seed: int | str = 0,
+                world: Any = None, **options: Any) -> Emulator:
+        return cls(clock, faults, int(seed), world=world, **options)  # type: ignore[call-arg]
+
+    return factory
+
+
 def _load_builtin() -> None:
     import importlib
 
@@ -374,8 +392,8 @@ def _load_builtin() -> None:
             if exc.name != e.module:
                 raise
             continue
-        if e.factory and name not in _FACTORIES:
-            _FACTORIES[name] = getattr(module, e.factory)
+        if e.cls and name not in _FACTORIES:
+            _FACTORIES[name] = _class_factory(getattr(module, e.cls))
 
 
 # --- what the emulators ask of the world -------------------------------------------------------

@@ -1,7 +1,8 @@
 """Scenarios of the simulation campaign (`normbox-lab sim campaign`), drawn from a seed.
 
 A `Scenario` is plain data: a protocol and its (small) parameters, the world, the instruments
-(CS-1000A or CS-2000A; APT or Zaber sample rotator), a fault schedule over every fault kind
+(any radiometer of the emulator registry, `sim.core.devices_for("radiometer")`; APT or Zaber
+sample rotator), a fault schedule over every fault kind
 every emulator has, the operator's answer to persistent faults (retry, skip, abort) and a list
 of operator actions (pause, emergency stop, `kill -9`), each fired at the n-th engine event of
 a kind in its own segment (process) of the run.  `draw(seed, index)` is deterministic (Python's
@@ -20,6 +21,8 @@ import re
 import urllib.parse
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
+
+from normbox_lab.sim import core
 
 #: every fault kind of every emulator, with how it is drawn: (mode, value range, parameter
 #: choices).  mode "=" is a rate per reply/opportunity, "@" fires (or latches) once at the
@@ -53,8 +56,11 @@ DEVICE_KINDS: dict[str, dict[str, tuple[str, tuple[float, float], tuple[float | 
               "dark-drift": ("@", (1, 8), (None, 5000.0)),
               "lamp-dim": ("@", (2, 8), (0.5, 0.9, 1e-4))},
 }
-#: the QE Pro is USB: no line, so none of the serial transport kinds
-LINE_DEVICES = ("cs1000a", "cs2000a", "rotator-apt", "rotator-zaber", "sphere")
+#: the emulators on a serial line (the QE Pro is USB: no line, so none of the serial transport
+#: kinds): every device of the emulator registry
+LINE_DEVICES = tuple(core.EMULATORS)
+#: the radiometers a scenario draws from (the emulator name is the driver name)
+RADIOMETERS = core.devices_for("radiometer")
 
 #: lab role → the emulator behind it (which depends on the scenario's instrument choice)
 SWEEP_ROLES = ("radiometer", "rotator", "sphere")
@@ -176,8 +182,26 @@ def draw_params(rng: random.Random, protocol: str) -> dict[str, Any]:
             "angle_deg": float(rng.choice(ANGLES_DEG))}
 
 
+def device_kinds(device: str) -> dict[str, tuple[str, tuple[float, float],
+                                                 tuple[float | None, ...]]]:
+    """The device fault kinds of `device` and how each is drawn: the table above, else what
+    the emulator class declares (`fault_draws`)."""
+    if device in DEVICE_KINDS:
+        return DEVICE_KINDS[device]
+    cls = core.emulator_class(device) if device in core.EMULATORS else None
+    return dict(getattr(cls, "fault_draws", {}))
+
+
+def _alternative_formats(radiometer: str) -> list[str]:
+    """The radiometer driver's data formats other than ASCII (the driver registry's)."""
+    from normbox_lab.acquire.registry import DRIVERS
+
+    entry = DRIVERS.get(radiometer)
+    return [f for f in (entry.data_formats if entry else ()) if f != "ascii"]
+
+
 def _draw_fault(rng: random.Random, role: str, device: str) -> Fault:
-    kinds = dict(DEVICE_KINDS.get(device, {}))
+    kinds = dict(device_kinds(device))
     if device in LINE_DEVICES:
         kinds.update(TRANSPORT_KINDS)
     kind = rng.choice(sorted(kinds))
@@ -194,11 +218,12 @@ def draw(seed: int, index: int, *, normbox_share: float = 0.0,
     params = draw_params(rng, protocol)
     gonio = protocol == "brdf-inplane"
     world = "normbox" if (not gonio and rng.random() < normbox_share) else "analytic"
-    radiometer = rng.choice(("cs1000a", "cs2000a"))
+    radiometer = rng.choice(RADIOMETERS)
     rotator = rng.choice(("rotator-apt", "rotator-zaber"))
     policy = rng.choices(("retry", "skip", "abort"), (0.6, 0.25, 0.15))[0]
-    data_format = ("binary" if radiometer == "cs1000a" else "hex") if rng.random() < 0.3 \
-        else "ascii"
+    formats = _alternative_formats(radiometer)
+    data_format = (formats[0] if len(formats) == 1 else rng.choice(formats)) \
+        if formats and rng.random() < 0.3 else "ascii"
     roles = GONIO_ROLES if gonio else SWEEP_ROLES
     probe = Scenario(seed, index, protocol, params, world, radiometer, rotator, policy,
                      radiometer_format=data_format)
@@ -231,9 +256,14 @@ def lab_toml(scenario: Scenario) -> str:
 
     text = SIM_CONFIG_TEMPLATE
     text = text.replace("seed = 1\n", f"seed = {scenario.device_seed('lab')}\n", 1)
-    if scenario.radiometer == "cs2000a":
-        text = re.sub(r'driver = "cs1000a" .*\nport = "sim://cs1000a"\nbaud = 9600[^\n]*',
-                      'driver = "cs2000a"\nport = "sim://cs2000a"', text, count=1)
+    # the template's radiometer (its first instrument), with its baud line, becomes the
+    # scenario's (which runs at its driver's default rate)
+    first = re.search(r'driver = "([^"]+)" .*\nport = "sim://\1"\nbaud = \d+[^\n]*', text)
+    if first is None:
+        raise ValueError("the simulated template has no radiometer block to replace")
+    if scenario.radiometer != first.group(1):
+        text = text.replace(first.group(0), f'driver = "{scenario.radiometer}"\n'
+                            f'port = "sim://{scenario.radiometer}"', 1)
     if scenario.rotator == "rotator-zaber":
         text = text.replace('driver = "apt-k10cr1"   # apt-k10cr1 | zaber\n'
                             'port = "sim://rotator-apt"',

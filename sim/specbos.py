@@ -62,7 +62,7 @@ power blip: the configuration is back at its defaults and the last measurement i
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -103,6 +103,11 @@ class SpecbosEmulator(core.LineEmulator):
     device_name = "specbos1211"
     replies_in_order = True         # one command at a time: a late reply holds back the next
     device_faults = ("device-error", "over-range")
+    #: how the simulation campaign draws each device fault: (mode, value range, parameter
+    #: choices), as `sim.scenario.TRANSPORT_KINDS` ("=" a rate, "@" once at the n-th)
+    fault_draws: ClassVar[dict[str, tuple[str, tuple[float, float], tuple[float | None, ...]]]] = {
+        "device-error": ("@", (1, 12), (171.0, 4.0, None)),
+        "over-range": ("@", (1, 6), (None,))}
     terminators = (b"\r",)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)
@@ -386,8 +391,3 @@ class SpecbosEmulator(core.LineEmulator):
         dropped; the configuration stays."""
         self._inbuf.clear()
         self._pending, self.phase_end_s = None, None
-
-
-def factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = None,
-            **options: Any) -> SpecbosEmulator:
-    return SpecbosEmulator(clock, faults, int(seed), world=world, **options)

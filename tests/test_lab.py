@@ -69,8 +69,9 @@ def test_every_registered_option_is_a_keyword_the_driver_takes(name):
                 param.default, int)), (name, key, param.default)
     assert not set(options) & set(registry.DRIVERS[name].internal)
     role = registry.DRIVERS[name].roles[0]
-    values = {k: (115200 if k == "baud" and name == "cs2000a" else 9600 if k == "baud"
-                  else -10.0 if k == "min_angle_deg" else _SAMPLE[t]) for k, t in options.items()}
+    baud = (registry.DRIVERS[name].baud_rates or (9600,))[0]     # a rate the entry allows
+    values = {k: (baud if k == "baud" else -10.0 if k == "min_angle_deg" else _SAMPLE[t])
+              for k, t in options.items()}
     text = SIM_CONFIG_TEMPLATE.split(f"[instruments.{role}]")[0] + f"[instruments.{role}]\n" + \
         f'driver = "{name}"\nport = "sim://x"\n' + "".join(
             f"{k} = {str(v).lower() if isinstance(v, bool) else repr(v).replace(chr(39), chr(34))}\n"

@@ -42,7 +42,13 @@ from pathlib import Path
 from typing import Any
 
 from normbox_lab.acquire.quality import QualityLimits, parse_limits
-from normbox_lab.acquire.registry import REQUIRED_ROLES, ROLES, driver_options, drivers_for
+from normbox_lab.acquire.registry import (
+    REQUIRED_ROLES,
+    ROLES,
+    driver_options,
+    drivers_for,
+    entry,
+)
 from normbox_lab.core.errors import ConfigError
 from normbox_lab.core.geometry import NormboxGeometry
 
@@ -382,10 +388,11 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
                 options[k] = float(v)
         if "baud" in options:
             b = options["baud"]
-            if isinstance(b, bool) or not isinstance(b, int) or b not in BAUD_RATES:
-                raise err(tab, "baud", f"must be one of {BAUD_RATES}, got {b!r}")
-            if driver == "cs2000a" and b != 115200:
-                raise err(tab, "baud", "the CS-2000A runs at 115200 baud only; remove the line")
+            rates = entry(driver).baud_rates or BAUD_RATES     # the driver's, from the registry
+            if len(rates) == 1 and b != rates[0]:
+                raise err(tab, "baud", f"{driver} runs at {rates[0]} baud only; remove the line")
+            if isinstance(b, bool) or not isinstance(b, int) or b not in rates:
+                raise err(tab, "baud", f"must be one of {rates}, got {b!r}")
         if "min_angle_deg" in options and "max_angle_deg" in options \
                 and options["min_angle_deg"] >= options["max_angle_deg"]:
             raise err(tab, "max_angle_deg", "must be greater than min_angle_deg")
