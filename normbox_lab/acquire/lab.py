@@ -158,8 +158,17 @@ class Lab:
 
     def record_identities(self, store: Any, run_id: int, segment: int = 1,
                           roles: Iterable[str] | None = None) -> None:
+        import datetime
+
+        from normbox_lab.acquire.trust import calibration_flag, calibration_record
+
         for role, ident in self.identities(roles).items():
-            store.add_instrument(run_id, role, {**ident, "segment": segment})
+            # the calibration in force is recorded with the instrument; an expired one is a
+            # quality warning of the run
+            cal = calibration_record(self.config, role)
+            store.add_instrument(run_id, role, {**ident, "segment": segment}, calibration=cal)
+            if cal is not None:
+                calibration_flag(store, run_id, role, cal, datetime.date.today())
 
     def close(self) -> None:
         for inst in self._open.values():

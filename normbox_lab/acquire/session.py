@@ -147,6 +147,7 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
                 defaults = lab_config.protocol_defaults(
                     Path(protocol).stem if protocol.endswith(".py") else protocol)
             full = resolve_parameters(module, defaults, params)
+        _require_recent_check(protocol, config if config is not None else _config_of(lab), store)
         info: dict[str, Any] = {}
         if lab is None:
             from normbox_lab.acquire.lab import build_lab
@@ -180,6 +181,19 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
             close()
         raise
     return OpenRun(engine, lab, store, plan, run_id, closers)
+
+
+def _require_recent_check(protocol: str, config: Any, store: Any) -> None:
+    """A lab config with ``[lab] require_check_h`` lets a run (not the lab check itself, not a
+    dry run) start only after a passing `lab check` that recent (`acquire.trust`)."""
+    hours = getattr(config, "require_check_h", None)
+    if hours is None or protocol == "lab-check" or getattr(store, "read_only", False):
+        return
+    import time
+
+    from normbox_lab.acquire.trust import require_recent_check
+
+    require_recent_check(store, float(hours), time.time())
 
 
 def _config_of(lab: Any) -> Any:

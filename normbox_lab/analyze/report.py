@@ -617,10 +617,33 @@ def _methods_section(doc: _Doc, d: ReportData) -> None:
                   [[i.get("role", ""), i.get("model", ""), i.get("serial", ""),
                     i.get("firmware", ""), i.get("calibration", ""), i.get("runs", "")]
                    for i in d.instruments])
+    _calibrations_table(doc, d)
     rows = [[k, v] for k, v in d.methods.items()] + [[str(k), str(v)]
                                                     for k, v in d.metadata.items()]
     if rows:
         doc.table("tab-methods", "Software, seeds, rendering", ["item", "value"], rows)
+
+
+def _calibrations_table(doc: _Doc, d: ReportData) -> None:
+    """The calibrations in force that the runs recorded with their instruments (lab config
+    `[instruments.ROLE.calibration]`), and any run that was made after one had expired."""
+    cals = [(i.get("role", ""), i["calibration_record"]) for i in d.instruments
+            if i.get("calibration_record")]
+    if not cals:
+        return
+    rows = []
+    for role, c in cals:
+        expired = c.get("expired_in_runs") or []
+        uncertainty = f"±{c.get('uncertainty_percent', '')} % (k={c.get('coverage_k', 2)})"
+        responsivity = (f"{c['responsivity_file']} (sha256 "
+                        f"{c.get('responsivity_sha256', '')[:12]})"
+                        if c.get("responsivity_file") else "—")
+        rows.append([role, c.get("certificate", ""), c.get("laboratory", ""), c.get("date", ""),
+                     c.get("due", ""), uncertainty, responsivity,
+                     f"EXPIRED in run {', '.join(expired)}" if expired else "in force"])
+    doc.table("tab-calibrations", "Calibrations", ["role", "certificate", "laboratory", "date",
+                                                   "due", "stated uncertainty",
+                                                   "responsivity correction", "status"], rows)
 
 
 def _appendix_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray) -> None:

@@ -62,19 +62,32 @@ def campaign_instruments(store: Any, run_ids: Iterable[int]) -> list[dict[str, A
             ident = inst["identity"]
             key = (inst["role"], str(ident.get("model", "")), str(ident.get("serial_number", "")))
             row = seen.get(key)
+            cal = inst.get("calibration") or {}
             if row is None:
-                cal = inst.get("calibration") or {}
                 cal_txt = "; ".join(f"{k}: {v}" for k, v in sorted(cal.items()))
+                if "certificate" in cal:
+                    cal_txt = f"{cal['certificate']}, due {cal['due']} (see Calibrations)"
                 sim = " (emulated)" if ident.get("port", "").startswith("sim://") else ""
                 row = seen[key] = {
                     "role": inst["role"], "model": f"{ident.get('model', '')}{sim}",
                     "serial": ident.get("serial_number") or "not reported by the device",
                     "firmware": ident.get("firmware") or "—",
                     "calibration": cal_txt or "none recorded in the store", "runs": []}
+            if "certificate" in cal:
+                _calibration_in_force(row, cal, store.get_run(rid))
             row["runs"].append(str(rid))
     for row in seen.values():
         row["runs"] = ", ".join(row["runs"])
     return list(seen.values())
+
+
+def _calibration_in_force(row: dict[str, Any], cal: dict[str, Any], run: Any) -> None:
+    """The calibration record a run stored with an instrument, with whether it was in force
+    on the run's date (`row["calibration_record"]`, the report's Calibrations table)."""
+    day = _date(run.created_s)[:10]
+    record = row.setdefault("calibration_record", {**cal, "expired_in_runs": []})
+    if day > str(cal["due"]):
+        record["expired_in_runs"].append(f"{run.id} ({day})")
 
 
 def quality_flags(store: Any, run_ids: Iterable[int]) -> list[Any]:
