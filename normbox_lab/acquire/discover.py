@@ -289,7 +289,11 @@ def discover(endpoints: Sequence[str] = (), *, scan_serial: bool = True,
     candidates = serial_candidates() if scan_serial else []
     listed = {c.url for c in candidates}
     candidates += [Candidate(e) for e in endpoints if e not in listed]
-    findings = [probe(c, timeout_s=timeout_s) for c in candidates]
+    from concurrent.futures import ThreadPoolExecutor
+
+    # ports are independent: probe them side by side (each port's probes stay in order)
+    with ThreadPoolExecutor(max_workers=min(8, max(1, len(candidates)))) as pool:
+        findings = list(pool.map(lambda c: probe(c, timeout_s=timeout_s), candidates))
     if usb:
         findings += probe_usb(usb_backend, pyusb_backend)
     _stable_ports(findings)
