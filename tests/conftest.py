@@ -52,3 +52,23 @@ def _scripted_ports_are_used_up():
     wire.LIVE.clear()
     for port in ports:
         port.assert_done()
+
+
+def pytest_report_header(config):
+    """The machine the run is on (your machine is not the user's): CPU, vector ISA, cores,
+    load, and the LLVM target Dr.Jit compiles for (``NORMBOX_LLVM_TARGET=haswell`` compiles
+    every kernel for an AVX2 machine, as a user's 2-core AVX2 CPU would)."""
+    import os
+
+    from normbox_lab.core.machine import machine_header
+
+    lines = [machine_header()]
+    if os.environ.get("NORMBOX_LLVM_TARGET"):
+        import mitsuba as mi
+
+        from normbox_lab.predict.mitsuba_setup import apply_llvm_target, llvm_target
+
+        mi.set_variant("llvm_ad_mono")
+        apply_llvm_target()
+        lines.append(f"Dr.Jit LLVM target: {llvm_target()} (NORMBOX_LLVM_TARGET)")
+    return lines

@@ -94,3 +94,9 @@ class PlanError(NormboxError):
     """A protocol declared an inconsistent plan (duplicate keys, unsatisfiable requirements,
     or a step an instrument has no capability for).  Here (not in `acquire.steps`) so that the
     parameter parser (`acquire.params`) stays importable without numpy for the command line."""
+
+
+class RenderError(NormboxError):
+    """A renderer met a value that is not a number (NaN or ±inf) in a lane's radiance, or
+    could not render at all.  The estimate is never returned: a NaN averaged into a spectrum
+    would be stored as data.  Names the renderer and where (configuration, lanes, bands)."""

@@ -18,8 +18,9 @@ import os
 import platform
 from pathlib import Path
 
-#: where Dr.Jit keeps compiled kernels between processes (LLVM: *.llvm.bin, CUDA: *.cuda.bin)
-KERNEL_CACHE_DIR = Path.home() / ".drjit"
+#: where Dr.Jit keeps compiled kernels between processes (LLVM: *.llvm.bin, CUDA: *.cuda.bin);
+#: Dr.Jit reads ``DRJIT_CACHE_DIR`` (a cold-cache measurement points it at an empty folder)
+KERNEL_CACHE_DIR = Path(os.environ.get("DRJIT_CACHE_DIR") or Path.home() / ".drjit")
 
 
 def cpu_model(cpuinfo: str | None = None) -> str:
@@ -90,7 +91,11 @@ def machine_header(*, cpuinfo: str | None = None, machine: str | None = None,
             load = os.getloadavg()
         except OSError:
             load = (float("nan"),) * 3
-    return (f"machine: {cpu_model(text)}; {arch} {vector_isa(text, arch)}; "
+    target = os.environ.get("NORMBOX_LLVM_TARGET", "").strip()
+    isa = vector_isa(text, arch)
+    if target:
+        isa += f", kernels compiled for {target.partition(':')[0]} (NORMBOX_LLVM_TARGET)"
+    return (f"machine: {cpu_model(text)}; {arch} {isa}; "
             f"{os.cpu_count() or 1} cores ({usable_cores()} usable); load "
             f"{load[0]:.2f} / {load[1]:.2f} / {load[2]:.2f} (1 / 5 / 15 min); "
             f"Dr.Jit kernel cache {kernel_cache_state(cache_dir)}")

@@ -65,6 +65,7 @@ from normbox_lab.predict.bandpath import (
     BandPathTracer,
     RectEmitter,
 )
+from normbox_lab.predict.kernel_safety import require_finite
 from normbox_lab.predict.mitsuba_setup import jit_variant
 from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, lane_rng
 
@@ -275,7 +276,8 @@ class CameraTracer(BandPathTracer):
             + rad + rad2 + [y, y * y]
         dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
         sums = dr.block_sum(outputs, int(spp), mode="evaluated")
-        return np.stack([np.asarray(s, dtype=np.float32) for s in sums])
+        return require_finite(np.stack([np.asarray(s, dtype=np.float32) for s in sums]),
+                              f"camera tracer ({self.variant})")
 
     def _luminance_weights(self) -> np.ndarray:
         """w_b with Y = Σ w_b·L_b in cd/m² (`images.color.spectral_to_XYZ` is linear)."""

@@ -54,6 +54,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM
+from normbox_lab.predict.kernel_safety import require_finite
 
 #: default bands: those of the stock spectral renderer (380…780 nm step 5, 5 nm hats)
 DEFAULT_WAVELENGTHS_NM = BAND_WAVELENGTHS_NM
@@ -264,7 +265,8 @@ def render_triplets(patch: Any, wall: Any, angle_deg: float, *, geometry: Any = 
                     ts.set_triplet(materials, lamp, lam[3 * t:3 * t + 3])
                     img = mi.render(ts.scene, spp=int(spp),
                                     seed=_mix_seed(seed, b * len(signs) + k, t))
-                    arr = np.asarray(img, dtype=np.float64)           # (px, px, 3)
+                    arr = require_finite(np.asarray(img, dtype=np.float64),  # (px, px, 3)
+                                         f"wavelength triplets ({variant})")
                     row[3 * t:3 * t + 3] += arr.reshape(-1, 3).mean(axis=0) / len(signs)
                     renders += 1
             out[b] = row[:n_bands]

@@ -48,6 +48,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
+from normbox_lab.predict.kernel_safety import cell_index, lane_index, require_finite
 from normbox_lab.predict.streams import FirstBounceDraws, chunk_seed, lane_rng
 
 INV_PI = 1.0 / np.pi
@@ -324,8 +325,8 @@ class BandPathTracer:
         dr, m = self.dr, self.m
         step = self.grid.step_nm
         pos = step * (rng.next_float32() - rng.next_float32()) + step
-        k = m.UInt32(dr.floor(pos))
-        return pos - step, k, pos - dr.floor(pos)
+        k = cell_index(dr, m, pos, 2.0 * step)
+        return pos - step, k, pos - m.Float(k)
 
     def _lookup(self, tab: Mapping[str, Any], k: Any, frac: Any) -> Any:
         """`lookup(table, slot, active, width)`: spectra at λ_b + δ for every band (δ + step =
@@ -358,12 +359,13 @@ class BandPathTracer:
                          + m.Vector3f(*map(float, up)) * u2)
         return m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
 
-    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any) -> Any:
-        """The emitter's spatial factor at a point of its plane."""
+    def _em_factor(self, c: SimpleNamespace, x: Any, y: Any, active: Any) -> Any:
+        """The emitter's spatial factor at a point of its plane (0 where not `active`; a
+        non-finite point reads cell 0, never an arbitrary address)."""
         dr, m = self.dr, self.m
-        i = m.UInt32(dr.clip(dr.floor((x - c.em_x0) / c.em_sx * c.map_nxf), 0.0, c.map_nxf - 1.0))
-        j = m.UInt32(dr.clip(dr.floor((y - c.em_y0) / c.em_sy * c.map_nyf), 0.0, c.map_nyf - 1.0))
-        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i)
+        i = cell_index(dr, m, (x - c.em_x0) / c.em_sx * c.map_nxf, c.map_nxf, active)
+        j = cell_index(dr, m, (y - c.em_y0) / c.em_sy * c.map_nyf, c.map_nyf, active)
+        return dr.gather(m.Float, self._factor_map, j * c.map_nx + i, active)
 
     def _offset(self, p: Any, n: Any) -> Any:
         """A ray origin just off the surface on the side of n."""
@@ -375,9 +377,10 @@ class BandPathTracer:
         dr, m = self.dr, self.m
         pi = self.scene.ray_intersect_preliminary(ray, active=active)
         valid = active & pi.is_valid()
-        reg = dr.reinterpret_array(m.UInt32, pi.shape)
+        reg = lane_index(dr, dr.reinterpret_array(m.UInt32, pi.shape), valid)
         slot = dr.gather(m.UInt32, self._shape_slot, reg, valid)
-        fidx = dr.gather(m.UInt32, self._shape_base, reg, valid) + pi.prim_index
+        fidx = lane_index(dr, dr.gather(m.UInt32, self._shape_base, reg, valid)
+                          + pi.prim_index, valid)
         ng = m.Vector3f(*(dr.gather(m.Float, comp, fidx, valid) for comp in self._normals))
         p = ray.o + ray.d * pi.t
         surf = valid & (slot > 0) & (slot != c.em_slot)
@@ -393,7 +396,7 @@ class BandPathTracer:
         pdf_em = 1.0 / dr.fmax(self._rect_view(c, ray.o).solid_angle, 1e-30)
         w = dr.select(prev_pdf > 0, dr.square(prev_pdf)
                       / dr.fmax(dr.square(prev_pdf) + dr.square(pdf_em), 1e-30), 1.0)
-        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y) * w, 0.0)
+        return dr.select(hit_em, self._em_factor(c, hit.p.x, hit.p.y, hit_em) * w, 0.0)
 
     def _frame(self, hit: SimpleNamespace, ray: Any) -> tuple[Any, Any, Any]:
         """Local frame at a hit with the normal towards the incoming side (two-sided
@@ -480,7 +483,7 @@ class BandPathTracer:
         ok = active & (dl.z > 0) & (sa > 1e-7) & dr.isfinite(lx) & dr.isfinite(ly)
         ok = ok & ~self.scene.ray_test(shadow, ok)
         pdf_l = 1.0 / dr.fmax(sa, 1e-30)
-        em_w = dr.select(ok, self._em_factor(c, lx, ly) * sa, 0.0)
+        em_w = dr.select(ok, self._em_factor(c, lx, ly, ok) * sa, 0.0)
         return frame.to_local(dl), em_w, pdf_l, ok
 
     def _guide_at(self, o: Any, frame: Any) -> Any:
@@ -551,7 +554,7 @@ class BandPathTracer:
                 on_patch = hit.surf & (slot == pp.slot)
                 u = src.next_float32()
                 pick = on_patch & (pstar == none)
-                pstar = dr.select(pick, dr.minimum(m.UInt32(u * pp.count_f), pp.last), pstar)
+                pstar = dr.select(pick, cell_index(dr, m, u * pp.count_f, pp.count_f), pstar)
                 sel_w = dr.select(pick, pp.count_f, 1.0)
                 slot = dr.select(on_patch, pp.base + pstar, slot)
                 in_late = dr.select(pstar != none, 1.0, 0.0)
@@ -625,7 +628,8 @@ class BandPathTracer:
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
         out = [res.acc[b] * le[b] for b in range(n_b)]
         dr.eval(out)
-        return np.stack([np.asarray(o, dtype=np.float64) for o in out])
+        return require_finite(np.stack([np.asarray(o, dtype=np.float64) for o in out]),
+                              f"band path tracer ({self.variant}), seed {seed}")
 
     def _band_factors(self, vx: Any, wo: Any, weight: Any, mask: Any) -> list[Any]:
         """weight · f_b(wi, wo) for every band at vertex `vx` (weight includes the cosine); 0

@@ -20,6 +20,8 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.predict.kernel_safety import cell_index
+
 GRID_MIN_NM = 360.0
 GRID_STEP_NM = 5.0
 GRID_NM = np.arange(GRID_MIN_NM, 830.0 + 0.5, GRID_STEP_NM)
@@ -52,10 +54,9 @@ def bsdf_class() -> Any:
         n = len(GRID_NM)
         out = []
         for k in range(len(wavelengths)):
-            t = (wavelengths[k] - GRID_MIN_NM) / GRID_STEP_NM
-            t = dr.clip(t, 0.0, n - 1.0)
-            i0 = dr.minimum(mi.UInt32(dr.floor(t)), n - 2)
-            w = t - mi.Float(i0)
+            t = dr.clip((wavelengths[k] - GRID_MIN_NM) / GRID_STEP_NM, 0.0, n - 1.0)
+            i0 = cell_index(dr, mi, t, n - 1.0, active)
+            w = dr.select(dr.isfinite(t), t - mi.Float(i0), 0.0)
             v0 = dr.gather(mi.Float, values, i0, active)
             v1 = dr.gather(mi.Float, values, i0 + 1, active)
             out.append(dr.fma(w, v1 - v0, v0))
@@ -174,7 +175,8 @@ def panel_texture_class() -> Any:
             row = 4.0 - dr.clip(dr.floor(si.uv.y * 5.0), 0.0, 4.0)
             if not jit:
                 return float(self.map[int(row) * 5 + int(col)])
-            return dr.gather(mi.Float, self.map, mi.UInt32(row * 5.0 + col), active)
+            return dr.gather(mi.Float, self.map, cell_index(dr, mi, row * 5.0 + col, 25.0,
+                                                            active), active)
 
         def _spectrum(self, wavelengths: Any, active: Any) -> Any:
             out = []
@@ -184,8 +186,8 @@ def panel_texture_class() -> Any:
                     continue
                 t = dr.clip((wavelengths[k] - self.grid_min) / self.grid_step, 0.0,
                             self.n - 1.0)
-                i0 = dr.minimum(mi.UInt32(dr.floor(t)), self.n - 2)
-                w = t - mi.Float(i0)
+                i0 = cell_index(dr, mi, t, self.n - 1.0, active)
+                w = dr.select(dr.isfinite(t), t - mi.Float(i0), 0.0)
                 v0 = dr.gather(mi.Float, self.values, i0, active)
                 v1 = dr.gather(mi.Float, self.values, i0 + 1, active)
                 out.append(dr.fma(w, v1 - v0, v0))

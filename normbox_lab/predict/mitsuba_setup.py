@@ -8,6 +8,12 @@ scalar_spectral.
 
 The fast renderer (mono) and the MIST triplet check (RGB) use the companion variant of the
 spectral one, `jit_variant("mono" | "rgb")`; `in_variant` selects one for a block.
+
+Your machine is not the user's: Dr.Jit compiles its LLVM kernels for the host CPU (16 lanes
+with AVX-512, 8 with AVX2, 4 with NEON).  ``NORMBOX_LLVM_TARGET=haswell`` (any LLVM CPU name,
+optionally ``cpu:features:width``) makes it compile for another one, so a kernel's behaviour
+and compile time on an AVX2 machine can be reproduced on an AVX-512 one
+(`apply_llvm_target`; `llvm_target` reports what is in force).
 """
 
 from __future__ import annotations
@@ -90,6 +96,69 @@ def jit_variant(kind: str, preferred: str | None = None) -> str:
     return spectral.replace("_spectral", f"_{kind}")
 
 
+#: LLVM CPU name → (features, vector width) for `NORMBOX_LLVM_TARGET` given as a bare name
+LLVM_TARGETS = {
+    "haswell": ("+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,"
+                "+pclmul,+xsave", 8),
+    "znver2": ("+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,"
+               "+pclmul,+xsave", 8),
+    "skylake-avx512": ("+avx512f,+avx512vl,+avx512dq,+avx512bw,+avx512cd,+avx2,+fma,+f16c,"
+                       "+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,+pclmul,+xsave", 16),
+}
+_TARGET_APPLIED: list[str] = []
+
+
+def _drjit_core() -> Any:
+    import ctypes
+
+    import drjit as dr
+
+    return ctypes.CDLL(str(Path(dr.__path__[0]) / "libdrjit-core.so"))
+
+
+def llvm_target() -> tuple[str, int] | None:
+    """(LLVM CPU name, vector width) Dr.Jit's LLVM back end compiles for, or None when it
+    cannot be read (no LLVM back end, another Dr.Jit build)."""
+    import ctypes
+
+    try:
+        lib = _drjit_core()
+        cpu = lib._Z19jit_llvm_target_cpuv
+        width = lib._Z21jit_llvm_vector_widthv
+    except (OSError, AttributeError, ImportError):
+        return None
+    cpu.restype, width.restype = ctypes.c_char_p, ctypes.c_uint32
+    name = cpu()
+    return (name.decode() if name else "?"), int(width())
+
+
+def apply_llvm_target() -> str | None:
+    """Compile Dr.Jit's LLVM kernels for `NORMBOX_LLVM_TARGET` (once per process, after an
+    LLVM variant is set); the target in force, or None when the variable is unset."""
+    import ctypes
+
+    spec = os.environ.get("NORMBOX_LLVM_TARGET", "").strip()
+    if not spec:
+        return None
+    if _TARGET_APPLIED:
+        return _TARGET_APPLIED[0]
+    cpu, _, rest = spec.partition(":")
+    if rest:
+        features, _, width_text = rest.rpartition(":")
+        width = int(width_text)
+    elif cpu in LLVM_TARGETS:
+        features, width = LLVM_TARGETS[cpu]
+    else:
+        raise ValueError(f"NORMBOX_LLVM_TARGET={spec!r}: give one of {sorted(LLVM_TARGETS)} "
+                         "or cpu:features:width")
+    setter = _drjit_core()._Z19jit_llvm_set_targetPKcS0_j
+    setter.argtypes = [ctypes.c_char_p, ctypes.c_char_p, ctypes.c_uint32]
+    setter.restype = None
+    setter(cpu.encode(), features.encode(), int(width))
+    _TARGET_APPLIED.append(f"{cpu} ({width} lanes)")
+    return _TARGET_APPLIED[0]
+
+
 @contextlib.contextmanager
 def in_variant(variant: str) -> Iterator[Any]:
     """Select a Mitsuba variant for a block, restoring the caller's (if one was set)."""
@@ -98,6 +167,8 @@ def in_variant(variant: str) -> Iterator[Any]:
     old = mi.variant()
     if old != variant:
         mi.set_variant(variant)
+    if variant.startswith("llvm"):
+        apply_llvm_target()
     try:
         yield mi
     finally:

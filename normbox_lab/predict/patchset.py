@@ -59,6 +59,7 @@ from normbox_lab.predict.bandpath import (
     smith_g1,
 )
 from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
+from normbox_lab.predict.kernel_safety import cell_index, require_finite
 from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, chunk_seed, lane_rng
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
@@ -230,7 +231,7 @@ class PatchSetTracer(BandPathTracer):
         beta = GUIDE_SHARE if self.guide is not None else 0.0
         u_pick = draws.next_float32()
         u_mix = dr.clip((u_pick - beta) / (1.0 - beta), 0.0, 1.0) if beta else u_pick
-        q = dr.minimum(m.UInt32(u_mix * f(n_p)), dr.opaque(m.UInt32, n_p - 1))
+        q = cell_index(dr, m, u_mix * f(n_p), f(n_p))
         alphas = [f(v) for v in pt.alpha]
         p_specs = [f(v) for v in pt.p_spec]
         alpha_q = dr.gather(m.Float, m.Float(pt.alpha + [pt.alpha[-1]]), q)
@@ -293,8 +294,7 @@ class PatchSetTracer(BandPathTracer):
         lookup = self._lookup(tab, k, frac)
         patches = SimpleNamespace(
             slot=dr.opaque(m.UInt32, self.slot_names.index(self.patch_slot_name)),
-            base=dr.opaque(m.UInt32, len(self.slot_names)), count_f=f(n_p),
-            last=dr.opaque(m.UInt32, n_p - 1))
+            base=dr.opaque(m.UInt32, len(self.slot_names)), count_f=f(n_p))
         res = self._path_loop(tab, c, lookup, delta, start, active, depth, prev_pdf, rng,
                               patches=patches, first_draws=later)
         le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
@@ -307,8 +307,11 @@ class PatchSetTracer(BandPathTracer):
         dr.eval(late)
 
         def np32(values: Sequence[Any]) -> np.ndarray:
-            """(n, len(values)) float32, as a transposed view of a row-major stack."""
-            return np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
+            """(n, len(values)) float32, as a transposed view of a row-major stack; a NaN or
+            infinite value in any lane is a `RenderError`."""
+            a = np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
+            require_finite(a, f"all patches per path ({self.variant}), seed {seed}")
+            return a
 
         lanes = np.asarray(late_lanes, dtype=np.int64)
         return {"post": np32(post), "late": np32(late).reshape(lanes.size, n_b),
@@ -438,7 +441,8 @@ class PatchSetTracer(BandPathTracer):
                 # (dask workers run with one BLAS thread, a plain process with several)
                 group = _group_size(n // sub)
                 with threadpool_limits(1, user_api="blas"):
-                    est = self._group_sums(out, pt, strata, group)
+                    est = require_finite(self._group_sums(out, pt, strata, group),
+                                         f"all patches per path ({self.variant}), seed {seed}")
                 s1 += est.sum(axis=0)
                 s2 += np.einsum("gpb,gpb->pb", est, est) / group
                 n_j += est.shape[0] * group

@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM, RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.predict.kernel_safety import require_finite
 from normbox_lab.predict.materials import Material, holder_material
 from normbox_lab.predict.scene import (
     MOVING_SHAPES,
@@ -175,6 +176,10 @@ def ensure_variant(variant: str | None = None) -> str:
         variant = _VARIANT
     if mi.variant() != variant:
         mi.set_variant(variant)
+    if variant.startswith("llvm"):
+        from normbox_lab.predict.mitsuba_setup import apply_llvm_target
+
+        apply_llvm_target()
     return variant
 
 
@@ -350,7 +355,8 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
 
     while True:
         img = mi.render(scene, spp=q.spp, seed=seed * 1000 + len(batches))
-        arr = np.asarray(img, dtype=np.float64)            # (px, px, n_bands)
+        arr = require_finite(np.asarray(img, dtype=np.float64),    # (px, px, n_bands)
+                             f"stock Mitsuba ({variant}) at {angle_deg:g}°")
         batches.append(arr.reshape(-1, arr.shape[-1]).mean(axis=0) / BAND_WIDTH_NM)
         if len(batches) < q.batches:
             continue

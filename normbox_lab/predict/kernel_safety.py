@@ -1,0 +1,48 @@
+"""Indices that are valid in every lane, and radiance that is a number, for every kernel.
+
+A gather or scatter with an index outside its array is undefined behaviour: on one CPU it reads
+garbage quietly, on another it kills the process.  Inactive lanes are no exception (a masked
+gather still forms its address on some back ends, and Dr.Jit's bounds checks test every lane),
+and an index formed from a NaN or an infinite float is arbitrary (x86 turns it into
+0x80000000).  So every index in the project's kernels comes from one of these two functions:
+
+- `cell_index(x, n)`: the cell ⌊x⌋ of a float coordinate, clipped to 0 … n − 1, and 0 where x
+  is not finite or the lane is inactive;
+- `lane_index(i, active)`: an integer index where the lane is active, 0 elsewhere.
+
+`require_finite` turns a non-finite value in a render's output into a typed error
+(`core.errors.RenderError`) on the host.  `tests/kernel_paths.py` renders every kernel path
+under Dr.Jit's bounds checks (`JitFlag.Debug`) to prove the rule holds.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from normbox_lab.core.errors import RenderError
+
+
+def cell_index(dr: Any, m: Any, x: Any, n: Any, active: Any = True) -> Any:
+    """UInt32 ⌊x⌋ clipped to [0, n − 1] (n a Python or opaque JIT float), 0 where `x` is NaN
+    or infinite or the lane is not `active`."""
+    ok = dr.isfinite(x) & active
+    return m.UInt32(dr.clip(dr.floor(dr.select(ok, x, 0.0)), 0.0, n - 1.0))
+
+
+def lane_index(dr: Any, index: Any, active: Any) -> Any:
+    """`index` where `active`, 0 elsewhere: an inactive lane never carries an arbitrary index."""
+    return dr.select(active, index, 0)
+
+
+def require_finite(values: Any, what: str) -> np.ndarray:
+    """`values` as an array (its own dtype), or `RenderError` naming `what` and how many
+    entries are NaN or infinite (and the first one's position)."""
+    arr = np.asarray(values)
+    if not np.isfinite(arr).all():
+        bad = ~np.isfinite(arr)
+        first = tuple(int(i) for i in np.argwhere(bad)[0])
+        raise RenderError(f"{what}: {int(bad.sum())} of {arr.size} values are NaN or "
+                          f"infinite (first at index {first}); the estimate is not returned")
+    return arr
