@@ -44,7 +44,9 @@ def test_renderer_rows_paper_column_and_simulated_verdict():
     assert "<th>mitsuba-rgb</th><td class=\"text\">mitsuba 3.9.1 llvm_ad_rgb</td>" \
         "<td class=\"num\">1.34</td>" \
         in table
-    assert "<td>0.84 / 0.62</td><td>0.80 / 0.55</td>" in html       # short text: as it was
+    # the paper table: every cell reads from the left, the paper's place beside its figure
+    assert ('<td class="text">0.84 / 0.62</td><td class="text">Sec. 6.1, Fig. 5(b)/(c)</td>'
+            '<td class="text">0.80 / 0.55</td>') in html
     rgb = html[html.index('id="tab-rgb-mitsuba-rgb"'):]
     assert '<td class="r0 num">1.00</td>' in rgb
     assert html.count("Campaign") == 1        # the campaign line once (the page's subtitle)

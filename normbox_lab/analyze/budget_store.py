@@ -144,7 +144,12 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
     docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
     from normbox_lab.analyze.compare import ComparisonResult
     from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
+    from normbox_lab.analyze.paper_figures import OBSERVATIONS, nse_paper_sign, quote, signed
     from normbox_lab.analyze.queries import latest_fits, latest_run
+
+    def paper(label: str) -> str:
+        # the paper's column reads from the one table of the paper's figures
+        return quote(OBSERVATIONS[label])
 
     run = store.get_run(ref_run)
     c = ComparisonResult.from_artifact(store.latest_artifact("comparison", f"ref-run-{run.id}"))
@@ -154,22 +159,25 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
     rows = []
     if np.any(small):
         in_band = np.mean((nr[:, small] >= 2) & (nr[:, small] <= 5))
-        rows.append(("NRMSE at 30–60° within [2, 5] %", "mostly",
+        label = "NRMSE at 30–60° within [2, 5] %"
+        rows.append((label, paper(label),
                      (f"{100 * in_band:.0f} % of configurations "
-                      f"(median {np.median(nr[:, small]):.2f} %)")))
+                      f"(median {np.median(nr[:, small]):.1f} %)")))
     else:
-        rows.append(("NRMSE at 30–60° within [2, 5] %", "mostly", "not measured"))
+        label = "NRMSE at 30–60° within [2, 5] %"
+        rows.append((label, paper(label), "not measured"))
     by = np.mean(nr, axis=0)
-    rows.append(("NRMSE by angle, mean over patches (%)", "flat, then rising from 65°",
-                 ", ".join(f"{a:g}° {v:.1f}" for a, v in zip(ang, by))))
+    label = "NRMSE by angle, mean over patches (%)"
+    rows.append((label, paper(label), ", ".join(f"{a:g}° {v:.1f}" for a, v in zip(ang, by))))
     cr = c.correlations
 
     def r(key: str, sign: str = "") -> str:
         value = float(cr.get(key, float("nan")))
-        return f"{value:{sign}.2f}" if np.isfinite(value) else "not measured"
-    rows.append(("r(radiance, NRMSE) 65–90°", "negative (NRMSE grows as radiance falls)",
-                 r("radiance_nrmse_large", "+")))
-    rows.append(("r(radiance, RMSE) 30–60° / 65–90°", "0.84 / 0.62",
+        return signed(value, 2, plus=bool(sign)) if np.isfinite(value) else "not measured"
+    label = "r(radiance, NRMSE) 65–90°"
+    rows.append((label, paper(label), r("radiance_nrmse_large", "+")))
+    label = "r(radiance, RMSE) 30–60° / 65–90°"
+    rows.append((label, paper(label),
                  f"{r('radiance_rmse_small')} / {r('radiance_rmse_large')}"))
     fits = latest_fits(store)
     errs = {k: float(v.fit_error_pct) for k, v in fits.items()
@@ -182,12 +190,13 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
         return f"{errs[name]:.1f} %" if name in errs else "not measured"
     spread = (f"{min(patch_errs):.1f}–{max(patch_errs):.1f} %" if patch_errs
               else "patches not measured")
-    rows.append(("BRDF fit errors", "5–10 %, patch 18 ≈ 18 %",
+    rows.append(("BRDF fit errors", paper("BRDF fit errors"),
                  f"{spread}, patch 18 {fit_error('p18')}, wall {fit_error('wall')}"))
     de = c.delta_e00
     above2 = sorted({int(c.patch_names[p].split()[0]) for p, _ in zip(*np.nonzero(de > 2))})
-    rows.append(("ΔE00", "mostly < 1; patches 10, 13, 19, 24 slightly > 2 at some angles",
-                 (f"{100 * np.mean(de < 1):.0f} % < 1, max {np.max(de):.2f}; > 2: "
+    rows.append(("ΔE00", paper("ΔE00"),
+                 (f"{100 * np.mean(de < 2):.0f} % < 2 ({100 * np.mean(de < 1):.0f} % < 1), "
+                  f"max {np.max(de):.2f}; > 2: "
                   f"{', '.join(map(str, above2)) or 'none'}")))
     brdf = latest_run(store, "brdf-inplane")
     if brdf is not None and "wall" in fits:
@@ -196,30 +205,31 @@ def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, s
             e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
             e = np.interp(c.wavelength_nm, data["wall"].wavelength_nm, e)
             # the paper's NSE sign (reference − prediction); the fit error (fit − measured)
-            nse90 = -np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :], axis=0)
+            nse90 = nse_paper_sign(np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :],
+                                              axis=0))
             ok = np.isfinite(nse90) & np.isfinite(e)
             r = float(np.corrcoef(nse90[ok], e[ok])[0, 1])
-            rows.append(("NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ",
-                         "follows it, rising to the red",
-                         (f"{r:+.2f} (NSE 450 / 700 nm: "
-                          f"{100 * np.interp(450, c.wavelength_nm, nse90):+.1f} / "
-                          f"{100 * np.interp(700, c.wavelength_nm, nse90):+.1f} %)")))
+            label = "NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ"
+            rows.append((label, paper(label),
+                         (f"{signed(r, 2)} (NSE 450 / 700 nm: "
+                          f"{signed(100 * np.interp(450, c.wavelength_nm, nse90), 1)} / "
+                          f"{signed(100 * np.interp(700, c.wavelength_nm, nse90), 1)} %)")))
     # in the paper's sign: its NSE is (reference − prediction) / reference, ours the opposite
-    nse_mean = -100 * np.nanmean(c.nse, axis=(0, 2))
+    nse_mean = 100 * nse_paper_sign(np.nanmean(c.nse, axis=(0, 2)))
     for a in (65.0, 80.0):
         i = int(np.argmin(np.abs(ang - a)))
         if 0 < i < ang.size - 1 and abs(ang[i] - a) < 1e-6:
             dev = nse_mean[i] - 0.5 * (nse_mean[i - 1] + nse_mean[i + 1])
-            rows.append((f"NSE (paper's sign) at {a:g}° minus its neighbours' mean",
-                         "slightly higher at 65°, slightly lower at 80°, all patches",
-                         (f"{dev:+.2f} % (patches with the sign of the mean: "
+            label = f"NSE (paper's sign) at {a:g}° minus its neighbours' mean"
+            rows.append((label, paper(label),
+                         (f"{signed(dev, 1)} % (patches with the sign of the mean: "
                           f"{_same_sign(c.nse, i):.0f} %)")))
     budgets = store.artifacts("error-budget", f"ref-run-{run.id}")
     if budgets and "angle_offset_deg" in budgets[-1].arrays:
         arr = budgets[-1].arrays
-        rows.append(("estimated angle offsets (budget)",
-                     "(implied: 65° set below, 80° above the true angle)", ", ".join(
-            f"{a:g}° {o:+.2f}±{ci:.2f}" for a, o, ci in zip(
+        label = "estimated angle offsets (budget)"
+        rows.append((label, paper(label), ", ".join(
+            f"{a:g}° {signed(o, 2)} ± {ci:.2f}" for a, o, ci in zip(
                 arr["angle_offset_angle_deg"], arr["angle_offset_deg"],
                 arr["angle_offset_ci95_deg"]) if a in (60, 65, 70, 75, 80, 85))))
     return rows

@@ -41,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.analyze import paper_figures as pf
 from normbox_lab.analyze.compare import (
     RATING_SCALE,
     ComparisonResult,
@@ -164,7 +165,7 @@ class _Doc:
                 cls = cell_class(i, j, v) if cell_class else ""
                 if j > 0 and isinstance(v, float | np.floating):
                     cls = f"{cls} num".strip()       # a number never breaks ("2.02×10⁻⁵")
-                elif j > 0 and isinstance(v, str) and len(v) > 16:
+                elif j > 0 and isinstance(v, str) and len(v) > 16 and "text" not in cls:
                     cls = f"{cls} text".strip()      # prose reads from the left
                 attr = f' class="{cls}"' if cls else ""
                 tag = "th" if j == 0 else "td"
@@ -231,6 +232,8 @@ font-weight:600}
 .note{font-size:.9rem;color:var(--muted)}
 nav#contents ol{columns:2;column-gap:2rem} nav#contents ul{font-size:.9rem}
 a{color:#0060a0}
+@media (max-width:900px){body{padding:1rem .75rem} table{font-size:.75rem}
+ td,th{padding:.1rem .22rem}}
 @page{size:A4;margin:14mm}
 @media print{
  html{font-size:10pt} body{max-width:none;padding:0}
@@ -326,8 +329,11 @@ def _summary_section(doc: _Doc, d: ReportData, c: ComparisonResult | None,
                          f"{hl.white_delta_e00:.2f}",
                          f"adapted convention: {hl.white_delta_e00_adapted:.2f}")
                  + _card("mean ΔE00 (paper convention)", f"{hl.mean_delta_e00:.2f}",
-                         f"adapted convention: {hl.mean_delta_e00_adapted:.2f}; "
-                         f"max {hl.max_delta_e00:.2f}")
+                         f"adapted convention: {hl.mean_delta_e00_adapted:.2f}")
+                 + _card("largest ΔE00 (paper convention)", f"{hl.max_delta_e00:.2f}",
+                         f"patch {hl.max_at[0]} at {hl.max_at[1]:g}°; adapted convention: "
+                         f"{hl.max_delta_e00_adapted:.2f} (patch {hl.max_adapted_at[0]} at "
+                         f"{hl.max_adapted_at[1]:g}°)")
                  + _card("mean NRMSE", f"{hl.nrmse_mean_pct:.1f} %",
                          "RMSE / mean reference radiance, in percent")
                  + _card("configurations", f"{n_cfg}",
@@ -370,30 +376,36 @@ def _renderers_section(doc: _Doc, d: ReportData, c: ComparisonResult | None) -> 
     doc.section("renderers", "Renderers and the paper side by side")
     if d.renderers:
         angles = [] if c is None else [f"{a:g}°" for a in c.angle_deg]
-        rows = []
-        for r in d.renderers:
-            nr = list(r.nrmse_by_angle_pct) + [float("nan")] * (len(angles)
-                                                                 - len(r.nrmse_by_angle_pct))
-            rows.append([r.renderer, r.version, float(r.delta_e00_mean),
-                         float(r.delta_e00_max), *map(float, nr[:len(angles)]),
-                         " / ".join(str(n) for n in r.rating_counts)])
+        scale = ", ".join(f"{rating_class_range(k)} {lab}"
+                          for k, (_, lab) in enumerate(RATING_SCALE))
         doc.table("tab-renderers", "Every renderer against the measurement (one row each): "
-                  "ΔE00, NRMSE [%] per sample angle, ratings",
-                  ["renderer", "version", "ΔE00 mean", "ΔE00 max", *angles,
+                  "ΔE00 and ratings",
+                  ["renderer", "version", "ΔE00 mean", "ΔE00 max",
                    "ratings " + " / ".join(rating_class_range(k)
                                            for k in range(len(RATING_SCALE)))],
-                  rows, caption="The same reference run, the same comparison (paper "
-                  "convention ΔE00, NRMSE = RMSE / mean reference radiance, in percent per "
-                  "sample angle; ratings: configurations per class, " + ", ".join(
-                      f"{rating_class_range(k)} {lab}" for k, (_, lab) in
-                      enumerate(RATING_SCALE)) + ") for our prediction and each imported "
-                  "renderer (normbox-lab import prediction).")
+                  [[r.renderer, r.version, float(r.delta_e00_mean), float(r.delta_e00_max),
+                    " / ".join(str(n) for n in r.rating_counts)] for r in d.renderers],
+                  caption="The same reference run, the same comparison (paper convention "
+                  f"ΔE00; ratings: configurations per class, {scale}) for our prediction and "
+                  "each imported renderer (normbox-lab import prediction).")
+        if angles:
+            rows = []
+            for r in d.renderers:
+                nr = list(r.nrmse_by_angle_pct) + [float("nan")] * (
+                    len(angles) - len(r.nrmse_by_angle_pct))
+                rows.append([r.renderer, *map(float, nr[:len(angles)])])
+            doc.table("tab-renderers-nrmse", "Every renderer: NRMSE [%] per sample angle",
+                      ["renderer", *angles], rows,
+                      caption="NRMSE = RMSE / mean reference radiance, in percent, mean over "
+                      "the patches at each sample angle.")
     if d.paper:
         doc.table("tab-paper", "The paper's published figures beside this run",
-                  ["observation", "paper (published)", "this run"],
-                  [list(row) for row in d.paper],
-                  caption="Where the Normbox paper gives a figure, this run's value beside "
-                  "it (NSE in the paper's sign: reference − prediction).")
+                  ["observation", "paper (published)", "where in the paper", "this run"],
+                  [[obs, paper, _where(obs), ours] for obs, paper, ours in d.paper],
+                  cell_class=lambda i, j, v: "text" if j > 0 else "",
+                  caption=f"Where the Normbox paper ({pf.PAPER}) gives a figure, this run's "
+                  f"value beside it. NSE in the paper's sign, {pf.NSE_PAPER_SIGN}; "
+                  "percentages with one decimal, correlations, ΔE00 and angles with two.")
     for e in d.rendering_errors:
         hdr = ["patch", *[f"{a:g}°" for a in e.angle_deg], "mean"]
         mean_col = len(hdr) - 1                  # the mean column: not a rating colour
@@ -463,8 +475,9 @@ def _comparison_sections(doc: _Doc, d: ReportData, c: ComparisonResult, adapted:
                              "radiance_nrmse_large"),
                "NRMSE = RMSE / mean reference spectrum, in percent. Dark patches have "
                "large relative errors on little light.")
-    doc.table("tab-rmse", f"RMSE [{RADIANCE_UNIT}]", ang_hdr,
-              [[n, *map(float, c.rmse[p])] for p, n in enumerate(c.patch_names)], digits=3)
+    rmse, rmse_label = rf.scaled_for_axis(c.rmse, f"RMSE [{RADIANCE_UNIT}]")
+    doc.table("tab-rmse", rmse_label, ang_hdr,
+              [[n, *map(float, rmse[p])] for p, n in enumerate(c.patch_names)], digits=3)
     doc.table("tab-nrmse", "NRMSE [%]", ang_hdr,
               [[n, *map(float, 100.0 * c.nrmse[p])] for p, n in enumerate(c.patch_names)],
               digits=3)
@@ -475,10 +488,12 @@ def _comparison_sections(doc: _Doc, d: ReportData, c: ComparisonResult, adapted:
     nse_patch = min(d.nse_patch, len(c.patch_names) - 1)
     doc.section("nse", "Spectral error per angle (NSE)")
     doc.figure("fig-nse", f"NSE per sample angle of patch {c.patch_names[nse_patch]} "
-               "(paper Fig. 13)", rf.fig_nse(c, nse_patch),
-               "Normalised spectral error (prediction − reference)/reference in percent, "
-               "one panel per sample angle. A tilt across the spectrum points to a "
-               "colour error; an offset to a level error.")
+               f"(paper {pf.where('fig13_patch').split(', ')[-1]})", rf.fig_nse(c, nse_patch),
+               f"Normalised spectral error in the paper's sign, {pf.NSE_PAPER_SIGN}, in "
+               "percent (paper Sec. 4.5.1): above zero the prediction is too dark. One panel "
+               "per sample angle. A tilt across the spectrum points to a colour error; an "
+               "offset to a level error. The paper shows patch "
+               f"{pf.patch_number('fig13_patch')}.")
 
 
 def _perceptual_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray,
@@ -489,10 +504,10 @@ def _perceptual_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray,
     doc.section("perceptual", "Perceptual comparison: ΔE00", _esc(_convention_text(c, hl)))
     doc.figure("fig-deltae", "ΔE00 per patch and angle on the rating scale (paper Fig. 7)",
                rf.fig_deltae(c, adapted),
-               "Each cell is one patch at one sample angle, coloured by its class on the "
-               "rating scale. Left: the paper's convention; right: adapted to the measured "
-               "white. Compare the columns: differences grow where indirect light "
-               "dominates.")
+               "Each cell is one patch at one sample angle, coloured by the class on the "
+               "rating scale of the value printed in it (two decimals: a 1.00 is below the "
+               "JND). Top: the paper's convention; bottom: adapted to the measured white. "
+               "Compare the columns: differences grow where indirect light dominates.")
     doc.table("tab-deltae", "ΔE00, paper convention (D65 white)", ang_hdr,
               [[n, *map(float, c.delta_e00[p])] for p, n in enumerate(c.patch_names)],
               cell_class=_rating_class, digits=3)
@@ -507,10 +522,11 @@ def _perceptual_section(doc: _Doc, c: ComparisonResult, adapted: np.ndarray,
               cell_class=lambda i, j, v: f"r{i}" if j == 0 else "")
     doc.table("tab-deltae-means", "Mean ΔE00 per sample angle",
               ["convention", *[f"{v:g}°" for v in c.angle_deg], "all"],
-              [["paper (D65 white)", *map(float, np.nanmean(c.delta_e00, 0)),
+              [["paper", *map(float, np.nanmean(c.delta_e00, 0)),
                 float(np.nanmean(c.delta_e00))],
-               ["adapted (CAT02)", *map(float, np.nanmean(adapted, 0)),
-                float(np.nanmean(adapted))]], digits=3)
+               ["adapted", *map(float, np.nanmean(adapted, 0)),
+                float(np.nanmean(adapted))]], digits=3,
+              caption="paper: Lab with the D65 white; adapted: CAT02 to D65 first.")
 
 
 def _images_section(doc: _Doc, images: Sequence[ImageFigure]) -> None:
@@ -523,14 +539,24 @@ def _images_section(doc: _Doc, images: Sequence[ImageFigure]) -> None:
 
 def _fits_section(doc: _Doc, d: ReportData) -> None:
     from normbox_lab.analyze import report_figures as rf
-    from normbox_lab.analyze.fit import polar_plot
-
     doc.section("fits", "BRDF fits")
+    ws = sorted({float(f.w) for f in d.fits.values()})
     doc.table("tab-fits", "Fitted parameters", ["material", "α (roughness)", "η",
-                                               "c [sr⁻¹]", "w (cos^w weight)",
-                                               "fit error [%]", "Löw cost"],
-              [[n, f.alpha, f.eta, f.c, f.w, f.fit_error_pct, f.cost]
-               for n, f in d.fits.items()], digits=3)
+                                               "c [sr⁻¹]", "w", "fit error [%]",
+                                               "cost E (Eq. 9)"],
+              [[n, f.alpha, f.eta, _c_text(f.c), f"{f.w:g}", f.fit_error_pct, f.cost]
+               for n, f in d.fits.items()], digits=3,
+              caption="Cook–Torrance/GGX fit per material (paper Sec. 4.3): roughness α, "
+              "one refractive index η, the correction c subtracted from the model (Eq. 6; "
+              "\"0 (unused)\" where the fit put it at zero, as the paper found for some "
+              "materials), the weight exponent w of cos^w θi in the cost, the relative fit "
+              "error, and the cost E at the optimum: the sum over the measured geometries and "
+              "wavelengths of the squared differences of ln(1 + cos^w θi · BRDF) (Löw et al.'s "
+              "log cost, paper Eqs. 7–9); E compares fits of one material at one w only. "
+              f"The paper: {pf.cite('fit_weight_w')}. This run fits every material with "
+              f"w = {', '.join(f'{w:g}' for w in ws)}: the paper gives w for patches 8 and 18 "
+              "alone, one w keeps the fits of all materials comparable, and `normbox-lab fit "
+              "--weight-exponent 4` refits with the paper's w of patch 18.")
     names = list(d.polar_materials) if d.polar_materials is not None else (
         [n for n in ("patch08", "patch18") if n in d.fits]
         or [n for n in d.fits if n != d.wall_name][:1])
@@ -538,13 +564,14 @@ def _fits_section(doc: _Doc, d: ReportData) -> None:
     for n in names:
         if n not in d.fits:
             continue
-        fig = rf.in_style(lambda n=n: polar_plot(d.brdf_data.get(n), {n: d.fits[n]},
-                                                  d.polar_wavelength_nm))
+        fig = rf.fig_polar(d.brdf_data.get(n), d.fits[n], d.polar_wavelength_nm)
         doc.figure(f"fig-polar-{n}", f"BRDF of {n} at {d.polar_wavelength_nm:g} nm "
-                   "(paper Figs. 10/11)", fig,
+                   f"(paper {pf.where('polar_wavelength').split(', ')[-1]})", fig,
                    "Points: measured in-plane BRDF [sr⁻¹]; line: the fit (tilted geometry); "
-                   "one panel per incident angle θi, θo on the polar axis, dotted ray = "
-                   "light direction. Look for points the line misses near grazing angles.")
+                   "one panel per incident angle θi, θo on the polar axis (0° = the normal), "
+                   "dotted ray = light direction; each panel to its own radius (its maximum "
+                   "in the title). Look for points the line misses near grazing angles (the "
+                   "Fresnel reflection) and near the light (backscatter).")
 
 
 def _error_model_section(doc: _Doc, em: ErrorModelResult, c: ComparisonResult | None) -> None:
@@ -556,7 +583,11 @@ def _error_model_section(doc: _Doc, em: ErrorModelResult, c: ComparisonResult | 
                "Bars: the simulated error from the direct-light share d per angle times "
                "the patch fit error err_d, plus (1 − d) times the wall fit error err_i; "
                "lines: simulated and observed NRMSE. Where the lines agree, the fit errors "
-               "explain the prediction error.")
+               "explain the prediction error. Each bar is one term's RMS over wavelengths, the "
+               "simulated line the RMS of the two terms' sum: an RMS does not add, the RMS of "
+               "a sum is at most the sum of the RMSs (equal only for spectra of one shape and "
+               "sign). So where both terms count (large angles) and their spectra differ, the "
+               "stacked bars stand above the simulated line.")
     obs = em.observed_nrmse if em.observed_nrmse is not None else (
         c.nrmse if c is not None else None)
     rows = []
@@ -595,9 +626,15 @@ def _nse_fit_section(doc: _Doc, c: ComparisonResult, d: ReportData) -> None:
     fig, rows = got
     doc.section("nsefit", "NSE vs BRDF fitting error")
     doc.figure("fig-nse-fit", "NSE vs fitting error (paper Fig. 14)", fig,
-               "Top: NSE at the smallest and largest sample angle; bottom: relative "
-               "BRDF fitting error at the matching geometry (patch: direct light; "
-               "wall: grazing). Similar shapes mean the fit error carries through.")
+               f"Top: NSE in the paper's sign, {pf.NSE_PAPER_SIGN}, (a) of patches "
+               f"{', '.join(c.patch_names[p] for p in d.nse_fit_patches if p < len(c.patch_names))} "
+               f"at the smallest and (b) of patch {c.patch_names[min(d.nse_fit_patch_b, len(c.patch_names) - 1)]} "
+               "at the largest sample angle (the paper: "
+               f"{pf.quote('fig14a')}; {pf.quote('fig14b')}). Bottom: the relative BRDF "
+               "fitting error, (fit − measured)/measured, at the matching geometry (patch: "
+               "direct light; wall: grazing); the paper does not state its fitting error's "
+               "sign. A fit that is too bright makes the prediction too bright, which the "
+               "paper's NSE shows below zero: the same cause gives mirrored shapes.")
     doc.table("tab-nse-fit", "NSE vs fitting error (RMS over wavelengths)",
               ["patch", "angle", "RMS NSE [%]", "fit error at", "RMS fit error [%]"],
               rows, digits=3)
@@ -685,6 +722,16 @@ def _qa_card(flags: Sequence[Any] | None) -> tuple[str, str]:
     if not flags:
         return "none", "every quality gate passed"
     return f"{len(flags)}", f"{errors} errors, {len(flags) - errors} warnings (see Quality flags)"
+
+
+def _c_text(c: float) -> str | float:
+    """The BRDF correction c as printed: "0 (unused)" at zero (paper Eq. 6)."""
+    return "0 (unused)" if float(c) == 0.0 else float(c)
+
+
+def _where(observation: str) -> str:
+    key = pf.OBSERVATIONS.get(observation)
+    return pf.where(key) if key else "—"
 
 
 def _corr_label(key: str) -> str:

@@ -19,6 +19,7 @@ from normbox_lab.analyze.compare import (
     rating_index,
 )
 from normbox_lab.analyze.fit import BrdfData
+from normbox_lab.analyze.paper_figures import patch_number, value
 from normbox_lab.predict.brdf_model import MaterialFit
 
 
@@ -31,13 +32,17 @@ class ReportData:
     brdf_data: dict[str, BrdfData] = field(default_factory=dict)
     error_model: ErrorModelResult | None = None
     title: str = "Normbox validation report"
-    polar_wavelength_nm: float = 730.0
+    #: the paper's choices (`paper_figures`): polar plots at 730 nm (Figs. 10/11), the NSE of
+    #: patch 22 (Fig. 13), patches 19, 23, 24 (Fig. 14a), patch 21 and the wall at (−70°, 80°)
+    #: (Fig. 14b); patch indices are 0-based
+    polar_wavelength_nm: float = value("polar_wavelength")
     polar_materials: Sequence[str] | None = None   # default: patch08, patch18 (as the paper), wall
     prediction_patches: Sequence[int] = (0, 5, 12, 18)   # 0-based indices for fig-prediction
-    nse_patch: int = 21                                # paper Fig. 13: patch 22
-    nse_fit_patches: Sequence[int] = (18, 22, 23)      # paper Fig. 14a: patches 19, 23, 24
+    nse_patch: int = patch_number("fig13_patch") - 1
+    nse_fit_patches: Sequence[int] = tuple(patch_number("fig14a", k) - 1 for k in range(3))
+    nse_fit_patch_b: int = patch_number("fig14b") - 1
     wall_name: str = "wall"
-    wall_geometry_deg: tuple[float, float] = (-70.0, 80.0)   # paper Fig. 14b
+    wall_geometry_deg: tuple[float, float] = (value("fig14b", 2), value("fig14b", 3))
     patch_fit_names: Sequence[str] | None = None       # fit name per patch index (fig-nse-fit)
     notes: list[str] = field(default_factory=list)
     metadata: dict[str, Any] = field(default_factory=dict)
@@ -122,6 +127,10 @@ class Headline:
     rating_counts_adapted: list[int]
     worst: list[tuple[str, float, float, float, float]]   # patch, angle, ΔE00, ΔE00 adapted, NRMSE %
     verdict: str
+    #: where each convention's maximum is: (patch, angle °), and the adapted maximum
+    max_at: tuple[str, float] = ("", float("nan"))
+    max_delta_e00_adapted: float = float("nan")
+    max_adapted_at: tuple[str, float] = ("", float("nan"))
 
 
 def headline(c: ComparisonResult, adapted: np.ndarray, n_worst: int = 5) -> Headline:
@@ -149,4 +158,15 @@ def headline(c: ComparisonResult, adapted: np.ndarray, n_worst: int = 5) -> Head
     return Headline(float(de[c.white_patch, wa]), float(adapted[c.white_patch, wa]), mean_de,
                     float(np.nanmean(adapted)), float(np.nanmax(de)),
                     100.0 * float(np.nanmean(c.nrmse)), 100.0 * np.nanmean(c.nrmse, axis=0),
-                    counts, counts_a, worst, verdict)
+                    counts, counts_a, worst, verdict, _argmax_at(c, de),
+                    float(np.nanmax(adapted)) if np.isfinite(adapted).any() else float("nan"),
+                    _argmax_at(c, adapted))
+
+
+def _argmax_at(c: ComparisonResult, values: np.ndarray) -> tuple[str, float]:
+    """(patch name, sample angle °) of the largest finite value; ("", nan) if none."""
+    v = np.asarray(values, dtype=float)
+    if not np.isfinite(v).any():
+        return "", float("nan")
+    p, a = np.unravel_index(int(np.nanargmax(v)), v.shape)
+    return c.patch_names[p], float(c.angle_deg[a])

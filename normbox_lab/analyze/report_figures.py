@@ -20,6 +20,7 @@ from normbox_lab.analyze.compare import (
     rating_class_range,
 )
 from normbox_lab.analyze.fit import fit_error_at
+from normbox_lab.analyze.paper_figures import NSE_PAPER_SIGN, nse_paper_sign
 from normbox_lab.analyze.report_style import (
     FONT_PT,
     RADIANCE_UNIT,
@@ -188,7 +189,9 @@ def scaled_for_axis(values: np.ndarray, label: str) -> tuple[np.ndarray, str]:
 @styled
 def fig_deltae(c: ComparisonResult, adapted: np.ndarray | None = None) -> Any:
     """ΔE00 heat map(s) patches × angles on the rating scale: the paper's convention and,
-    when given, the adapted one."""
+    when given, the adapted one below it.  Each cell prints its value with two decimals and
+    takes the rating colour of the value as printed (a "1.00" is below the JND), the cell's
+    colour and the text's from the same class index."""
     from matplotlib.colors import BoundaryNorm, ListedColormap
 
     from normbox_lab.analyze.compare import rating_index
@@ -198,36 +201,32 @@ def fig_deltae(c: ComparisonResult, adapted: np.ndarray | None = None) -> Any:
         maps.append(("adapted to the measured white (CAT02)", adapted))
     # one map per row at the printable width of an A4 page (182 mm): printed, the figure
     # keeps its size and its numbers their point size (side by side they shrank to ~4 px)
-    fig = new_figure(A4_TEXT_WIDTH_IN, 0.36 * len(c.patch_names) + 1.6 if len(maps) == 1
-                     else (0.36 * len(c.patch_names) + 1.2) * len(maps))
+    n_p = len(c.patch_names)
+    fig = new_figure(A4_TEXT_WIDTH_IN, (0.3 * n_p + 0.9) * len(maps) + 0.9)
     axes = fig.subplots(len(maps), 1, squeeze=False)[:, 0]
+    n_cls = len(RATING_SCALE)
     cmap = ListedColormap(RATING_COLOURS)
-    top = max(10.0, float(np.nanmax([np.nanmax(m) for _, m in maps])) + 1.0)
-    bounds = [0.0] + [b for b, _ in RATING_SCALE[:-1]] + [top]
-    norm = BoundaryNorm(bounds, cmap.N)
+    norm = BoundaryNorm(np.arange(n_cls + 1) - 0.5, cmap.N)
     im = None
     for ax, (title, de) in zip(axes, maps, strict=True):
-        # coloured by the value as printed in the cell (a "1.0" is below the JND)
-        shown = np.round(de, 1)
-        im = ax.imshow(shown, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
+        shown = np.round(np.asarray(de, dtype=float), 2)
+        cls = np.where(np.isfinite(shown), rating_index(np.nan_to_num(shown)), np.nan)
+        im = ax.imshow(cls, aspect="auto", cmap=cmap, norm=norm, interpolation="nearest")
         for p in range(de.shape[0]):
             for a in range(de.shape[1]):
-                v = shown[p, a]
-                if not np.isfinite(v):
+                if not np.isfinite(shown[p, a]):
                     continue
-                ax.text(a, p, f"{v:.1f}", ha="center", va="center",
-                        fontsize=FONT_PT["annotation"],
-                        color=RATING_TEXT[int(rating_index(v))])
+                ax.text(a, p, f"{shown[p, a]:.2f}", ha="center", va="center",
+                        fontsize=FONT_PT["annotation"], color=RATING_TEXT[int(cls[p, a])])
         ax.set_xticks(range(c.angle_deg.size), [f"{v:g}" for v in c.angle_deg])
-        ax.set_yticks(range(len(c.patch_names)), c.patch_names)
+        ax.set_yticks(range(n_p), c.patch_names)
         ax.set_xlabel("sample angle [°]")
+        ax.set_ylabel("ColorChecker patch")
         ax.set_title(title)
         ax.grid(False)
-    for ax in axes:
-        ax.set_ylabel("ColorChecker patch")
-    cb = fig.colorbar(im, ax=axes, ticks=[(bounds[k] + bounds[k + 1]) / 2 for k in range(4)],
-                      fraction=0.05, pad=0.02, shrink=0.6)
-    cb.ax.set_yticklabels([f"{lab}\n(ΔE00 {rating_class_range(k)})"
+    cb = fig.colorbar(im, ax=axes, ticks=range(n_cls), location="bottom", fraction=0.04,
+                      pad=0.03, aspect=40)
+    cb.ax.set_xticklabels([f"{lab}\n(ΔE00 {rating_class_range(k)})"
                            for k, (_, lab) in enumerate(RATING_SCALE)])
     return fig
 
@@ -303,7 +302,8 @@ def fig_error_model(em: ErrorModelResult, nrmse: np.ndarray | None) -> Any:
 
 @styled
 def fig_nse(c: ComparisonResult, patch: int) -> Any:
-    """NSE [%] spectra of one patch, one panel per sample angle, shared axes."""
+    """NSE [%] spectra of one patch in the paper's sign, (reference − prediction)/reference
+    (paper Fig. 13), one panel per sample angle, shared axes."""
     n_a = c.angle_deg.size
     ncol = 5
     nrow = int(np.ceil(n_a / ncol))
@@ -312,7 +312,7 @@ def fig_nse(c: ComparisonResult, patch: int) -> Any:
     fig.subplots_adjust(left=0.08, right=0.98, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
                         wspace=0.12, hspace=0.35)
     axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
-    pct = 100.0 * c.nse[patch]
+    pct = 100.0 * nse_paper_sign(c.nse[patch])
     lim = float(np.nanmax(np.abs(pct))) if np.isfinite(pct).any() else 1.0
     for k in range(nrow * ncol):
         ax = axes.flat[k]
@@ -325,14 +325,15 @@ def fig_nse(c: ComparisonResult, patch: int) -> Any:
         ax.set_title(f"{c.angle_deg[k]:g}°", pad=2)
         ax.set_xticks([400, 550, 700])
     fig.supxlabel("wavelength [nm]")
-    fig.supylabel("NSE (prediction − reference)/reference [%]")
+    fig.supylabel(f"NSE {NSE_PAPER_SIGN} [%]")
     return fig
 
 
 @styled
 def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]]] | None:
-    """Paper Fig. 14: NSE at the smallest angle vs the patch fit error at the direct geometry;
-    NSE at the largest angle vs the wall's fit error at a grazing geometry."""
+    """Paper Fig. 14, NSE in the paper's sign: (a) some patches at the smallest angle vs their
+    fit error at the direct geometry; (b) one patch (the paper: 21) at the largest angle vs the
+    wall's fit error at a grazing geometry."""
     from normbox_lab.analyze.compare import direct_light_geometry
 
     names = list(d.patch_fit_names) if d.patch_fit_names is not None else list(c.patch_names)
@@ -347,7 +348,7 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
     rows: list[list[Any]] = []
     ti, to = direct_light_geometry(c.angle_deg[0])
     for k, (p, name) in enumerate(pairs):
-        ax1.plot(c.wavelength_nm, 100.0 * c.nse[p, 0], color=f"C{k}", lw=1.1,
+        ax1.plot(c.wavelength_nm, 100.0 * nse_paper_sign(c.nse[p, 0]), color=f"C{k}", lw=1.1,
                  label=f"patch {c.patch_names[p]}")
         err = fit_error_at(d.fits[name], d.brdf_data[name], float(ti), float(to))
         ax3.plot(d.brdf_data[name].wavelength_nm, 100.0 * err, color=f"C{k}", lw=1.1,
@@ -358,21 +359,24 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
                      100.0 * float(np.sqrt(np.nanmean(err ** 2)))])
     ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}° (direct light dominates)")
     ax3.set_title(f"patch fitting error at θi = {float(ti):g}°, θo = {float(to):g}°")
-    ax2.plot(c.wavelength_nm, 100.0 * np.nanmean(c.nse[:, -1], axis=0), lw=1.1, color="C0",
-             label="mean of patches")
-    ax2.set_title(f"(b) NSE at {c.angle_deg[-1]:g}°, mean over patches (indirect light)")
+    pb = min(max(int(d.nse_fit_patch_b), 0), len(c.patch_names) - 1)
+    nse_b = nse_paper_sign(c.nse[pb, -1])
+    ax2.plot(c.wavelength_nm, 100.0 * nse_b, lw=1.1, color="C0",
+             label=f"patch {c.patch_names[pb]}")
+    ax2.set_title(f"(b) NSE of patch {c.patch_names[pb]} at {c.angle_deg[-1]:g}° "
+                  "(indirect light)")
     if have_wall:
         wti, wto = d.wall_geometry_deg
         werr = fit_error_at(d.fits[d.wall_name], d.brdf_data[d.wall_name], wti, wto)
         ax4.plot(d.brdf_data[d.wall_name].wavelength_nm, 100.0 * werr, color="C5", lw=1.1)
         ax4.set_title(f"wall fitting error at θi = {wti:g}°, θo = {wto:g}°")
-        rows.append(["all (mean)", f"{c.angle_deg[-1]:g}°",
-                     100.0 * float(np.sqrt(np.nanmean(np.nanmean(c.nse[:, -1], axis=0) ** 2))),
+        rows.append([c.patch_names[pb], f"{c.angle_deg[-1]:g}°",
+                     100.0 * float(np.sqrt(np.nanmean(nse_b ** 2))),
                      f"wall fit at θi = {wti:g}°, θo = {wto:g}°",
                      100.0 * float(np.sqrt(np.nanmean(werr ** 2)))])
     for ax in (ax1, ax2):
         ax.axhline(0.0, color="0.5", lw=0.7)
-        ax.set_ylabel("NSE [%]")
+        ax.set_ylabel("NSE (ref − pred)/ref [%]")
     for ax in (ax3, ax4):
         ax.axhline(0.0, color="0.5", lw=0.7)
         ax.set_ylabel("(fit − measured)/measured [%]")
@@ -406,6 +410,60 @@ def fig_images(f: ImageFigure) -> Any:
         ax.set_title(p.label)
         ax.set_axis_off()
     return fig
+
+
+@styled
+def fig_polar(data: Any, fit: Any, wavelength_nm: float) -> Any:
+    """Paper Figs. 10/11 in the report's style: one polar panel per incident angle θi, the
+    measured in-plane BRDF (points) and the fit (line) at one wavelength, θo on the polar axis
+    (0° = normal, up), a dotted ray towards the light.  7.5 in wide, so that at 800 px its
+    text keeps its 9 pt; one legend below the panels."""
+    from matplotlib.lines import Line2D
+
+    from normbox_lab.analyze.paper_figures import signed
+
+    tis = (np.unique(data.theta_i_deg) if data is not None else np.arange(-80.0, 1.0, 10.0))
+    tis = sorted(np.asarray(tis, dtype=float), key=abs)
+    ncol = 3 if len(tis) > 4 else len(tis)
+    nrow = int(np.ceil(len(tis) / ncol))
+    fig = new_figure(7.5, 1.95 * nrow + 0.5)
+    th_fine = np.linspace(-89.0, 89.0, 357)
+    for k, ti in enumerate(tis):
+        ax = fig.add_subplot(nrow, ncol, k + 1, projection="polar")
+        ax.set_theta_zero_location("N")
+        ax.set_theta_direction(-1)
+        ax.set_thetamin(-90)
+        ax.set_thetamax(90)
+        rmax = 0.0
+        if data is not None:
+            li = int(np.argmin(np.abs(data.wavelength_nm - wavelength_nm)))
+            sel = np.isclose(data.theta_i_deg, ti)
+            y = data.brdf_per_sr[sel, li]
+            ok = np.isfinite(y)
+            ax.plot(np.deg2rad(data.theta_o_deg[sel][ok]), y[ok], "o", ms=2.5, color="#000000")
+            rmax = max(rmax, float(np.nanmax(y)) if ok.any() else 0.0)
+        f = fit.brdf_inplane(np.full_like(th_fine, ti), th_fine)
+        fl = np.array([np.interp(wavelength_nm, fit.wavelength_nm, row) for row in f])
+        ax.plot(np.deg2rad(th_fine), np.maximum(fl, 0.0), "-", lw=1.2, color="#0072B2")
+        rmax = max(rmax, float(np.max(fl))) or 1.0
+        ax.plot([np.deg2rad(ti)] * 2, [0, rmax * 1.05], ":", color="0.5", lw=0.8)
+        ax.set_rmax(rmax * 1.05)
+        ax.set_yticklabels([])
+        ax.set_thetagrids([-60, -30, 0, 30, 60], ["−60°", "−30°", "0°", "30°", "60°"])
+        ax.tick_params(axis="x", pad=1)
+        ax.set_title(f"θi = {signed(ti, 0, plus=False)}°, max {fmt_max(rmax)} sr⁻¹",
+                     fontsize=FONT_PT["tick"], pad=2)
+    fig.legend([Line2D([], [], ls="", marker="o", ms=4, color="#000000"),
+                Line2D([], [], color="#0072B2", lw=1.2),
+                Line2D([], [], color="0.5", ls=":", lw=0.8)],
+               ["measured", f"fit (w = {fit.w:g})", "light direction θi"],
+               loc="outside lower center", ncol=3, frameon=False)
+    return fig
+
+
+def fmt_max(v: float) -> str:
+    """A radius maximum with three significant digits ("0.0812", "1.25")."""
+    return f"{float(f'{v:.3g}'):g}" if abs(v) >= 1e-4 else f"{v:.2e}"
 
 
 @styled

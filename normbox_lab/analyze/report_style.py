@@ -30,10 +30,15 @@ RATING_TEXT = ("#ffffff", "#000000", "#000000", "#ffffff")
 #: a sequential map for scalar images (ΔE00 maps, weights)
 SEQUENTIAL_CMAP = "magma"
 #: figure text sizes in points (a figure is shown at its physical size: 1 pt ≈ 1.33 CSS px)
+#: nothing smaller than MIN_FONT_PT at the figure's own size (tests/test_report_figures.py)
 FONT_PT = {"base": 10.0, "tick": 9.0, "label": 10.0, "title": 11.0, "legend": 9.0,
-           "annotation": 8.0}
+           "annotation": 9.0}
+MIN_FONT_PT = 9.0
 #: the widest figure, inches (fits the 1200 px report column at 96 px per inch)
 MAX_WIDTH_IN = 12.0
+#: the report's text column in CSS px (body max-width 1200 px less 2 × 1.5 rem padding): the
+#: report's width, at which every figure text is at least MIN_FONT_PT
+REPORT_COLUMN_PX = 1152.0
 
 _RC = {
     "font.size": FONT_PT["base"],
