@@ -96,15 +96,10 @@ def jit_variant(kind: str, preferred: str | None = None) -> str:
     return spectral.replace("_spectral", f"_{kind}")
 
 
+_AVX2 = "+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,+pclmul,+xsave"
+_AVX512 = "+avx512f,+avx512vl,+avx512dq,+avx512bw,+avx512cd," + _AVX2
 #: LLVM CPU name → (features, vector width) for `NORMBOX_LLVM_TARGET` given as a bare name
-LLVM_TARGETS = {
-    "haswell": ("+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,"
-                "+pclmul,+xsave", 8),
-    "znver2": ("+avx2,+fma,+f16c,+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,"
-               "+pclmul,+xsave", 8),
-    "skylake-avx512": ("+avx512f,+avx512vl,+avx512dq,+avx512bw,+avx512cd,+avx2,+fma,+f16c,"
-                       "+bmi,+bmi2,+lzcnt,+popcnt,+sse4.2,+cx16,+movbe,+aes,+pclmul,+xsave", 16),
-}
+LLVM_TARGETS = {"haswell": (_AVX2, 8), "znver2": (_AVX2, 8), "skylake-avx512": (_AVX512, 16)}
 _TARGET_APPLIED: list[str] = []
 
 
