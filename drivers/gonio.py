@@ -73,11 +73,11 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from normbox_lab.core.capabilities import InstrumentIdentity
+from normbox_lab.core.capabilities import InstrumentIdentity, Movable
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, NotReady
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
-from normbox_lab.core.types import BrdfReading
+from normbox_lab.core.types import DETECTOR_ARM_ROLE, LIGHT_ARM_ROLE, LOCATIONS, BrdfReading
 
 THETA_I_DEG = tuple(range(-80, 1, 10))
 THETA_O_DEG = tuple(range(-80, 81, 10))
@@ -391,7 +391,14 @@ class Gonioreflectometer:
             reading.metadata["lamp_ratio"] = ratio
             reading.metadata["lamp_drift_limit_percent"] = self.lamp_drift_limit_percent
             reading.metadata["recalibrations"] = self.recalibrations
+        reading.metadata[LOCATIONS] = self.arm_locations()
         return reading
+
+    def arm_locations(self) -> dict[str, dict[str, Any]]:
+        """Setpoint and readback of each arm (`Movable.locate()`), by role, as stored with
+        every BRDF reading."""
+        arms = ((LIGHT_ARM_ROLE, self.light_arm), (DETECTOR_ARM_ROLE, self.detector_arm))
+        return {role: arm.locate().to_dict() for role, arm in arms if isinstance(arm, Movable)}
 
     def _lamp_ok(self, ratio: float) -> bool:
         return abs(100.0 * (ratio - 1.0)) <= self.lamp_drift_limit_percent

@@ -8,8 +8,11 @@ Each concrete driver (Thorlabs APT, Zaber ASCII) talks its own protocol and impl
 - **homing**: a move on a stage without a reference raises `NotReady` (or homes first when
   `auto_home=True`);
 - **position check** after every completed move: the readback (encoder where the device has
-  one) must be within `position_tolerance_deg` of the commanded angle, else
-  `DeviceError("POSITION", …)` — this is what catches a stall the controller did not notice;
+  one) is kept with the commanded angle (`locate()` → `Location(setpoint, readback)`, stored
+  with every reading).  A readback more than `stall_limit_deg` from the setpoint is a failed
+  move, `DeviceError("POSITION", …)` (a stall the controller did not notice; the engine moves
+  again); within it the stage stopped where it stopped, and a readback beyond
+  `position_tolerance_deg` flags the reading (quality gate ``position``) instead of losing it;
 - **timing model** (for ETAs): a trapezoidal velocity profile with the stage's maximum
   velocity v and acceleration a, plus a fixed command overhead:
 
@@ -23,6 +26,7 @@ from typing import Any
 
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import DeviceError, NotReady
+from normbox_lab.core.types import Location
 
 #: homing ends with the switch approach: off the switch by this much and back (the emulators
 #: model it as time at the switch; *assumed* 1°)
@@ -50,7 +54,7 @@ class RotationStageBase:
                  min_angle_deg: float = -170.0, max_angle_deg: float = 170.0,
                  max_velocity_deg_s: float = 10.0, acceleration_deg_s2: float = 10.0,
                  home_velocity_deg_s: float = 5.0, position_tolerance_deg: float = 0.05,
-                 auto_home: bool = False) -> None:
+                 stall_limit_deg: float = 1.0, auto_home: bool = False) -> None:
         if not min_angle_deg < max_angle_deg:
             raise ValueError(f"min_angle_deg {min_angle_deg} must be below max_angle_deg "
                              f"{max_angle_deg}")
@@ -63,8 +67,10 @@ class RotationStageBase:
         self.acceleration_deg_s2 = float(acceleration_deg_s2)
         self.home_velocity_deg_s = float(home_velocity_deg_s)
         self.position_tolerance_deg = float(position_tolerance_deg)
+        self.stall_limit_deg = max(float(stall_limit_deg), self.position_tolerance_deg)
         self.auto_home = bool(auto_home)
         self._commanded_deg: float | None = None
+        self._readback_at_stop_deg: float | None = None
         self._move_start_deg = 0.0
 
     # --- timing model -------------------------------------------------------------------------
@@ -93,11 +99,22 @@ class RotationStageBase:
                               instrument=self.instrument_id)
 
     def check_position(self, commanded_deg: float, readback_deg: float) -> None:
-        if abs(readback_deg - commanded_deg) > self.position_tolerance_deg:
+        """Keep the readback; a readback beyond `stall_limit_deg` is a failed move."""
+        self._readback_at_stop_deg = float(readback_deg)
+        if abs(readback_deg - commanded_deg) > self.stall_limit_deg:
             raise DeviceError("POSITION", f"readback {readback_deg:.4f}° differs from the "
                               f"commanded {commanded_deg:.4f}° by more than "
-                              f"{self.position_tolerance_deg:g}° (stall or lost steps?)",
+                              f"{self.stall_limit_deg:g}° (stall or lost steps?)",
                               instrument=self.instrument_id)
+
+    def locate(self) -> Location:
+        """Setpoint (the last commanded angle) and readback (where the stage reported itself
+        when that move ended; read now when no move has ended yet), in degrees, with the
+        stated `position_tolerance_deg`."""
+        readback = self._readback_at_stop_deg
+        if readback is None:
+            readback = float(self._readback_deg())
+        return Location(self._commanded_deg, readback, "deg", self.position_tolerance_deg)
 
     def _require_homed(self) -> None:
         if self.is_homed():
@@ -116,6 +133,7 @@ class RotationStageBase:
         start = self.position_deg()
         self._move_start_deg = start
         self._commanded_deg = None          # a refused move leaves nothing to check
+        self._readback_at_stop_deg = None
         self._begin_move(angle_deg)
         self._commanded_deg = angle_deg
         self._move_started_s = self.clock.now_s()
@@ -129,6 +147,7 @@ class RotationStageBase:
 
     def home(self, wait: bool = True) -> None:
         self._commanded_deg = 0.0
+        self._readback_at_stop_deg = None
         self._begin_home()
         self._move_timeout_s = self._timeout_for(self.estimate_home_time_s())
         if wait:

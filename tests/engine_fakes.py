@@ -19,7 +19,7 @@ from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentTimeout
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
-from normbox_lab.core.types import SpectralReading
+from normbox_lab.core.types import Location, SpectralReading
 
 
 class FakeWorld:
@@ -68,11 +68,15 @@ class FakeStage:
 
     def move_to(self, angle_deg: float, wait: bool = True) -> None:
         self.clock.sleep(self.estimate_move_time_s(self.pos, angle_deg))
+        self.setpoint = float(angle_deg)
         self.pos = float(angle_deg)
         self.world.angle_deg = self.pos
         self.moves.append(self.pos)
 
     def position_deg(self) -> float: return self.pos
+
+    def locate(self) -> Location:
+        return Location(getattr(self, "setpoint", None), self.pos, "deg", 0.05)
     def is_moving(self) -> bool: return False
     def stop(self) -> None: self.stops += 1
 

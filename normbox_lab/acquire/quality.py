@@ -42,6 +42,10 @@ instrument-error       warning   the instrument answered with an error code (e.g
                                  ER10 over range); the reading was retried or skipped
 instrument-error:      error     data corrupted on the wire were refused (re-read); the
   implausible-data               value stored at that key may be wrong
+position               error     a stage's readback differs from its setpoint by more than
+                                 the tolerance the stage states (`Location.tolerance`, e.g.
+                                 the rotator's `position_tolerance_deg`): the reading was
+                                 taken at another angle than the one it is keyed by
 =====================  ========  =============================================================
 """
 
@@ -263,6 +267,21 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
     return out
 
 
+def position_flags(key: str, metadata: Mapping[str, Any]) -> list[FlagSpec]:
+    """`position`: every stored location whose readback is beyond its stated tolerance of
+    the setpoint (a reading without a readback — an older store — is never flagged)."""
+    from normbox_lab.core.types import ReadingGeometry
+
+    out = []
+    for name, loc in ReadingGeometry.of(metadata).out_of_tolerance().items():
+        dev = float(loc.deviation or 0.0)
+        out.append(FlagSpec(key, "position", "error", dev, loc.tolerance,
+                            f"{name}: readback {loc.readback:.4f} {loc.unit} differs from the "
+                            f"setpoint {loc.setpoint:.4f} {loc.unit} by {dev:+.4f} (tolerance "
+                            f"±{loc.tolerance:g} {loc.unit})"))
+    return out
+
+
 #: readings over which the lamp's output noise is estimated (`lamp-unstable`)
 LAMP_WINDOW = 5
 #: monitor samples taken back to back before, and again after, each reading: 2 × (3 − 1) = 4
@@ -342,6 +361,7 @@ class RunGates:
         else:                           # e.g. a lab check's result: it flags itself
             specs = []
         specs += self._lamp(key, metadata)
+        specs += position_flags(key, metadata)
         return self._record(specs)
 
     def _lamp(self, key: str, metadata: Mapping[str, Any]) -> list[FlagSpec]:

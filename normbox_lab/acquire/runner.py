@@ -44,6 +44,7 @@ from normbox_lab.core.capabilities import (
     Calibratable,
     Homeable,
     LampMonitor,
+    Movable,
     Recoverable,
     RemoteControllable,
     Settling,
@@ -60,6 +61,14 @@ from normbox_lab.core.errors import (
     NotReady,
     OperatorAbort,
     StoreError,
+)
+from normbox_lab.core.types import (
+    INTEGRATION_TIME,
+    LAMP_MONITOR,
+    LOCATIONS,
+    BrdfReading,
+    Location,
+    SpectralReading,
 )
 
 log = logging.getLogger("normbox_lab.acquire.engine")
@@ -580,11 +589,13 @@ class Engine:
             meta["requires"] = dict(step.requires)
         # the lamp's own monitor just before and after the reading (the lamp gates): the
         # samples nearest the reading, and all of them (their scatter is the lamp's noise)
-        for lamp_role, after in self._lamp_monitors(step).items():
+        monitors = self._lamp_monitors(step)
+        for lamp_role, after in monitors.items():
             meta["lamp_monitor_cd_m2"] = after[0]
             if lamp_role in before:
                 meta["lamp_monitor_before_cd_m2"] = before[lamp_role][-1]
                 meta["lamp_monitor_samples_cd_m2"] = [*before[lamp_role], *after]
+        meta[LOCATIONS] = self._locations(step, reading, monitors)
         record = kind.commit(step, reading, self, meta)
         self._committed.add(step.key)
         if mark and self._gates is not None:
@@ -620,6 +631,26 @@ class Engine:
         return {"remaining_model_s": self._remaining_s,
                 "prompts_left": prompts_left(self.plan, self._committed),
                 "prompt_model_s": self.estimate_context().prompt_time_s}
+
+    def _locations(self, step: Step, reading: Any,
+                   monitors: Mapping[str, list[float]]) -> dict[str, dict[str, Any]]:
+        """What the instruments did at this reading, each as a `Location` (setpoint,
+        readback): every stage the step requires at an angle (`Movable.locate()`), the lamp
+        monitor nearest the reading and the integration time the radiometer used; the
+        instrument's own (the gonio's arms) kept."""
+        typed = isinstance(reading, (SpectralReading, BrdfReading))
+        out = dict(reading.metadata.get(LOCATIONS) or {}) if typed else {}
+        for role, value in step.requires.items():
+            if isinstance(value, (int, float)) and not isinstance(value, bool) \
+                    and self.has(role, Movable):
+                stage = self.instrument(role)
+                out[role] = self.with_retry(step.key, role, stage.locate).to_dict()
+        for after in monitors.values():
+            out[LAMP_MONITOR] = Location(None, after[0], "cd/m2").to_dict()
+        if typed:
+            out[INTEGRATION_TIME] = Location(None, float(reading.integration_time_s),
+                                             "s").to_dict()
+        return out
 
     def _lamp_monitors(self, step: Step) -> dict[str, list[float]]:
         """`LAMP_SAMPLES` readings of the monitor of each lamp the step requires stable that

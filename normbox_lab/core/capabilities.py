@@ -36,7 +36,7 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from normbox_lab.core.types import BrdfReading, SpectralReading
+from normbox_lab.core.types import BrdfReading, Location, SpectralReading
 
 
 @dataclass(frozen=True)
@@ -133,6 +133,11 @@ class Recoverable(Protocol, metaclass=_CapabilityMeta):
 class Movable(Protocol, metaclass=_CapabilityMeta):
     def move_to(self, angle_deg: float, wait: bool = True) -> None: ...
     def position_deg(self) -> float: ...
+    def locate(self) -> Location:
+        """The last commanded angle (setpoint) and where the stage reported itself when that
+        move ended (readback), deg, with the stated position tolerance: stored with every
+        reading taken there."""
+        ...
     def is_moving(self) -> bool: ...
     def estimate_move_time_s(self, from_deg: float, to_deg: float) -> float: ...
 
