@@ -9,12 +9,15 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 
 from normbox_lab.acquire import engine as eng
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
 from normbox_lab.acquire.quality import position_flags
+from normbox_lab.acquire.queries import reference_data
 from normbox_lab.acquire.store import Store
+from normbox_lab.analyze.angles import AngleOffsets
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.types import Location, ReadingGeometry
 from normbox_lab.drivers.rotator_apt import AptRotationStage
@@ -68,16 +71,18 @@ def _sweep(path, faults: str = ""):
         res = eng.Engine(lab, store, eng.build_plan("reference-sweep", plan, lab)).run()
         readings = {r.key: r for r in store.readings(res.run_id)}
         flags = [f for f in store.flag_rows(run_id=res.run_id) if f["gate"] == "position"]
+        ref = reference_data(store, res.run_id) if res.status == "done" else None
     finally:
         store.close()
         lab.close()
         core.CONTEXT.reset()
-    return res, readings, flags
+    return res, readings, flags, ref
 
 
 def test_every_reading_stores_setpoint_and_readback(tmp_path):
-    res, readings, flags = _sweep(tmp_path / "s.sqlite")
+    res, readings, flags, ref = _sweep(tmp_path / "s.sqlite")
     assert res.status == "done" and len(readings) == 4 and flags == []
+    np.testing.assert_allclose(ref.readback_offset_deg(), [0.0, 0.0], atol=1e-4)
     for key, r in readings.items():
         g = ReadingGeometry.of(r.metadata)
         angle = r.metadata["angle_deg"]
@@ -99,7 +104,7 @@ def test_a_rotator_that_stops_0_3_deg_short_flags_the_reading(tmp_path):
     probe = AptRotationStage.open("sim://rotator-apt?key=rot-probe", VirtualClock())
     f = _stall_fraction("rot-probe", 30.0, 60.0)
     probe.close()
-    res, readings, flags = _sweep(tmp_path / "s.sqlite", f"stall@2:{f:.9f}")
+    res, readings, flags, ref = _sweep(tmp_path / "s.sqlite", f"stall@2:{f:.9f}")
     assert res.status == "done" and len(readings) == 4
     short = {k for k, r in readings.items() if r.metadata["angle_deg"] == 60.0}
     assert {f["key"] for f in flags} == short                 # both readings at 60°, no other
@@ -109,6 +114,21 @@ def test_a_rotator_that_stops_0_3_deg_short_flags_the_reading(tmp_path):
     for key in short:
         loc = ReadingGeometry.of(readings[key].metadata).sample_angle
         assert loc.setpoint == 60.0 and loc.readback == pytest.approx(60.0 - SHORT_DEG, abs=2e-3)
+    # the error budget's angle offsets take the stage's own from the readback
+    np.testing.assert_allclose(ref.angle_deg, [30.0, 60.0])
+    np.testing.assert_allclose(ref.readback_offset_deg(), [0.0, -SHORT_DEG], atol=2e-3)
+    est = AngleOffsets(ref.angle_deg, np.array([0.02, -0.35]), np.array([0.1, 0.1]), 2,
+                       readback_deg=ref.readback_offset_deg())
+    np.testing.assert_allclose(est.unexplained_deg(), [0.02, -0.05], atol=2e-3)
+    assert "angle_offset_readback_deg" in est.to_arrays()
+
+
+def test_the_store_protocol_is_what_the_sqlite_store_offers(tmp_path):
+    from normbox_lab.acquire.store_api import Store as StoreProtocol
+
+    with Store(tmp_path / "s.sqlite") as s:
+        assert isinstance(s, StoreProtocol)
+    assert not isinstance(object(), StoreProtocol)
 
 
 def test_an_old_reading_without_readback_reads_as_not_recorded():

@@ -23,10 +23,10 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import DataError
 
 MAX_FILE_BYTES = 256 * 1024 * 1024
@@ -199,7 +199,7 @@ def store_brdf(store, imported: ImportedBrdf, tilt_deg: float = 0.0) -> int:
 
 # --- another renderer's prediction of a reference run (`normbox-lab import prediction`) -------
 
-def import_prediction(store: Any, path: str | Path, ref_run: int | str, renderer: str, *,
+def import_prediction(store: Store, path: str | Path, ref_run: int | str, renderer: str, *,
                       renderer_version: str | None = None) -> tuple[int, int]:
     """Check `path` against `ref_run` and store it; (import run id, prediction artifact id).
     Raises `PredictionFileError` (every problem, nothing stored)."""

@@ -30,6 +30,7 @@ from typing import Any, Protocol
 
 from normbox_lab.acquire import registry
 from normbox_lab.acquire.config import LabConfig
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.capabilities import Closable, Identifiable, Settling
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import ConfigError, NormboxError
@@ -156,7 +157,7 @@ class Lab:
             out[role] = d
         return out
 
-    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+    def record_identities(self, store: Store, run_id: int, segment: int = 1,
                           roles: Iterable[str] | None = None) -> None:
         import datetime
 

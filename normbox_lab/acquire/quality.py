@@ -56,6 +56,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
+from normbox_lab.acquire.store_api import Store
+
 #: where each default comes from (shown by `normbox-lab qa --limits` and in docs)
 LIMIT_SOURCES: dict[str, str] = {
     "brdf_negative_per_sr": "3× the per-pixel BRDF noise of a dark patch at grazing geometry "
@@ -325,7 +327,7 @@ def _lamp_step(metadata: Mapping[str, Any]) -> float | None:
 class RunGates:
     """The gates of one run as the engine commits readings (also replayable from the store)."""
 
-    def __init__(self, store: Any, run_id: int, limits: QualityLimits | None = None) -> None:
+    def __init__(self, store: Store, run_id: int, limits: QualityLimits | None = None) -> None:
         self.store = store
         self.run_id = run_id
         self.limits = limits or QualityLimits()

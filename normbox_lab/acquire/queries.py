@@ -14,9 +14,10 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import DataError
 from normbox_lab.core.spectral import WHITE_PATCH
-from normbox_lab.core.types import fit_key
+from normbox_lab.core.types import ReadingGeometry, fit_key
 
 __all__ = ["WHITE_PATCH", "ReferenceData", "fit_key", "lamp_from_light_map", "latest_fits",
            "latest_run", "measured_light", "prediction_inputs", "reference_data",
@@ -33,45 +34,63 @@ def white_index(patches: list[int]) -> int:
 @dataclass
 class ReferenceData:
     patches: list[int]
-    angle_deg: np.ndarray
+    angle_deg: np.ndarray             # the sweep's angles (the rotator's setpoints)
     wavelength_nm: np.ndarray
     radiance: np.ndarray              # [patch, angle, λ], W·sr⁻¹·m⁻²·nm⁻¹
     patch_names: list[str] = field(default_factory=list)
+    #: [patch, angle]: the rotator's readback at each reading, deg (NaN: not recorded)
+    angle_readback_deg: np.ndarray | None = None
+
+    def readback_offset_deg(self) -> np.ndarray:
+        """Per angle: the mean over patches of readback − setpoint, deg (NaN where no
+        readback was recorded: a store from before readbacks were kept)."""
+        if self.angle_readback_deg is None:
+            return np.full(self.angle_deg.shape, np.nan)
+        dev = self.angle_readback_deg - self.angle_deg[None, :]
+        out = np.full(self.angle_deg.shape, np.nan)
+        seen = np.isfinite(dev).any(axis=0)
+        out[seen] = np.nanmean(dev[:, seen], axis=0)
+        return out
 
 
-def reference_data(store: Any, run_ref: int | str) -> ReferenceData:
-    """The reference sweep's spectra as [patch, angle, λ]; refuses holes (resume the run)."""
-    rows = [r for r in store.readings(run_ref, kind="spectral")
-            if "patch" in r.metadata and "angle_deg" in r.metadata]
+def reference_data(store: Store, run_ref: int | str) -> ReferenceData:
+    """The reference sweep's spectra as [patch, angle, λ] (grouped by the sweep's setpoints,
+    with the rotator's readbacks); refuses holes (resume the run)."""
+    rows = [(r, ReadingGeometry.of(r.metadata)) for r in store.readings(run_ref, kind="spectral")]
+    rows = [(r, g) for r, g in rows if g.patch is not None and g.angle_deg is not None]
     if not rows:
         raise DataError(str(store.path), f"run {run_ref}", "no patch × angle readings")
-    patches = sorted({int(r.metadata["patch"]) for r in rows})
-    angles = sorted({float(r.metadata["angle_deg"]) for r in rows})
-    wl = rows[0].arrays["wavelength_nm"]
+    patches = sorted({g.patch for _, g in rows})
+    angles = sorted({float(g.angle_deg) for _, g in rows})
+    wl = rows[0][0].arrays["wavelength_nm"]
     rad = np.full((len(patches), len(angles), wl.size), np.nan)
+    readback = np.full((len(patches), len(angles)), np.nan)
     names: dict[int, str] = {}
-    for r in rows:
-        p, a = patches.index(int(r.metadata["patch"])), angles.index(float(r.metadata["angle_deg"]))
+    for r, g in rows:
+        p, a = patches.index(g.patch), angles.index(float(g.angle_deg))
         rad[p, a] = np.interp(wl, r.arrays["wavelength_nm"], r.arrays["radiance_W_sr_m2_nm"])
-        names[int(r.metadata["patch"])] = str(r.metadata.get("patch_name", r.metadata["patch"]))
+        if g.sample_angle is not None and g.sample_angle.readback is not None:
+            readback[p, a] = g.sample_angle.readback
+        names[g.patch] = str(r.metadata.get("patch_name", g.patch))
     missing = np.isnan(rad).all(axis=-1)
     if missing.any():
         holes = [f"a{angles[a]:g}/p{patches[p]:02d}" for p, a in zip(*np.nonzero(missing))]
         raise DataError(str(store.path), f"run {run_ref}",
                         f"{len(holes)} readings missing (e.g. {holes[0]}); resume the run first")
-    return ReferenceData(patches, np.array(angles), wl, rad, [names[p] for p in patches])
+    return ReferenceData(patches, np.array(angles), wl, rad, [names[p] for p in patches],
+                         readback)
 
 
 # --- fits, lamp, runs ----------------------------------------------------------------------------
 
-def latest_fits(store: Any) -> dict[str, Any]:
+def latest_fits(store: Store) -> dict[str, Any]:
     """The latest fit of every material in the store, by name (`p01`…, `wall`)."""
     from normbox_lab.predict.brdf_model import MaterialFit
 
     return {a.name: MaterialFit.from_artifact(a) for a in store.artifacts("fit")}
 
 
-def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
+def lamp_from_light_map(store: Store, light_map_run: int | str | None) -> Any:
     """The prediction's lamp: nominal spectrum, luminance from the light-map run if given."""
     from normbox_lab.predict.render import Lamp, luminance_cd_m2
 
@@ -84,7 +103,7 @@ def lamp_from_light_map(store: Any, light_map_run: int | str | None) -> Any:
     return Lamp(luminance_cd_m2=float(np.mean(lv)))
 
 
-def latest_run(store: Any, protocol: str) -> Any:
+def latest_run(store: Store, protocol: str) -> Any:
     """The latest finished run of `protocol`, or None."""
     runs = [r for r in store.runs() if r.protocol == protocol and r.status == "done"]
     return runs[-1] if runs else None
@@ -92,7 +111,7 @@ def latest_run(store: Any, protocol: str) -> Any:
 
 # --- what a prediction of a reference run used, the scene package's inputs ---------------------
 
-def prediction_inputs(store: Any, ref_run: int | str, *, light_map_run: int | str | None = None
+def prediction_inputs(store: Store, ref_run: int | str, *, light_map_run: int | str | None = None
                       ) -> tuple[Any, Any, dict[str, Any]]:
     """(geometry, lamp, provenance) our prediction of `ref_run` used: the prediction artifact's
     recorded lamp and geometry; else the light-map run (given, or the latest finished one) and
@@ -138,7 +157,7 @@ class _Obj:
         self.__dict__.update(d)
 
 
-def measured_light(store: Any, light_map_run: int | str | None) -> tuple[np.ndarray, np.ndarray] | None:
+def measured_light(store: Store, light_map_run: int | str | None) -> tuple[np.ndarray, np.ndarray] | None:
     """Mean measured panel spectrum of a light-map run (wavelength_nm, radiance)."""
     if light_map_run is None:
         return None
@@ -151,7 +170,7 @@ def measured_light(store: Any, light_map_run: int | str | None) -> tuple[np.ndar
     return wl, rad
 
 
-def scene_package_inputs(store: Any, ref_run: int | str, *,
+def scene_package_inputs(store: Store, ref_run: int | str, *,
                          light_map_run: int | str | None = None,
                          fits: dict[str, Any] | None = None) -> Any:
     """Everything `normbox_lab.predict.scene_package.write_scene_package` needs of the store

@@ -38,6 +38,7 @@ from normbox_lab.acquire.steps import (
     wait_until_stable,
 )
 from normbox_lab.acquire.store import ReadingRecord
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.capabilities import (
     Abortable,
     BrdfReadable,
@@ -89,7 +90,7 @@ class LabAccess(Protocol):
     def luminance_hint_cd_m2(self, step: Step) -> float:
         """Expected luminance of a reading (the radiometer's timing model needs it)."""
         ...
-    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+    def record_identities(self, store: Store, run_id: int, segment: int = 1,
                           roles: Iterable[str] | None = None) -> None:
         """Store the identity of each open instrument (of `roles` only, when given: the
         engine identifies one role at a time, through its fault policy)."""
@@ -129,7 +130,7 @@ class _Busy:
 class Engine:
     """Runs one plan against a lab, committing every reading to the store."""
 
-    def __init__(self, lab: LabAccess, store: Any, plan: Plan, *,
+    def __init__(self, lab: LabAccess, store: Store, plan: Plan, *,
                  operator: Operator | None = None, retry: RetryPolicy | None = None,
                  wait_when_paused: bool = False, poll_s: float = 1.0,
                  suspend_timeout_s: float = 3600.0, max_suspensions: int = 5,

@@ -23,6 +23,7 @@ from dataclasses import dataclass, field
 from typing import Any, ClassVar, Protocol, TypeVar, runtime_checkable
 
 from normbox_lab.acquire.store import ReadingRecord, brdf_record, spectral_record
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core import errors
 from normbox_lab.core.capabilities import (
     BrdfReadable,
@@ -129,7 +130,7 @@ class StepRunner(Protocol):
 
     clock: Clock
     poll_s: float
-    store: Any
+    store: Store
     run_id: int | None
     segment: int
 

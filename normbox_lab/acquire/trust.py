@@ -13,6 +13,7 @@ from __future__ import annotations
 import datetime
 from typing import Any
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import NotReady
 
 LAB_CHECK = "lab-check"
@@ -25,7 +26,7 @@ def calibration_record(config: Any, role: str) -> dict[str, Any] | None:
     return cal.as_dict() if cal is not None else None
 
 
-def calibration_flag(store: Any, run_id: int, role: str, record: dict[str, Any],
+def calibration_flag(store: Store, run_id: int, role: str, record: dict[str, Any],
                      today: datetime.date) -> bool:
     """Store the warning for an expired calibration of `role`; True when one was stored."""
     due = datetime.date.fromisoformat(str(record["due"]))
@@ -40,7 +41,7 @@ def calibration_flag(store: Any, run_id: int, role: str, record: dict[str, Any],
     return True
 
 
-def last_passing_check(store: Any) -> tuple[int, float] | None:
+def last_passing_check(store: Store) -> tuple[int, float] | None:
     """(run id, wall time s of its last event) of the newest done lab-check run whose every
     check passed; None when there is none."""
     best = None
@@ -54,7 +55,7 @@ def last_passing_check(store: Any) -> tuple[int, float] | None:
     return best
 
 
-def require_recent_check(store: Any, hours: float, now_s: float) -> None:
+def require_recent_check(store: Store, hours: float, now_s: float) -> None:
     """`NotReady` unless a lab check passed within `hours` before `now_s` (wall time)."""
     found = last_passing_check(store)
     if found is None:

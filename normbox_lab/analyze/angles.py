@@ -54,6 +54,17 @@ class AngleOffsets:
     common_rms_deg: np.ndarray | None = None
     #: the RMS effect of the per-reading errors' draws (zeros when none were given)
     independent_rms_deg: np.ndarray | None = None
+    #: what the rotator itself reported per angle: mean readback − setpoint over the patches
+    #: (`ReferenceData.readback_offset_deg`; NaN where the store has no readback)
+    readback_deg: np.ndarray | None = None
+
+    def unexplained_deg(self) -> np.ndarray:
+        """The estimated offset less the stage's own readback offset (where recorded): the
+        misadjustment the stage did not see (a mounting tilt, a shifted encoder zero)."""
+        if self.readback_deg is None:
+            return self.offset_deg
+        rb = np.asarray(self.readback_deg, dtype=float)
+        return self.offset_deg - np.where(np.isfinite(rb), rb, 0.0)
 
     def significant(self) -> np.ndarray:
         return np.abs(self.offset_deg) > self.ci95_deg
@@ -71,6 +82,8 @@ class AngleOffsets:
             out["angle_offset_common_rms_deg"] = self.common_rms_deg
         if self.independent_rms_deg is not None:
             out["angle_offset_independent_rms_deg"] = self.independent_rms_deg
+        if self.readback_deg is not None:
+            out["angle_offset_readback_deg"] = self.readback_deg
         return out
 
 

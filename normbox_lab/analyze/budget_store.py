@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.budget import (
     BUDGET_SOURCES,
     BudgetInputs,
@@ -45,7 +46,7 @@ def _prediction_target(metadata: dict) -> float:
     return float(FAST_TARGET_REL_SE.get(str(metadata.get("quality")), 0.0))
 
 
-def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
+def budget_inputs_run(store: Store, ref_run: int | str, *, n_paths: int = 1 << 14,
                       with_geometry: bool = True,
                       progress: Callable[[str, int, int], None] | None = None,
                       renderer: str | None = None
@@ -107,7 +108,7 @@ def budget_inputs_run(store: Any, ref_run: int | str, *, n_paths: int = 1 << 14,
     return x, timings
 
 
-def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
+def budget_run(store: Store, ref_run: int | str, *, sources: str | None = None,
                n_paths: int = 1 << 14, n_draws: int = 64,
                progress: Callable[[str, int, int], None] | None = None,
                renderer: str | None = None) -> BudgetResult:
@@ -115,6 +116,7 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
     (``ref-run-<id>@<renderer>`` for an imported renderer's prediction)."""
     import time
 
+    from normbox_lab.acquire.queries import reference_data
     from normbox_lab.analyze.angles import estimate_angle_offsets
     from normbox_lab.predict.renderers import artifact_name
 
@@ -131,6 +133,7 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
     offsets = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg,
                                      common=common_draws(x, errors, sources=names),
                                      independent=independent_draws(x, errors, sources=names))
+    offsets.readback_deg = reference_data(store, run.id).readback_offset_deg()
     result = compute_budget(x, errors, sources=names, n_draws=n_draws, angle_offsets=offsets)
     timings["propagation"] = time.perf_counter() - t0
     result.timings_s = timings
@@ -139,7 +142,7 @@ def budget_run(store: Any, ref_run: int | str, *, sources: str | None = None,
 
 
 # --- the paper's observations, measured on a campaign ------------------------------------------
-def paper_observations(store: Any, ref_run: int | str) -> list[tuple[str, str, str]]:
+def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str, str]]:
     """(observation, the paper's value, ours) for the paper-scenario table of
     docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
     from normbox_lab.analyze.compare import ComparisonResult

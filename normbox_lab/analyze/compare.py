@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.colorimetry import XYZ_to_Lab_D65, delta_e00, spectra_to_XYZ
 from normbox_lab.core.errors import DataError
 
@@ -121,7 +122,7 @@ class ComparisonResult:
                 "delta_e00_max": float(np.nanmax(self.delta_e00)),
                 "nrmse_mean": float(np.nanmean(self.nrmse))}
 
-    def store(self, store: Any, name: str, run_ref: int | str | None = None) -> int:
+    def store(self, store: Store, name: str, run_ref: int | str | None = None) -> int:
         return store.add_artifact(kind="comparison", name=name, arrays=self.to_arrays(),
                                   metadata=self.to_metadata(), run_ref=run_ref)
 
@@ -250,7 +251,7 @@ class ErrorModelResult:
         return {f.name: getattr(self, f.name) for f in fields(self)
                 if isinstance(getattr(self, f.name), np.ndarray)}
 
-    def store(self, store: Any, name: str, run_ref: int | str | None = None) -> int:
+    def store(self, store: Store, name: str, run_ref: int | str | None = None) -> int:
         return store.add_artifact(kind="error-model", name=name, arrays=self.to_arrays(),
                                   metadata={}, run_ref=run_ref)
 

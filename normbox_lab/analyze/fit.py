@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import DataError
 from normbox_lab.predict.brdf_model import (
     GONIO_TILT_DEG,
@@ -373,7 +374,7 @@ def fit_error_pct(fit: MaterialFit, data: BrdfData, mask: np.ndarray | None = No
     return float(100.0 * np.sqrt(np.mean(rel ** 2))) if rel.size else float("nan")
 
 
-def data_from_store_run(store: Any, run_ref: int | str) -> dict[str, BrdfData]:
+def data_from_store_run(store: Store, run_ref: int | str) -> dict[str, BrdfData]:
     """Group a gonio run's BRDF readings by material (the key's first path component)."""
     groups: dict[str, list[Any]] = {}
     for r in store.readings(run_ref, kind="brdf"):

@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.queries import fit_key, latest_fits, reference_data, white_index
 from normbox_lab.core.errors import DataError, StoreError
 
@@ -37,7 +38,7 @@ def _noop(stage: str, done: int, total: int) -> None:
 
 # --- fit -----------------------------------------------------------------------------------------
 
-def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
+def fit_run(store: Store, brdf_run: int | str, w: float = 2.0,
             progress: ProgressFn = _noop,
             materials: Iterable[str] | None = None, *,
             accept_flagged: bool = False) -> dict[str, Any]:
@@ -76,7 +77,7 @@ def fit_run(store: Any, brdf_run: int | str, w: float = 2.0,
 
 # --- predict -------------------------------------------------------------------------------------
 
-def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None = None,
+def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None = None,
                 geometry: Any = None, quality: str = "default", lamp: Any = None,
                 render: Callable[..., Any] | None = None,
                 progress: ProgressFn = _noop, accept_flagged: bool = False,
@@ -177,7 +178,7 @@ def predict_run(store: Any, ref_run: int | str, *, fits: dict[str, Any] | None =
 
 # --- compare and error model ---------------------------------------------------------------
 
-def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = None, *,
+def compare_run(store: Store, ref_run: int | str, brdf_run: int | str | None = None, *,
                 accept_flagged: bool = False, renderer: str | None = None) -> Any:
     """ΔE00, NRMSE… of the latest prediction against the reference; stores the comparison and
     (when the gonio data are at hand) the error model.  Error flags on the reference run or
@@ -238,7 +239,7 @@ def compare_run(store: Any, ref_run: int | str, brdf_run: int | str | None = Non
 
 # --- report --------------------------------------------------------------------------------------
 
-def report_run(store: Any, ref_run: int | str, path: str | Path | None = None,
+def report_run(store: Store, ref_run: int | str, path: str | Path | None = None,
                brdf_run: int | str | None = None, notes: Iterable[str] = (),
                renderer: str | None = None) -> Path:
     """The HTML report of a reference run (`analyze.report_store` gathers its data);
@@ -275,7 +276,7 @@ def _share_above(de_map: np.ndarray, nf_map: np.ndarray, mask: np.ndarray,
     return float(np.mean(de_map[m] > factor * nf_map[m])) if m.any() else float("nan")
 
 
-def camera_figures_run(store: Any, ref_run: int | str, *, patch: int = 7,
+def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
                        angle_deg: float = 45.0, truth: str = "default", lamp: Any = None,
                        geometry: Any = None, width: int = 320, height: int = 240,
                        spp: int | None = None, seed: int = 1, w: float = 2.0,

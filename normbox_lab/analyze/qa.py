@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from normbox_lab.acquire.quality import QualityLimits, limits_from_text
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import DataError
 
 SEVERITIES = ("warning", "error")
@@ -93,7 +94,7 @@ def _summarise(items: Iterable[Flag]) -> QaSummary:
     return QaSummary(len(items), errors, len(items) - errors, by_gate)
 
 
-def flags(store: Any, run: int | str | None = None, *, artifact: int | None = None,
+def flags(store: Store, run: int | str | None = None, *, artifact: int | None = None,
           severity: str | None = None) -> list[Flag]:
     """Flags of a run (its readings' and its artifacts'), of one artifact, or all."""
     run_id = None if run is None else store.get_run(run).id
@@ -102,12 +103,12 @@ def flags(store: Any, run: int | str | None = None, *, artifact: int | None = No
     return [f for f in out if severity is None or f.severity == severity]
 
 
-def summary(store: Any, run: int | str | None = None, *,
+def summary(store: Store, run: int | str | None = None, *,
             artifact: int | None = None) -> QaSummary:
     return _summarise(flags(store, run, artifact=artifact))
 
 
-def summaries_by_run(store: Any) -> dict[int, QaSummary]:
+def summaries_by_run(store: Store) -> dict[int, QaSummary]:
     """Flag counts per run id (runs without flags are absent)."""
     per: dict[int, list[Flag]] = {}
     for f in (Flag.from_row(r) for r in store.flag_rows()):
@@ -116,7 +117,7 @@ def summaries_by_run(store: Any) -> dict[int, QaSummary]:
     return {k: _summarise(v) for k, v in per.items()}
 
 
-def run_status(store: Any, run: int | str) -> str:
+def run_status(store: Store, run: int | str) -> str:
     """The run's status as people read it: a finished run with flags "completed with flags"."""
     rec = store.get_run(run)
     if rec.status == "done" and store.flag_rows(run_id=rec.id):
@@ -124,7 +125,7 @@ def run_status(store: Any, run: int | str) -> str:
     return store.shown_status(rec)     # "running" only while a live process owns the run
 
 
-def record(store: Any, gate: str, severity: str, message: str, *,
+def record(store: Store, gate: str, severity: str, message: str, *,
            run: int | str | None = None, artifact: int | None = None, key: str = "",
            value: float | None = None, limit: float | None = None) -> Flag:
     """Store one flag (the same run/artifact/key/gate replaces the earlier one)."""
@@ -136,13 +137,13 @@ def record(store: Any, gate: str, severity: str, message: str, *,
     return Flag(fid, run_id, artifact, key, gate, severity, value, limit, message)
 
 
-def limits_for(store: Any, run: int | str) -> QualityLimits:
+def limits_for(store: Store, run: int | str) -> QualityLimits:
     """The limits in force for a run: its lab-config snapshot's ``[quality]`` table."""
     rec = store.get_run(run)
     return limits_from_text(rec.lab_config, f"lab config of run {rec.id}")
 
 
-def require_clean(store: Any, *, run: int | str | None = None,
+def require_clean(store: Store, *, run: int | str | None = None,
                   artifacts: Iterable[int] = (), accept_flagged: bool = False,
                   step: str = "") -> list[Flag]:
     """The error flags on a run's readings and on the given artifacts.  Raises `DataError`
@@ -171,7 +172,7 @@ def provenance(accepted: Iterable[Flag]) -> dict[str, Any]:
 
 # --- pipeline gates ------------------------------------------------------------------------
 
-def check_fits(store: Any, brdf_run: int | str, fits: Mapping[str, tuple[int, Any]],
+def check_fits(store: Store, brdf_run: int | str, fits: Mapping[str, tuple[int, Any]],
                limits: QualityLimits | None = None) -> list[Flag]:
     """Gates on a set of fits (name → (artifact id, MaterialFit)): fit error above the limit
     (warning), an outlier against the median of all materials (error; only above
@@ -220,7 +221,7 @@ def _at_bound(v: float, lo: float, hi: float) -> bool:
     return math.isfinite(v) and (v <= lo + 1e-4 * span or v >= hi - 1e-4 * span)
 
 
-def check_prediction(store: Any, ref_run: int | str, artifact_id: int, patches: Iterable[int],
+def check_prediction(store: Store, ref_run: int | str, artifact_id: int, patches: Iterable[int],
                      angle_deg: Iterable[float], radiance: Any, std_error: Any,
                      limits: QualityLimits | None = None) -> list[Flag]:
     """Prediction standard error above target: per configuration, the Monte-Carlo standard
@@ -245,7 +246,7 @@ def check_prediction(store: Any, ref_run: int | str, artifact_id: int, patches: 
     return out
 
 
-def recheck_run(store: Any, run: int | str, limits: QualityLimits | None = None) -> list[Flag]:
+def recheck_run(store: Store, run: int | str, limits: QualityLimits | None = None) -> list[Flag]:
     """Apply the acquisition gates again to a stored run (e.g. after changing the limits)."""
     from normbox_lab.acquire.quality import RunGates
 

@@ -12,6 +12,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.compare import (
     RATING_SCALE,
     ComparisonResult,
@@ -92,7 +93,7 @@ class ImageFigure:
     panels: list[ImagePanel]
     subject: str = ""          # what it shows, e.g. "patch 19 at 30°" (the console's header)
 
-    def store(self, store: Any, run_ref: int | str | None = None) -> int:
+    def store(self, store: Store, run_ref: int | str | None = None) -> int:
         # the store keeps float64: sRGB panels go in as encoded values in [0, 1]
         arrays = {f"p{k}": (np.asarray(p.data) / 255.0 if np.asarray(p.data).dtype == np.uint8
                             else np.asarray(p.data)) for k, p in enumerate(self.panels)}

@@ -14,9 +14,10 @@ rendering adds on this run's scene, and each one's ΔE00 against the measurement
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
+
+from normbox_lab.acquire.store_api import Store
 
 
 @dataclass
@@ -42,7 +43,7 @@ class RenderingError:
     delta_e00_vs_reference: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def _version(store: Any, run_id: int, renderer: str | None) -> str:
+def _version(store: Store, run_id: int, renderer: str | None) -> str:
     from normbox_lab.predict.renderers import artifact_name
 
     if renderer is None:
@@ -55,7 +56,7 @@ def _version(store: Any, run_id: int, renderer: str | None) -> str:
     return str(found[-1].metadata.get("renderer_version", "?")) if found else "?"
 
 
-def renderer_rows(store: Any, run_id: int) -> list[RendererRow]:
+def renderer_rows(store: Store, run_id: int) -> list[RendererRow]:
     from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, rating_index
     from normbox_lab.predict.renderers import artifact_name, renderers
 
@@ -71,7 +72,7 @@ def renderer_rows(store: Any, run_id: int) -> list[RendererRow]:
     return rows
 
 
-def rendering_error(store: Any, run_id: int, spectral: str | None, rgb: str
+def rendering_error(store: Store, run_id: int, spectral: str | None, rgb: str
                     ) -> RenderingError | None:
     """ΔE00(RGB prediction, spectral prediction) per patch × angle; None when either is
     missing.  `spectral` None: ours."""

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
 from normbox_lab.analyze.queries import fit_key, latest_fits
 from normbox_lab.analyze.report_data import ImageFigure, ReportData
@@ -42,7 +43,7 @@ def software_versions() -> dict[str, str]:
     return out
 
 
-def campaign_runs(store: Any, run_ids: Iterable[int]) -> list[dict[str, Any]]:
+def campaign_runs(store: Store, run_ids: Iterable[int]) -> list[dict[str, Any]]:
     rows = []
     for rid in run_ids:
         r = store.get_run(rid)
@@ -54,7 +55,7 @@ def campaign_runs(store: Any, run_ids: Iterable[int]) -> list[dict[str, Any]]:
     return rows
 
 
-def campaign_instruments(store: Any, run_ids: Iterable[int]) -> list[dict[str, Any]]:
+def campaign_instruments(store: Store, run_ids: Iterable[int]) -> list[dict[str, Any]]:
     """One row per distinct instrument (role, model, serial) with the runs that used it."""
     seen: dict[tuple[str, str, str], dict[str, Any]] = {}
     for rid in run_ids:
@@ -90,14 +91,14 @@ def _calibration_in_force(row: dict[str, Any], cal: dict[str, Any], run: Any) ->
         record["expired_in_runs"].append(f"{run.id} ({day})")
 
 
-def quality_flags(store: Any, run_ids: Iterable[int]) -> list[Any]:
+def quality_flags(store: Store, run_ids: Iterable[int]) -> list[Any]:
     """The quality flags (`analyze.qa.Flag`) of the runs."""
     from normbox_lab.analyze import qa
 
     return [f for rid in run_ids for f in qa.flags(store, rid)]
 
 
-def prediction_methods(store: Any, run_id: int) -> dict[str, str]:
+def prediction_methods(store: Store, run_id: int) -> dict[str, str]:
     """Render quality and Monte-Carlo error of the stored prediction, and what one standard
     error does to ΔE00 (computed once by `pipeline.compare_run`, read from the comparison)."""
     found = store.artifacts("prediction", f"ref-run-{run_id}")
@@ -122,7 +123,7 @@ def prediction_methods(store: Any, run_id: int) -> dict[str, str]:
     return out
 
 
-def report_data_from_store(store: Any, ref_run: int | str, brdf_run: int | str | None = None,
+def report_data_from_store(store: Store, ref_run: int | str, brdf_run: int | str | None = None,
                            notes: Iterable[str] = (), renderer: str | None = None) -> ReportData:
     """Everything the report of reference run `ref_run` shows, from the store; `renderer`:
     the comparison of an imported renderer's prediction instead of ours."""

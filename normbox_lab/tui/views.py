@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.report_style import RATING_COLOURS, RATING_TEXT
 
 #: rating class (index into normbox_lab.analyze.compare.RATING_SCALE) → cell style and legend
@@ -97,7 +98,7 @@ def heatmap(artifact: Any) -> HeatMap:
                    arrays.get("lab_prediction"))
 
 
-def latest_heatmap(store: Any) -> HeatMap | None:
+def latest_heatmap(store: Store) -> HeatMap | None:
     found = store.artifacts(kind="comparison")
     return heatmap(found[-1]) if found else None
 
@@ -164,7 +165,7 @@ def event_lines(events: list[tuple[float, str, dict[str, Any]]]) -> list[str]:
     return out
 
 
-def repeatability_summary(store: Any, run_id: int) -> str:
+def repeatability_summary(store: Store, run_id: int) -> str:
     """σ and CV of the luminance over a repeatability run's readings, and its flags."""
     from normbox_lab.analyze import qa
 

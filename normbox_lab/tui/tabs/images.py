@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-from typing import Any
-
 from textual.containers import VerticalScroll
 from textual.widgets import Static, TabPane
+
+from normbox_lab.acquire.store_api import Store
 
 
 class ImagesPane(TabPane):
@@ -23,7 +23,7 @@ class ImagesPane(TabPane):
             "no image in the store yet (normbox-lab image figure1 …)", id="images-text"),
             id="images-view")])
 
-    def refresh_from(self, store: Any, width_cells: int) -> None:
+    def refresh_from(self, store: Store, width_cells: int) -> None:
         """The store's latest image figures (one per id; the virtual camera's truth |
         prediction | ΔE00 first), each figure's panels side by side across the width."""
         from rich.console import Group

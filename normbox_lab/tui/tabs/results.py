@@ -8,6 +8,7 @@ from typing import Any
 from textual import on
 from textual.widgets import DataTable, Static, TabPane
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.tui.screens import DrillScreen
 
 
@@ -28,7 +29,7 @@ class ResultsPane(TabPane):
             DataTable(id="heatmap", cursor_type="cell", fixed_columns=1),
             Static("", id="drill")])
 
-    def refresh_from(self, store: Any) -> None:
+    def refresh_from(self, store: Store) -> None:
         """Show the store's latest comparison, if it is not the one shown."""
         from normbox_lab.tui.views import latest_heatmap
 
