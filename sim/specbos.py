@@ -133,6 +133,11 @@ class SpecbosEmulator(core.LineEmulator):
     def prepare(self) -> None:
         self.optics.prepare()
 
+    @property
+    def phase(self) -> str:
+        """"measuring" while a measurement runs, else "idle" (as the other radiometers say)."""
+        return "idle" if self._pending is None else "measuring"
+
     def _power_on(self) -> None:
         self.conf: dict[str, Any] = dict(DEFAULTS)
         self.error = 0

@@ -12,10 +12,9 @@ import pytest
 from engine_fakes import FakeGonio, FakeLab
 
 from normbox_lab.acquire import engine as eng
+from normbox_lab.acquire.registry import driver_class, drivers_for
 from normbox_lab.acquire.store import Store
 from normbox_lab.core import capabilities as caps
-from normbox_lab.drivers.cs1000 import CS1000A
-from normbox_lab.drivers.cs2000 import CS2000A
 from normbox_lab.drivers.gonio import Gonioreflectometer
 from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.drivers.rotator_apt import AptRotationStage
@@ -23,9 +22,11 @@ from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
 from normbox_lab.drivers.sphere import SphereLightSource
 
 BASIC = {"Identifiable", "Closable", "HealthPollable"}
+#: every radiometer driver of the registry claims the same (a new model needs no line here)
+RADIOMETERS = [driver_class(name) for name in drivers_for("radiometer")]
 CLAIMS = {
-    CS1000A: BASIC | {"RemoteControllable", "SpectrumReadable", "Abortable", "Recoverable"},
-    CS2000A: BASIC | {"RemoteControllable", "SpectrumReadable", "Abortable", "Recoverable"},
+    **{cls: BASIC | {"RemoteControllable", "SpectrumReadable", "Abortable", "Recoverable"}
+       for cls in RADIOMETERS},
     AptRotationStage: BASIC | {"Movable", "Homeable", "Stoppable"},
     ZaberRotationStage: BASIC | {"Movable", "Homeable", "Stoppable"},
     SphereLightSource: BASIC | {"Switchable", "LampLevel", "LampMonitor", "Settling", "Abortable"},
@@ -33,7 +34,7 @@ CLAIMS = {
     Gonioreflectometer: BASIC | {"BrdfReadable", "Calibratable", "Stoppable"},
 }
 ROLES = {
-    CS1000A: caps.Spectroradiometer, CS2000A: caps.Spectroradiometer,
+    **dict.fromkeys(RADIOMETERS, caps.Spectroradiometer),
     AptRotationStage: caps.RotationStage, ZaberRotationStage: caps.RotationStage,
     SphereLightSource: caps.LightSource, QEPro: caps.Spectrometer,
     Gonioreflectometer: caps.Gonioreflectometer,

@@ -17,7 +17,8 @@ Which driver has which capabilities (tests check each claim, both ways):
 driver                             capabilities
 =================================  =========================================================
 ``drivers.cs1000.CS1000A``,        Identifiable, Closable, HealthPollable, RemoteControllable,
-``drivers.cs2000.CS2000A``         SpectrumReadable, Abortable, Recoverable
+``drivers.cs2000.CS2000A``,        SpectrumReadable, Abortable, Recoverable
+``drivers.specbos.Specbos1211``    (every radiometer of the registry)
 ``drivers.rotator_apt``,           Identifiable, Closable, HealthPollable, Movable, Homeable,
 ``drivers.rotator_zaber``          Stoppable
 ``drivers.sphere``                 Identifiable, Closable, HealthPollable, Switchable,
