@@ -3,8 +3,12 @@ faults, the registries' entries."""
 
 from __future__ import annotations
 
+import random
+
 import numpy as np
 import pytest
+from fuzz import ReplyPort, mutate
+from test_fuzz import run_fuzz
 from wire import Exchange, ScriptedPort
 
 from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, parse_config
@@ -135,6 +139,30 @@ def test_identification_for_lab_discover():
     ident = parse_identification(replies)
     assert (ident.model, ident.serial_number, ident.firmware) == ("specbos 1211", "4711", "3.8.1")
     assert parse_identification([b"", b"OK00,CS-2000A ,2,1", b"", b""]) is None
+
+
+def _fuzz_case(rng: random.Random) -> None:
+    """One mutated answer into the driver's real read path."""
+    clock = VirtualClock()
+    d = Specbos1211(ReplyPort([], clock), clock, attempts=1, command_timeout_s=1.0)
+    which = rng.randrange(4)
+    if which == 0:
+        d.port.replies = [mutate(rng, spectral_block())]
+        d._parse_spectrum(d._fetch(b"*FETCH:SPRAD", 2 + 401 + 1))
+    elif which == 1:
+        d.port.replies = [mutate(rng, XYZ_BLOCK)]
+        d._parse_xyz(d._fetch(b"*FETCH:XYZ", 3))
+    elif which == 2:
+        d.port.replies = [mutate(rng, ACK + BEL)]
+        d._run_measurement()
+    else:
+        d.port.replies = [mutate(rng, b"JETI_SB1211\r")]
+        d.query("*IDN?", "JETI_SB")
+
+
+def test_fuzzed_answers_end_in_a_result_or_a_typed_error():
+    counts = run_fuzz(_fuzz_case, 600, seed=11)
+    assert sum(counts.values()) == 600 and counts["ok"] < 600 and counts["ProtocolError"] > 0
 
 
 # --- driver against the emulator ---------------------------------------------------------------
