@@ -11,7 +11,8 @@ How the tracer works, and why it is unbiased against stock Mitsuba: `normbox_lab
 
 Public API:
     FastNormbox(geometry=None).render_view(patch=..., wall=..., angle_deg=..., lamp=...,
-                                           target_rel_se=0.002, seed=0) -> render.RenderResult
+                                           target_rel_se=DEFAULT_TARGET_SE, seed=0)
+                                           -> render.RenderResult
     FastNormbox.render_patches(...)  (all patches at one angle from one set of paths)
     FastNormbox.predict(configs, ...) / predict_spectra(...)  (all patch × angle configurations)
 """
@@ -35,6 +36,7 @@ from normbox_lab.predict.bandpath import (
 )
 from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
 from normbox_lab.predict.patchset import PatchSetTracer
+from normbox_lab.predict.precision import DEFAULT_TARGET_SE, PRESETS
 
 # --------------------------------------------------------------------------------------------
 # The Normbox: the project's scene, its materials and lamp
@@ -195,7 +197,7 @@ class FastNormbox:
         return tr
 
     def render_view(self, *, patch: Any, wall: Any, angle_deg: float, holder: Any = None,
-                    lamp: Any = None, target_rel_se: float | None = 0.002,
+                    lamp: Any = None, target_rel_se: float | None = DEFAULT_TARGET_SE,
                     n_paths: int | None = None, seed: int = 0, direct_only: bool = False,
                     max_paths: int = 1 << 23, pilot_paths: int = 1 << 14) -> Any:
         """Like `render.render_view`: the radiance the radiometer sees, per band, with its MC
@@ -232,7 +234,7 @@ class FastNormbox:
 
     def render_patches(self, *, patches: Sequence[Any], wall: Any, angle_deg: float,
                        holder: Any = None, lamp: Any = None,
-                       target_rel_se: float | None = 0.002, n_paths: int | None = None,
+                       target_rel_se: float | None = DEFAULT_TARGET_SE, n_paths: int | None = None,
                        seed: int = 0, max_paths: int = 1 << 23) -> list[Any]:
         """`render_view` for every patch at one angle from one set of paths
         (`patchset.PatchSetTracer.render_patches`): a `RenderResult` per patch, in order.
@@ -260,7 +262,7 @@ class FastNormbox:
         return out
 
     def predict(self, configs: Sequence[PredictConfig], *, wall: Any, holder: Any = None,
-                lamp: Any = None, target_rel_se: float | None = 0.002,
+                lamp: Any = None, target_rel_se: float | None = DEFAULT_TARGET_SE,
                 n_paths: int | None = None, seed: int = 0) -> list[Any]:
         """Every configuration in process, angle-major (one scene per angle); the seed of each
         configuration is derived from `seed` and its name, so results do not depend on order."""
@@ -289,9 +291,9 @@ def config_seed(seed: int, name: str) -> int:
 # All patch × angle spectra, in process or on a cluster
 # --------------------------------------------------------------------------------------------
 
-#: the largest relative standard error over the bands, per configuration, of each prediction
-#: quality (the fast renderer's equivalent of `render.Quality`)
-FAST_TARGET_REL_SE = {"quick": 0.02, "default": 0.0015, "high": 0.001}
+#: the quality presets of the target (worst band's relative standard error): defined once in
+#: `normbox_lab.predict.precision`; this name is kept for the callers that used it
+FAST_TARGET_REL_SE = PRESETS
 
 
 @dataclass
@@ -360,7 +362,7 @@ def render_task(task: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 def predict_spectra(patches: Sequence[Any] | Mapping[str, Any], angles_deg: Sequence[float], *,
                     wall: Any, holder: Any = None, lamp: Any = None, geometry: Any = None,
-                    target_rel_se: float | None = 0.002, n_paths: int | None = None,
+                    target_rel_se: float | None = DEFAULT_TARGET_SE, n_paths: int | None = None,
                     seed: int = 0, executor: Any = None, variant: str | None = None,
                     max_depth: int = 12, patches_per_job: int = 6,
                     threads_per_job: int | None = None,

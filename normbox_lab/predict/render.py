@@ -8,8 +8,11 @@
   bandwidth is similar).  `to_1nm()` interpolates linearly to 380…780 step 1.
 - Monte-Carlo standard error: the view is rendered in `batches` independent batches (different
   seeds); the result is their mean and the standard error of the mean, per band.
-- Quality levels (`QUALITIES`): "quick" for tests (sub-second), "default" for the campaign
-  (a few seconds, < 1 % per band), "high" for references.
+- Quality levels (`QUALITIES`): the batch plan (samples per pixel per batch, first and last
+  batch count) of "quick" (tests, sub-second), "default" (the campaign) and "high"; the
+  precision is one quantity (`normbox_lab.predict.precision`): batches are added until the
+  worst band's relative standard error is at most the target (the quality's preset, or
+  `render_view(target_rel_se=…)`), up to the batch cap; `info` states what was reached.
 - `max_depth`: the full render uses paths of up to 12 segments (Russian roulette after 6);
   `direct_only=True` renders max_depth = 2 (emitter → surface → radiometer: the direct light).
 - Cache: results are .npz files under `cache_dir` (default `.cache/normbox-render/` in the
@@ -28,7 +31,7 @@ import os
 import tempfile
 import threading
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +40,7 @@ import numpy as np
 from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM, RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.kernel_safety import require_finite
 from normbox_lab.predict.materials import Material, holder_material
+from normbox_lab.predict.precision import PRESETS, STATISTIC, rel_se
 from normbox_lab.predict.scene import (
     MOVING_SHAPES,
     as_geometry,
@@ -61,15 +65,17 @@ class Quality:
                         # (the stratified sampler uses a √spp × √spp grid)
     batches: int
     pixels: int = 10
-    # adaptive: after `batches`, keep adding batches (up to `max_batches`) until the median
-    # relative standard error per band is ≤ `target_rel_se` (0 = fixed batch count)
+    # adaptive: after `batches`, keep adding batches (up to `max_batches`) until the worst
+    # band's relative standard error (`precision.rel_se`) is ≤ `target_rel_se`
+    # (0 = fixed batch count)
     max_batches: int = 0
     target_rel_se: float = 0.0
 
 
 QUALITIES = {
     "quick": Quality("quick", spp=16, batches=4),
-    "default": Quality("default", spp=256, batches=8, max_batches=20, target_rel_se=0.0075),
+    "default": Quality("default", spp=256, batches=8, max_batches=20,
+                       target_rel_se=PRESETS["default"]),
     "high": Quality("high", spp=1024, batches=16),
 }
 
@@ -304,12 +310,18 @@ def render_view(geometry: Any = None, *, patch: Material, wall: Material,
                 angle_deg: float, holder: Material | None = None, lamp: Lamp | None = None,
                 quality: str | Quality = "default", direct_only: bool = False, seed: int = 0,
                 cache: bool = True, cache_dir: str | Path | None = None,
-                variant: str | None = None) -> RenderResult:
-    """Spectral radiance the radiometer sees (band means over the 10×10 px, 1° view)."""
+                variant: str | None = None,
+                target_rel_se: float | None = None) -> RenderResult:
+    """Spectral radiance the radiometer sees (band means over the 10×10 px, 1° view).
+    `target_rel_se`: the precision (`normbox_lab.predict.precision`) instead of the quality's
+    preset; the quality's batch plan still bounds the work."""
     g = as_geometry(geometry)
     holder = holder if holder is not None else holder_material()
     lamp = lamp if lamp is not None else Lamp()
     q = QUALITIES[quality] if isinstance(quality, str) else quality
+    if target_rel_se is not None:
+        q = replace(q, target_rel_se=float(target_rel_se),
+                    max_batches=max(q.max_batches, q.batches))
     max_depth = 2 if direct_only else 12
     key = render_key(g, patch, wall, holder, angle_deg, lamp, q, max_depth, seed)
     path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
@@ -363,13 +375,15 @@ def _render(g: Any, patch: Material, wall: Material, holder: Material, angle_deg
         if len(batches) >= max(q.max_batches, q.batches) or q.target_rel_se <= 0:
             break
         m, e = stats()
-        if np.median(e / np.maximum(np.abs(m), 1e-300)) <= q.target_rel_se:
+        if rel_se(m, e) <= q.target_rel_se:
             break
     batches_arr = np.array(batches)
     mean, se = stats()
     dt = time.perf_counter() - t0
     info = {"angle_deg": float(angle_deg), "patch": patch.name, "wall": wall.name,
             "quality": q.name, "spp": q.spp, "batches": len(batches), "max_depth": max_depth,
+            "target_rel_se": q.target_rel_se, "rel_se": rel_se(mean, se),
+            "rel_se_statistic": STATISTIC, "renderer": "mitsuba",
             "lamp_cct_K": lamp.cct_K, "lamp_luminance_cd_m2": lamp.luminance_cd_m2}
     return RenderResult(BAND_CENTRES_NM.copy(), mean, se, batches_arr, dt, variant, key,
                         cached=False, info=info)
