@@ -79,7 +79,8 @@ _ENTRIES = (
     PaperFigure("fit_errors", "Sec. 5.2, Sec. 6.3.2", "%", "magnitude", (5.0, 10.0, 18.0, 18),
                 "5–10 %, patch 18 ≈ 18 %",
                 "the BRDF fitting errors lie in 5–10 %, patch 18 has 18 %"),
-    PaperFigure("fit_weight_w", "Sec. 4.3.2, Figs. 10/11", "", "none", (1.0, 4.0, 6.0, 2.0, 4.0),
+    PaperFigure("fit_weight_w", "Sec. 4.3.2, Figs. 10/11", "", "none",
+                (1.0, 4.0, 6.0, 8, 2.0, 18, 4.0),
                 "w = 1…4 (twice 6); Fig. 10 (patch 8) w = 2, Fig. 11 (patch 18) w = 4",
                 "the cost's weight cos^w θi uses w between 1 and 4, in two cases 6; the paper "
                 "publishes w only for patch 8 (Fig. 10, w = 2) and patch 18 (Fig. 11, w = 4)"),
@@ -121,7 +122,7 @@ _ENTRIES = (
                 "CS-1000A spectral accuracy ±0.3 nm"),
     PaperFigure("gonio_calibration", "Sec. 4.2.1, Sec. 5.1", "%", "±", (0.7,), "±0.7 %",
                 "the calibrated gonioreflectometer deviates 0.7 % on average"),
-    PaperFigure("qepro_snr", "Sec. 5.1", "", "none", (1000.0,), "SNR 1000:1",
+    PaperFigure("qepro_snr", "Sec. 5.1", "", "none", (1000.0, 1.0), "1000:1",
                 "QE Pro signal-to-noise ratio 1000:1"),
     PaperFigure("qepro_nonlinearity", "Sec. 5.1", "%", "magnitude", (0.5,), "≤ 0.5 %",
                 "QE Pro maximal non-linearity 0.5 %"),
@@ -137,6 +138,8 @@ _ENTRIES = (
                 "light source repeatability below 1 %"),
     PaperFigure("lamp_delta_e00", "Sec. 5.2", "ΔE00", "magnitude", (0.28,), "max 0.28",
                 "the light source's intensity changes gave a maximal ΔE00 of 0.28"),
+    PaperFigure("rendering_error", "Sec. 5.3", "", "none", (), "(assumed negligible)",
+                "the rendering error is unknown and assumed negligible for Mitsuba"),
 )
 
 #: key → entry
@@ -182,6 +185,23 @@ def nse_paper_sign(nse: np.ndarray) -> np.ndarray:
     """The stored NSE, (prediction − reference)/reference, in the paper's sign."""
     return -np.asarray(nse, dtype=float)
 
+
+#: the error sources' paper magnitudes (`core.error_sources`, docs/error-budget.md §1):
+#: source name → entry key
+SOURCES: dict[str, str] = {
+    "angle-sweep": "angle_setting",
+    "angle-offset": "nse_65_80",
+    "geometry": "geometry",
+    "cs1000": "cs1000_accuracy",
+    "cs1000-wl": "cs1000_wavelength",
+    "qepro-snr": "qepro_snr",
+    "qepro-nonlin": "qepro_nonlinearity",
+    "gonio-cal": "gonio_calibration",
+    "homogeneity": "homogeneity",
+    "diffusivity": "diffusivity",
+    "lamp": "lamp_repeatability",
+    "render": "rendering_error",
+}
 
 #: the paper-scenario table's observations (`budget_store.paper_observations`, docs/
 #: error-budget.md): row label → entry key

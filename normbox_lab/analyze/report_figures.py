@@ -72,31 +72,49 @@ def _angle_colourbar(fig: Any, axes: Any, angle_deg: np.ndarray) -> None:
 
 @styled
 def fig_reference(c: ComparisonResult) -> Any:
-    """Every patch's reference spectra, one panel per patch, colour = sample angle."""
+    """Every patch's reference spectra, one panel per patch, colour = sample angle.  4 panels
+    a row at 7.8 in, so that at 800 px its text keeps its 9 pt; the radiance in one power of
+    ten for every panel (in the axis label) and one tick format (the same decimals)."""
+    from matplotlib.ticker import FormatStrFormatter, MaxNLocator
+
     n_p = len(c.patch_names)
-    ncol = 6
+    ncol = 4
     nrow = int(np.ceil(n_p / ncol))
-    height_in = 1.75 * nrow + 0.9
-    fig = new_figure(12.0, height_in, layout=None)
-    fig.subplots_adjust(left=0.075, right=0.9, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
-                        wspace=0.38, hspace=0.45)
+    height_in = 1.45 * nrow + 0.9
+    fig = new_figure(7.8, height_in, layout=None)
+    fig.subplots_adjust(left=0.1, right=0.86, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
+                        wspace=0.32, hspace=0.5)
     cols = angle_colours(c.angle_deg.size)
+    ref, label = scaled_for_axis(c.reference, f"spectral radiance [{RADIANCE_UNIT}]")
     axes = fig.subplots(nrow, ncol, sharex=True, squeeze=False)
+    steps = []
     for p in range(nrow * ncol):
         ax = axes.flat[p]
         if p >= n_p:
             ax.set_visible(False)
             continue
         for a in range(c.angle_deg.size):
-            ax.plot(c.wavelength_nm, c.reference[p, a], color=cols[a], lw=0.9)
-        ax.set_title(c.patch_names[p], fontsize=FONT_PT["annotation"] + 1, pad=2)
+            ax.plot(c.wavelength_nm, ref[p, a], color=cols[a], lw=0.9)
+        ax.set_title(_short_patch(c.patch_names[p]), fontsize=FONT_PT["tick"], pad=2)
         ax.set_xticks([400, 550, 700])
-        ax.locator_params(axis="y", nbins=3)
-        ax.tick_params(labelsize=FONT_PT["annotation"])
+        ax.yaxis.set_major_locator(MaxNLocator(nbins=3, min_n_ticks=2))
+        ax.set_ylim(bottom=0.0)
+        ticks = [t for t in ax.get_yticks() if ax.get_ylim()[0] <= t <= ax.get_ylim()[1]]
+        if len(ticks) > 1:
+            steps.append(min(np.diff(ticks)))
+    decimals = max([0, *(int(np.ceil(-np.log10(s) - 1e-9)) for s in steps if s > 0)])
+    for ax in axes.flat[:n_p]:
+        ax.yaxis.set_major_formatter(FormatStrFormatter(f"%.{decimals}f"))
     fig.supxlabel("wavelength [nm]")
-    fig.supylabel(f"spectral radiance [{RADIANCE_UNIT}]")
+    fig.supylabel(label)
     _angle_colourbar(fig, axes, c.angle_deg)
     return fig
+
+
+def _short_patch(name: str) -> str:
+    """"19 white 9.5 (.05 D)" → "19 white": a panel title fits its panel."""
+    words = str(name).split()
+    return " ".join(words[:2]) if len(words) > 1 and words[0].isdigit() else str(name)
 
 
 @styled
@@ -403,6 +421,12 @@ def fig_images(f: ImageFigure) -> Any:
             finite = data[np.isfinite(data)]
             vmax = p.vmax if p.vmax is not None else (
                 float(np.percentile(finite, 99)) if finite.size else 1.0)
+            if p.vmax is not None:
+                # panels that share a scale keep sharing it, up to the largest of their maxima:
+                # the colour bar covers every value the caption may name
+                vmax = max([vmax, *(float(np.nanmax(q.data)) for q in f.panels
+                                    if q.vmax == p.vmax and np.asarray(q.data).ndim == 2
+                                    and np.isfinite(q.data).any())])
             im = ax.imshow(data, cmap=SEQUENTIAL_CMAP, vmin=0.0, vmax=max(vmax, 1e-12))
             cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02, shrink=0.9)
             if p.unit:
