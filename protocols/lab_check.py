@@ -18,7 +18,7 @@ no calibration or flash setting is written.
     rotator      identity, home, soft-limits, move-readback, backlash
     sphere       identity, warm-up (to stable, with its monitor's scatter)
     spectrometer identity, tec, dark-current, nonlinearity
-    gonio arms   identity, home, soft-limits
+    gonio arms   identity, home, soft-limits, travel (to each configured limit and back)
 
 An instrument failing to answer at all fails its check (the error is the finding); the engine's
 retry policy is not involved.  `run_check` runs the protocol and returns a `CheckReport`;
@@ -271,6 +271,21 @@ def check_soft_limits(run: Any, step: Step) -> CheckResult:
                        f"{hi + 1:g}° and {lo - 1:g}° refused before anything was sent")
 
 
+def check_travel(run: Any, step: Step) -> CheckResult:
+    """Drive to each configured soft limit (the range the lab declared safe) and back to 0°;
+    the largest readback error is the value (a stall, a limit switch inside the range)."""
+    stage = _stage(run, step)
+    tol = float(stage.position_tolerance_deg)
+    errors = []
+    for target in (float(stage.max_angle_deg), float(stage.min_angle_deg), 0.0):
+        stage.move_to(target, wait=True)
+        errors.append(abs(float(stage.position_deg()) - target))
+    limit = Limit(None, tol, "°", "the driver's position tolerance (position_tolerance_deg)")
+    return _result("travel", step.role, max(errors), limit,
+                   f"reached {stage.max_angle_deg:g}°, {stage.min_angle_deg:g}° and 0°; "
+                   f"largest readback error {max(errors):.4f}°", errors)
+
+
 def check_move(run: Any, step: Step) -> CheckResult:
     stage = _stage(run, step)
     target = float(step.params["angle_deg"])
@@ -323,28 +338,38 @@ def check_warmup(run: Any, step: Step) -> CheckResult:
 
 
 def check_tec(run: Any, step: Step) -> CheckResult:
+    """The TEC reaches its set point and holds it through an acquisition (the lamp shutter
+    closed): the temperature read after the frame is the value."""
     spec = run.instrument(step.role)
     tol = float(step.params["tolerance_c"])
     setpoint = float(getattr(spec, "tec_setpoint_c", -10.0))
+    limit = Limit(setpoint - tol, setpoint + tol, "°C", "[quality] tec_tolerance_c around the "
+                  "set point (QE Pro: thermoelectric cooling, set point −10 °C by default)")
     try:
-        t = float(spec.wait_tec_stable(tolerance_c=tol, timeout_s=float(step.params["timeout_s"])))
+        spec.wait_tec_stable(tolerance_c=tol, timeout_s=float(step.params["timeout_s"]))
     except NotReady as exc:
         t = float(spec.tec_temperature_c())
-        return _result("tec", step.role, t, Limit(setpoint - tol, setpoint + tol, "°C",
-                       "[quality] tec_tolerance_c around the set point"), str(exc))
-    return _result("tec", step.role, t, Limit(setpoint - tol, setpoint + tol, "°C",
-                   "[quality] tec_tolerance_c around the set point (QE Pro: TEC set point "
-                   "−10 °C by default)"), f"TEC at {t:.2f} °C, set point {setpoint:g} °C")
+        return _result("tec", step.role, t, limit, str(exc))
+    _close_shutter(spec)
+    spec.set_integration_time_s(0.1)
+    spec.acquire(correct_dark=False, correct_nonlinearity=False)
+    t = float(spec.tec_temperature_c())
+    return _result("tec", step.role, t, limit,
+                   f"TEC at {t:.2f} °C after a frame, set point {setpoint:g} °C")
+
+
+def _close_shutter(spec: Any) -> None:
+    try:
+        spec.set_lamp_enabled(False)      # the gonio lamp's shutter: closed
+    except NotReady:
+        pass                              # a backend without the lamp line
 
 
 def check_dark_current(run: Any, step: Step) -> CheckResult:
     import numpy as np
 
     spec = run.instrument(step.role)
-    try:
-        spec.set_lamp_enabled(False)      # the gonio lamp's shutter: closed
-    except NotReady:
-        pass
+    _close_shutter(spec)
     t_s = float(step.params["integration_s"])
     spec.set_integration_time_s(t_s)
     acq = spec.acquire(correct_dark=False, correct_nonlinearity=False)
@@ -383,12 +408,12 @@ def check_nonlinearity(run: Any, step: Step) -> CheckResult:
 CHECKS: dict[str, Callable[[Any, Step], CheckResult]] = {
     "identity": check_identity, "calibration": check_calibration, "dark": check_dark,
     "level": check_level, "repeatability": check_repeatability, "home": check_home,
-    "soft-limits": check_soft_limits, "move-readback": check_move, "backlash": check_backlash,
+    "soft-limits": check_soft_limits, "travel": check_travel, "move-readback": check_move, "backlash": check_backlash,
     "warm-up": check_warmup, "tec": check_tec, "dark-current": check_dark_current,
     "nonlinearity": check_nonlinearity,
 }
 #: rough durations for the dry run's ETA (s)
-_ESTIMATE_S = {"dark": 130.0, "level": 10.0, "repeatability": 30.0, "home": 20.0,
+_ESTIMATE_S = {"travel": 40.0, "dark": 130.0, "level": 10.0, "repeatability": 30.0, "home": 20.0,
                "move-readback": 10.0, "backlash": 10.0, "warm-up": 600.0, "tec": 120.0,
                "dark-current": 2.0}
 
@@ -436,8 +461,10 @@ class CheckKind(StepKind):
 KINDS.setdefault(CheckKind.name, CheckKind())
 
 
-def _check(role: str, name: str, **params: Any) -> Step:
-    return Step(f"{role}/{name}", "check", {"role": role, "check": name, **params})
+def _check(role: str, name: str, requires: dict[str, Any] | None = None,
+           **params: Any) -> Step:
+    return Step(f"{role}/{name}", "check", {"role": role, "check": name, **params},
+                requires=dict(requires or {}))
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
@@ -462,13 +489,14 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
     level = float(params["sphere_level_percent"])
     out: list[Step] = []
 
-    def common(role: str) -> None:
+    def common(role: str, requires: dict[str, Any] | None = None) -> None:
         inst = config.instruments[role] if config is not None else None
-        out.append(_check(role, "identity",
+        out.append(_check(role, "identity", requires,
                           serial_number=inst.serial_number if inst is not None else ""))
         cal = inst.calibration if inst is not None else None
         if cal is not None:
-            out.append(_check(role, "calibration", today=today, due=cal.due.isoformat(),
+            out.append(_check(role, "calibration", requires, today=today,
+                              due=cal.due.isoformat(),
                               certificate=cal.certificate, laboratory=cal.laboratory,
                               strict=bool(params["strict"])))
 
@@ -481,6 +509,8 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
             out.append(_check(role, "move-readback", angle_deg=a))
             out.append(_check(role, "backlash", angle_deg=a,
                               step_deg=float(params["backlash_step_deg"])))
+        else:
+            out.append(_check(role, "travel"))
     if "sphere" in roles:
         common("sphere")
         out.append(_check("sphere", "warm-up", level_percent=level,
@@ -496,7 +526,8 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
                           f"place patch {WHITE_PATCH} ({patch_name(WHITE_PATCH)}) on the holder",
                           action="place_patch", patch=WHITE_PATCH, sets={"sample": sample}))
         need = {"sphere": "stable", "rotator": 90.0, "sample": sample}
-        common("radiometer")
+        # (a radiometer's every step waits for stable lamps: these too)
+        common("radiometer", need)
         lo = quality.radiometer_min_luminance_cd_m2 if quality is not None else 0.01
         hi = quality.radiometer_max_luminance_cd_m2 if quality is not None else 80000.0
         out.append(Step("radiometer/level", "check",
@@ -570,8 +601,16 @@ def run_check(config: Any, store_path: str, overrides: dict[str, Any], *,
                                               params=overrides, world=world,
                                               make_lab=make_lab, **options) as opened:
         result = opened.run()
-        return CheckReport(result.run_id, result.uuid, result.status,
-                           results_of(store, result.run_id))
+        results = results_of(store, result.run_id)
+        done = {f"{r['role']}/{r['check']}" for r in results}
+        why = {d.get("key"): d.get("error", "") for _, kind, d in store.events(result.run_id)
+               if kind == "skip"}
+        for step in opened.plan.steps:           # planned checks that never ran: failures too
+            if step.kind == "check" and step.key not in done:
+                role, _, name = step.key.partition("/")
+                results.append({"role": role, "check": name, "passed": False,
+                                "message": f"not run: {why.get(step.key) or result.status}"})
+        return CheckReport(result.run_id, result.uuid, result.status, results)
 
 
 __all__ = ["CHECKS", "PARAMETERS", "CheckKind", "CheckReport", "CheckResult", "Limit",
