@@ -14,7 +14,8 @@ such as `virtual_sweep`'s validation of the error budget's linearisation.
 
 The truth's target relative standard error per band (largest band): the `render` error
 source's value when it is on, else `target_rel_se`: given, else the lab config's ``[render]
-truth_rel_se``, else `TRUTH_REL_SE` of the render quality.  The demo writes ``truth_rel_se``
+truth_rel_se``, else the render quality's preset (`normbox_lab.predict.precision.PRESETS`,
+`TRUTH_REL_SE` here by its old name).  The demo writes ``truth_rel_se``
 into the lab config, so the error budget of a stored run knows the truth's render noise.
 """
 
@@ -26,14 +27,16 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.error_sources import ErrorSources
-from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox, config_seed
+from normbox_lab.predict.fastrender import FastNormbox, config_seed
+from normbox_lab.predict.precision import DEFAULT_TARGET_SE, PRESETS
 from normbox_lab.predict.render import RenderResult
 from normbox_lab.sim.world import ANGLE_RESOLUTION_DEG, VirtualNormbox
 
 #: seed base of the prediction's per-configuration renders (`demo`, `pipeline.predict_run`)
 PREDICTION_SEED = 1
-#: the world's (truth's) target largest relative standard error per band, per render quality
-TRUTH_REL_SE = {"quick": 0.02, "default": 0.0015, "high": 0.001}
+#: the world's (truth's) target largest relative standard error per band, per render quality:
+#: the presets of `normbox_lab.predict.precision` (defined there once)
+TRUTH_REL_SE = PRESETS
 #: first pass of the adaptive render (paths): the world's default, and a smaller one when the
 #: `render` source sets a larger target (so the render does not overshoot it)
 PILOT_PATHS = 1 << 14
@@ -49,8 +52,8 @@ class FastVirtualNormbox(VirtualNormbox):
         super().__init__(config, **kwargs)
         if target_rel_se is None:
             render_cfg = dict(getattr(config, "render", None) or {})
-            target_rel_se = render_cfg.get("truth_rel_se") or TRUTH_REL_SE.get(
-                self.quality, FAST_TARGET_REL_SE["default"])
+            target_rel_se = render_cfg.get("truth_rel_se") or PRESETS.get(
+                self.quality, DEFAULT_TARGET_SE)
         self.target_rel_se = float(target_rel_se)
         if render_seed is not None:
             self.render_seed = int(render_seed)

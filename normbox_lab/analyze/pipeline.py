@@ -78,7 +78,8 @@ def fit_run(store: Store, brdf_run: int | str, w: float = 2.0,
 # --- predict -------------------------------------------------------------------------------------
 
 def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None = None,
-                geometry: Any = None, quality: str = "default", lamp: Any = None,
+                geometry: Any = None, quality: str = "default",
+                target_se: float | None = None, renderer: str = "fast", lamp: Any = None,
                 render: Callable[..., Any] | None = None,
                 progress: ProgressFn = _noop, accept_flagged: bool = False,
                 executor: Any = None) -> int:
@@ -86,15 +87,24 @@ def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None
     flags on the reference run or on the (stored) fits used are refused unless
     `accept_flagged`.
 
-    `executor` (an `executors.make_executor(...)`: in process, or a dask cluster): predict all
-    patch × angle configurations with the fast band-vector renderer
-    (`fastrender.predict_spectra`) as independent jobs on it, at the relative standard error
-    of `quality` (`FAST_TARGET_REL_SE`); the results do not depend on the executor.  Without
-    one, each configuration goes through `render` (default: the stock Mitsuba renderer)."""
+    Precision: `target_se`, the target of the worst band's relative standard error
+    (`normbox_lab.predict.precision`), else the preset of `quality`; both renderers stop on
+    that statistic.  `renderer`: "fast" (the band-vector renderer, `fastrender.predict_spectra`,
+    all configurations as independent jobs on `executor`: in process by default, or a dask
+    cluster; the results do not depend on the executor) or "mitsuba" (the stock renderer,
+    one configuration after the other, in process).  `render`: a render function used for
+    every configuration instead (a simulated lab's, a test's), called with `quality`."""
     from normbox_lab.analyze import qa
     from normbox_lab.predict.materials import Material, holder_material
-    from normbox_lab.predict.render import render_view
+    from normbox_lab.predict.precision import RENDERERS
+    from normbox_lab.predict.precision import target_se as resolve_target
 
+    if renderer not in RENDERERS:
+        raise ValueError(f"unknown renderer {renderer!r}; known: {', '.join(RENDERERS)}")
+    if executor is not None and (renderer != "fast" or render is not None):
+        raise ValueError("an executor runs the fast renderer's jobs: use it with "
+                         "renderer='fast' (the stock Mitsuba renderer runs in process)")
+    target = resolve_target(quality, target_se)
     ref = reference_data(store, ref_run)
     stored_fits = fits is None
     fits = fits if fits is not None else latest_fits(store)
@@ -107,73 +117,128 @@ def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None
                if a.name in need] if stored_fits else []
     accepted = qa.require_clean(store, run=ref_run, artifacts=fit_ids,
                                 accept_flagged=accept_flagged, step="predict")
-    render = render or render_view
     wall = Material.from_fit(fits["wall"])
     holder = holder_material()
-    n_p, n_a = len(ref.patches), ref.angle_deg.size
-    out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
-    err = np.zeros_like(out)
-    total, done, t0 = n_p * n_a + n_a, 0, time.perf_counter()
-    renderer = "fastrender"             # the band-vector renderer, unless a render says other
-    if executor is not None:
-        from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, predict_spectra
-
-        progress("predict", done, total)
-        mats = {fit_key(p): Material.from_fit(fits[fit_key(p)]) for p in ref.patches}
-        pred = predict_spectra(mats, ref.angle_deg, wall=wall, holder=holder, lamp=lamp,
-                               geometry=geometry, target_rel_se=FAST_TARGET_REL_SE[quality],
-                               seed=1, executor=executor)
-        for pi, p in enumerate(ref.patches):
-            for ai, a in enumerate(ref.angle_deg):
-                rad, se = pred.spectrum(fit_key(p), float(a))
-                out[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, rad)
-                err[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, se)
-        done = n_p * n_a
-        if render is render_view:              # the light shares with the same renderer
-            from normbox_lab.predict.fastrender import FastNormbox
-
-            fast = FastNormbox(geometry)
-
-            def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
-                       direct_only=False):
-                return fast.render_view(patch=patch, wall=wall, holder=holder,
-                                        angle_deg=angle_deg, lamp=lamp, seed=1,
-                                        target_rel_se=FAST_TARGET_REL_SE[quality or "default"],
-                                        direct_only=direct_only)
+    materials = {fit_key(p): Material.from_fit(fits[fit_key(p)]) for p in ref.patches}
+    t0 = time.perf_counter()
+    if render is not None:
+        out, err, used = _predict_with(render, ref, materials, wall, holder, geometry, lamp,
+                                       quality, progress)
+        direct_render = render
+    elif renderer == "fast":
+        out, err, used, direct_render = _predict_fast(ref, materials, wall, holder, geometry,
+                                                      lamp, target, executor, progress)
     else:
-        for pi, p in enumerate(ref.patches):
-            mat = Material.from_fit(fits[fit_key(p)])
-            for ai, a in enumerate(ref.angle_deg):
-                progress("predict", done, total)
-                r = render(geometry, patch=mat, wall=wall, holder=holder, angle_deg=float(a),
-                           lamp=lamp, quality=quality)
-                out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
-                err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
-                renderer = str(r.info.get("renderer", "mitsuba"))
-                done += 1
-    # direct-only renders of the white patch (or the first) for the light shares per angle
-    wp = ref.patches[white_index(ref.patches)]
-    wmat = Material.from_fit(fits[fit_key(wp)])
-    direct = np.zeros((n_a, ref.wavelength_nm.size))
-    for ai, a in enumerate(ref.angle_deg):
-        progress("predict", done, total)
-        r = render(geometry, patch=wmat, wall=wall, holder=holder, angle_deg=float(a),
-                   lamp=lamp, quality=quality, direct_only=True)
-        direct[ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
-        done += 1
-    progress("predict", total, total)
+        direct_render = _mitsuba_render(target)
+        out, err, used = _predict_with(direct_render, ref, materials, wall, holder, geometry,
+                                       lamp, quality, progress)
+    direct, wp = _direct_white(direct_render, ref, materials, wall, holder, geometry, lamp,
+                               quality, progress)
     aid = store.add_artifact(
         "prediction", f"ref-run-{store.get_run(ref_run).id}",
         {"wavelength_nm": ref.wavelength_nm, "angle_deg": ref.angle_deg,
          "patches": np.array(ref.patches, dtype=float), "radiance": out, "std_error": err,
          "direct_white": direct, "full_white": out[ref.patches.index(wp)]},
-        metadata={"quality": quality, "white_patch": wp, "renderer": renderer,
-                  "executor": getattr(executor, "name", None) or "none",
+        metadata={"quality": quality, "target_rel_se": target,
+                  "rel_se_statistic": _statistic(), "white_patch": wp, "renderer": used,
+                  "executor": getattr(executor, "name", None) or
+                  ("inprocess" if used == "fastrender" and render is None else "none"),
                   "render_s": time.perf_counter() - t0,
                   "fits": {n: fits[n].name for n in need}, **qa.provenance(accepted)},
         run_ref=ref_run)
     qa.check_prediction(store, ref_run, aid, ref.patches, ref.angle_deg, out, err)
     return aid
+
+
+def _statistic() -> str:
+    from normbox_lab.predict.precision import STATISTIC
+
+    return STATISTIC
+
+
+def _predict_with(render: Callable[..., Any], ref: Any, materials: dict[str, Any], wall: Any,
+                  holder: Any, geometry: Any, lamp: Any, quality: str, progress: ProgressFn
+                  ) -> tuple[np.ndarray, np.ndarray, str]:
+    """Every configuration through `render`, one after the other; (radiance, SE, renderer)."""
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
+    err = np.zeros_like(out)
+    used, done, total = "mitsuba", 0, n_p * n_a + n_a
+    for pi, p in enumerate(ref.patches):
+        for ai, a in enumerate(ref.angle_deg):
+            progress("predict", done, total)
+            r = render(geometry, patch=materials[fit_key(p)], wall=wall, holder=holder,
+                       angle_deg=float(a), lamp=lamp, quality=quality)
+            out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+            err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
+            used = str(r.info.get("renderer", "mitsuba"))
+            done += 1
+    return out, err, used
+
+
+def _predict_fast(ref: Any, materials: dict[str, Any], wall: Any, holder: Any, geometry: Any,
+                  lamp: Any, target: float, executor: Any, progress: ProgressFn
+                  ) -> tuple[np.ndarray, np.ndarray, str, Callable[..., Any]]:
+    """All configurations with the fast renderer on `executor` (in process when None); and
+    the same renderer for the light shares."""
+    from normbox_lab.predict.executors import make_executor
+    from normbox_lab.predict.fastrender import FastNormbox, predict_spectra
+
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    progress("predict", 0, n_p * n_a + n_a)
+    own = executor is None
+    executor = make_executor("inprocess") if own else executor
+    try:
+        pred = predict_spectra(materials, ref.angle_deg, wall=wall, holder=holder, lamp=lamp,
+                               geometry=geometry, target_rel_se=target, seed=1,
+                               executor=executor)
+    finally:
+        if own:
+            executor.close()
+    out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
+    err = np.zeros_like(out)
+    for pi, p in enumerate(ref.patches):
+        for ai, a in enumerate(ref.angle_deg):
+            rad, se = pred.spectrum(fit_key(p), float(a))
+            out[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, rad)
+            err[pi, ai] = np.interp(ref.wavelength_nm, pred.wavelength_nm, se)
+    fast = FastNormbox(geometry)
+
+    def render(geometry: Any, *, patch: Any, wall: Any, holder: Any, angle_deg: float,
+               lamp: Any = None, quality: str | None = None, direct_only: bool = False) -> Any:
+        return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
+                                lamp=lamp, seed=1, target_rel_se=target,
+                                direct_only=direct_only)
+    return out, err, "fastrender", render
+
+
+def _mitsuba_render(target: float) -> Callable[..., Any]:
+    """The stock Mitsuba renderer at the target precision (the quality's batch plan)."""
+    from normbox_lab.predict.render import render_view
+
+    def render(geometry: Any, *, patch: Any, wall: Any, holder: Any, angle_deg: float,
+               lamp: Any = None, quality: str | None = None, direct_only: bool = False) -> Any:
+        return render_view(geometry, patch=patch, wall=wall, holder=holder,
+                           angle_deg=angle_deg, lamp=lamp, quality=quality or "default",
+                           direct_only=direct_only, target_rel_se=target)
+    return render
+
+
+def _direct_white(render: Callable[..., Any], ref: Any, materials: dict[str, Any], wall: Any,
+                  holder: Any, geometry: Any, lamp: Any, quality: str, progress: ProgressFn
+                  ) -> tuple[np.ndarray, int]:
+    """Direct-only renders of the white patch (or the first) per angle, for the light shares;
+    (radiance [angle, λ], that patch)."""
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    wp = ref.patches[white_index(ref.patches)]
+    direct = np.zeros((n_a, ref.wavelength_nm.size))
+    for ai, a in enumerate(ref.angle_deg):
+        progress("predict", n_p * n_a + ai, n_p * n_a + n_a)
+        r = render(geometry, patch=materials[fit_key(wp)], wall=wall, holder=holder,
+                   angle_deg=float(a), lamp=lamp, quality=quality, direct_only=True)
+        direct[ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+    progress("predict", n_p * n_a + n_a, n_p * n_a + n_a)
+    return direct, wp
 
 
 # --- compare and error model ---------------------------------------------------------------

@@ -7,6 +7,7 @@ import sys
 
 from normbox_lab.acquire.params import WORKERS, Number, option
 from normbox_lab.commands.common import add_store_argument, require_store
+from normbox_lab.predict.precision import PRESETS, RENDERERS, STATISTIC, parse_target_se
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -25,11 +26,19 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Render every patch × angle of a reference sweep with the "
                                    "latest fits (spectral, with Monte-Carlo standard error).")
     p.add_argument("run", metavar="REFERENCE_RUN_ID")
-    p.add_argument("--quality", default="default", choices=("quick", "default", "high"))
+    p.add_argument("--quality", default="default", choices=tuple(PRESETS),
+                   help="a preset of the target precision: "
+                        + ", ".join(f"{k} {100 * v:g} %%" for k, v in PRESETS.items())
+                        + " (default: default)")
+    p.add_argument("--target-se", type=_target_se, default=None, metavar="SE",
+                   help="target relative standard error per band, e.g. 0.15%% or 0.0015: "
+                        f"the {STATISTIC}; both renderers stop on it (overrides --quality)")
+    p.add_argument("--renderer", choices=RENDERERS, default="fast",
+                   help="fast: the band-vector renderer (default); mitsuba: the stock "
+                        "Mitsuba renderer, one configuration after the other, in process")
     p.add_argument("--executor", choices=("inprocess", "dask"), default=None,
-                   help="predict with the fast band-vector renderer, as independent jobs in "
-                        "this process or on a dask.distributed cluster (default: the stock "
-                        "Mitsuba renderer, one configuration after the other)")
+                   help="where the fast renderer's independent jobs run: this process "
+                        "(default) or a dask.distributed cluster")
     p.add_argument("--workers", type=option(WORKERS, "--workers"), default=2, metavar="N",
                    help="dask: worker processes of a new local cluster (default 2)")
     p.add_argument("--address", metavar="URL", default=None,
@@ -107,6 +116,13 @@ def _print_artifact_flags(store, kind: str) -> int:
     return 0
 
 
+def _target_se(text: str) -> float:
+    try:
+        return parse_target_se(text)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def _predict(args: argparse.Namespace) -> int:
     from normbox_lab.analyze.pipeline import predict_run
     from normbox_lab.analyze.queries import lamp_from_light_map
@@ -115,6 +131,11 @@ def _predict(args: argparse.Namespace) -> int:
     if args.address and args.executor != "dask":
         print("normbox-lab predict: error: --address names a dask scheduler: use it with "
               "--executor dask", file=sys.stderr)
+        return 2
+    if args.executor and args.renderer != "fast":
+        print("normbox-lab predict: error: --executor runs the fast renderer's jobs; the "
+              "Mitsuba renderer runs in process (drop --executor, or --renderer fast)",
+              file=sys.stderr)
         return 2
     with _open(args) as store:
         lamp = lamp_from_light_map(store, args.light_map)
@@ -125,7 +146,8 @@ def _predict(args: argparse.Namespace) -> int:
             print(f"normbox-lab predict: error: {exc}", file=sys.stderr)
             return 2
         try:
-            aid = predict_run(store, args.run, quality=args.quality, lamp=lamp,
+            aid = predict_run(store, args.run, quality=args.quality,
+                              target_se=args.target_se, renderer=args.renderer, lamp=lamp,
                               progress=lambda s, d, t: print(f"\rpredict {d}/{t}", end="",
                                                              flush=True),
                               accept_flagged=args.accept_flagged, executor=executor)

@@ -18,6 +18,7 @@ from normbox_lab.images.camera import PinholeCamera, SpectralImage
 from normbox_lab.images.tracer import CameraTracer
 from normbox_lab.predict.fastrender import STAND_INS, FastNormbox
 from normbox_lab.predict.mitsuba_setup import jit_variant
+from normbox_lab.predict.precision import DEFAULT_TARGET_SE
 
 #: default samples per pixel of the Normbox view: with the quasi-random samples per pixel and the
 #: noise floor from two half renders (`figure1`), 96 keep the Fig. 1 noise floor below the old
@@ -124,7 +125,7 @@ def render_normbox_camera(patch: Any, wall: Any, angle_deg: float, *, holder: An
 
 def white_reference_XYZ(wall: Any, *, white_patch: Any = None, holder: Any = None,
                         lamp: Any = None, geometry: Any = None, angle_deg: float = 30.0,
-                        target_rel_se: float = 0.002, seed: int = 0) -> np.ndarray:
+                        target_rel_se: float = DEFAULT_TARGET_SE, seed: int = 0) -> np.ndarray:
     """Absolute XYZ of the white reference of `normbox_lab.analyze.compare`: the white ColorChecker
     patch (default: `materials.truth_patch(19)`) at 30° seen by the radiometer in the world
     with `wall` (same scene as the camera: the radiometer of `FastNormbox`)."""
