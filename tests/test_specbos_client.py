@@ -89,3 +89,16 @@ def test_a_manual_written_script_measures_the_light(transport):
             assert _query(port, b"*STAT:ERR?") == "Error Code: 10"
         finally:
             port.close()
+
+
+def test_lab_discover_finds_it_from_its_registry_entry():
+    """`lab discover` knows the model only from its registry entry (the bytes, the bauds, the
+    driver's parse function): a served specbos on a pty is identified, serial number and all."""
+    from normbox_lab.acquire import discover
+
+    with served("specbos1211", "pty", noise="off") as server:
+        [finding] = discover.discover([server.path], scan_serial=False, usb=False)
+        assert (finding.status, finding.driver) == ("found", "specbos1211")
+        assert (finding.identity.model, finding.serial_number, finding.identity.firmware) == \
+            ("specbos 1211", "123456", "3.8.1")
+        assert server.emulator.data is None           # identified, never measured
