@@ -15,7 +15,9 @@ Calibration (`calibrate`, once per mounted material):
   1. arms to the reference geometry (θi, θo) = (0°, 45°), white standard (Spectralon,
      reflectance ρ_w(λ), treated as Lambertian) into the sample plane;
   2. integration time t_w chosen so the white peak is ≈ 60 % of full scale; white counts C_w;
-  3. lamp off (QE Pro lamp-enable line = shutter): dark counts D_w at t_w; lamp on;
+  3. lamp off (QE Pro lamp-enable line = shutter): dark counts D_w at t_w; lamp on; a dark is
+     also taken just before the white, and the two must agree (a dark current that jumped
+     between C_w and D_w would bias every BRDF, most in the blue): else both again, once;
   4. white standard out.
 Measurement (`measure_brdf(θi, θo)`): arms to (θi, θo); integration time t_s auto-ranged
 (starting at t_w / max(cos θi, 0.1), divided by 4 while saturated, multiplied by 4 while the
@@ -349,14 +351,13 @@ class Gonioreflectometer:
                 raise DeviceError("WHITE", f"the white reference needs {t:g} s (more than "
                                   f"{MAX_WHITE_INTEGRATION_S:g} s): is the lamp on?",
                                   instrument=self.instrument_id)
-            white = self._acquire(t)
+            white, dark = self._bracketed_white(t)
             if white.saturated or float(np.max(white.counts)) < 0.05 * full:
                 raise DeviceError("WHITE", "white reference saturated or too dark "
                                   f"(peak {np.max(white.raw_counts):.0f} counts at {t:g} s)",
                                   instrument=self.instrument_id)
         finally:
             self.white_standard.remove()
-        dark = self._dark(t, white.tec_temperature_c)
         wl = self.spectrometer.wavelengths_nm()
         rho = np.asarray(self.white_standard.reflectance(wl), dtype=float)
         self._cal = {"wavelength_nm": wl, "white_counts": white.counts,
@@ -368,6 +369,26 @@ class Gonioreflectometer:
                      "white_id": self._new_id(), "dark_id": dark.dark_id,
                      "timestamp_s": self.clock.wall_time_s()}
         return self.references()
+
+    def _bracketed_white(self, t: float) -> tuple[Any, DarkFrame]:
+        """The white reference between two darks (shutter closed, standard in place) whose
+        dark currents agree within `DARK_RETAKE_COUNTS_S` + 3σ: a dark current that jumps
+        between the white and its dark would bias every BRDF by (jump × t) / white counts, most
+        where the white is weak (the blue end).  Taken again once; a dark that keeps moving is
+        `DeviceError("WHITE")`, never a reference."""
+        change = limit = 0.0
+        for _ in range(2):
+            before = self._dark(t, float("nan"), fresh=True)
+            white = self._acquire(t)
+            after = self._dark(t, white.tec_temperature_c, fresh=True)
+            change = after.rate_counts_s - before.rate_counts_s
+            limit = DARK_RETAKE_COUNTS_S + 3.0 * math.hypot(after.rate_sigma_counts_s,
+                                                             before.rate_sigma_counts_s)
+            if abs(change) <= limit:
+                return white, after
+        raise DeviceError("WHITE", f"the dark current moved by {change:+.0f} counts/s across "
+                          f"the white reference (limit ±{limit:.0f}), twice: no reference",
+                          instrument=self.instrument_id)
 
     def references(self) -> dict[str, np.ndarray]:
         if self._cal is None:
@@ -516,7 +537,7 @@ class Gonioreflectometer:
         ti0, to0 = self._geometry
         move = max(self.light_arm.estimate_move_time_s(ti0, ti),
                    self.detector_arm.estimate_move_time_s(to0, to))
-        return move + 3 * 0.1 + (self._tec_settle_estimate_s() + self.tec_stable_s
+        return move + 4 * 0.1 + (self._tec_settle_estimate_s() + self.tec_stable_s
                                   if self._cal is None else 0.0)
 
     def _tec_settle_estimate_s(self) -> float:

@@ -33,6 +33,9 @@ Numbers that are not counts are a `ProtocolError`, never data: a raw count that 
 lies outside 0 … full scale (the 18-bit ADC: 262143; a device claiming a larger full scale is
 refused at open), or a nonlinearity correction that is not a finite positive factor at every
 pixel (coefficients that overflow or have a pole in the range).
+A plateau (`PLATEAU_PIXELS` adjacent pixels with one identical count below 95 % of full scale:
+an ADC stuck at a level, or light leaking onto part of the detector) is `DeviceError("PLATEAU")`
+from `acquire`, for every frame (dark and white references too).
 A saturated spectrum (any raw pixel at the maximum) raises `DeviceError("SATURATED")` from
 `intensities_counts`; `acquire` returns it flagged instead.  A USB drop (seabreeze or pyusb
 error) closes the handle, reopens the device by serial number until `reconnect_timeout_s`
@@ -60,6 +63,14 @@ MAX_INTEGRATION_S = 1600.0
 #: the QE Pro's ADC is 18-bit: no raw count can exceed 2**18 - 1 (a device that claims a larger
 #: full scale, or sends a larger count, sends numbers that are not counts)
 FULL_SCALE_COUNTS = 2 ** 18 - 1
+#: an ADC plateau: this many adjacent pixels with one identical raw count.  Shot and read
+#: noise (≥ 15 counts rms) make two adjacent pixels equal with a probability of ~1/50, so 8
+#: in a row by chance ~1e-12 per pixel; a frame from a noise-free device (its electrically
+#: dark pixels all equal: a simulation with noise off) is not judged
+PLATEAU_PIXELS = 8
+#: plateaus at or above this fraction of full scale are saturation (`Acquisition.saturated`,
+#: the quality gate `saturation`), not an ADC or light-leak plateau
+PLATEAU_CEILING_FRACTION = 0.95
 
 
 @dataclass(frozen=True)
@@ -432,8 +443,31 @@ class QEPro:
             if not correct_dark:
                 counts = counts + offset
         saturated = bool(np.max(raw) >= self.max_counts - 0.5)
+        self._refuse_plateau(raw, dark_px)
         tec = self.tec_temperature_c() if self.has_tec else float("nan")
         return Acquisition(counts, raw, self.integration_time_s, saturated, tec)
+
+    def _refuse_plateau(self, raw: np.ndarray, dark_px: list[int]) -> None:
+        """`DeviceError("PLATEAU")` when `PLATEAU_PIXELS` adjacent pixels hold one identical
+        count below saturation: an ADC stuck at a level or light leaking onto the detector
+        (noise makes such a run impossible in a real frame).  Never data: a plateau in a dark
+        or white reference would bias every reading computed from it."""
+        if len(dark_px) >= 2 and float(np.ptp(raw[dark_px])) == 0.0:
+            return                                   # a noise-free (simulated) device
+        same = np.diff(raw) == 0
+        same &= raw[1:] < PLATEAU_CEILING_FRACTION * self.max_counts
+        if not same.any():
+            return
+        # the longest run of equal neighbours
+        edges = np.flatnonzero(np.diff(np.concatenate(([0], same.astype(np.int8), [0]))))
+        starts, ends = edges[::2], edges[1::2]
+        longest = int(np.argmax(ends - starts))
+        run = int(ends[longest] - starts[longest]) + 1
+        if run >= PLATEAU_PIXELS:
+            first = int(starts[longest])
+            raise DeviceError("PLATEAU", f"{run} adjacent pixels ({first}–{first + run - 1}) "
+                              f"hold one count, {raw[first]:.0f}: an ADC plateau or light "
+                              "leak, not a spectrum", instrument=self.instrument_id)
 
     def _linearised(self, counts: np.ndarray, coeffs: Any) -> np.ndarray:
         """``counts / polyval(coeffs, counts)`` (seabreeze's nonlinearity correction), or

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import heapq
 import itertools
+import math
 import random
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -33,7 +34,113 @@ import numpy as np
 
 from normbox_lab.core.clock import Clock, VirtualClock
 
-TRANSPORT_FAULTS = ("no-reply", "late-reply", "garble", "truncate", "disconnect")
+#: how often a drawn value sits exactly on a boundary of its range (each end)
+BOUNDARY_SHARE = 0.1
+
+
+@dataclass(frozen=True)
+class FaultKind:
+    """One fault an emulator can inject, and the whole physical range it is drawn over.
+
+    `mode` "=" is a rate per opportunity (reply, command, acquisition), "@" fires (or latches
+    a condition) once at the n-th opportunity; `value_range` is the rate's range (drawn
+    log-uniform: it spans decades) or n's (integers, uniform).  `param_range` is the range of
+    the parameter (``kind@n:PARAM``; None: the kind takes none), drawn on `param_scale`:
+    "linear", "log" (log-uniform, for a range that spans decades), "int" (integers,
+    uniform), "log-int" (integers, log-uniform) or "choice" (one of `choices`).  Both ends of
+    every range are drawn with probability `BOUNDARY_SHARE` each.  `detector` says what
+    catches the fault (docs/fault-behaviour.md)."""
+
+    kind: str
+    mode: str
+    value_range: tuple[float, float]
+    param_range: tuple[float, float] | None = None
+    param_scale: str = "linear"
+    choices: tuple[float | None, ...] = ()
+    unit: str = ""
+    means: str = ""
+    detector: str = ""
+
+    def draw_value(self, rng: random.Random) -> float:
+        lo, hi = self.value_range
+        if self.mode == "@":
+            return float(_draw(rng, lo, hi, "int"))
+        return round(_draw(rng, lo, hi, "log"), 6)
+
+    def draw_param(self, rng: random.Random) -> float | None:
+        if self.param_scale == "choice":
+            return rng.choice(self.choices)
+        if self.param_range is None:
+            return None
+        lo, hi = self.param_range
+        return float(f"{_draw(rng, lo, hi, self.param_scale):.4g}")
+
+    def check(self, rule: FaultRule, item: str) -> None:
+        """A ValueError when `rule` (parsed from `item`) lies outside this kind's ranges."""
+        if rule.at_count is not None and rule.at_count < 1:
+            raise ValueError(f"fault {item!r}: the opportunity count starts at 1")
+        if rule.parameter is None:
+            return
+        if not math.isfinite(rule.parameter):
+            raise ValueError(f"fault {item!r}: the parameter must be a finite number")
+        if self.param_scale == "choice" and self.param_range is None:
+            if rule.parameter not in [c for c in self.choices if c is not None]:
+                raise ValueError(f"fault {item!r}: the parameter is one of "
+                                 f"{', '.join(f'{c:g}' for c in self.choices if c is not None)}")
+            return
+        if self.param_range is None:
+            raise ValueError(f"fault {item!r}: {self.kind} takes no parameter")
+        lo, hi = self.param_range
+        if not lo <= rule.parameter <= hi:
+            raise ValueError(f"fault {item!r}: the parameter of {self.kind} ({self.unit}) lies "
+                             f"in {lo:g} … {hi:g}")
+
+    def row(self) -> str:
+        """One line of the fault parameter table (`fault_table_text`)."""
+        lo, hi = self.value_range
+        value = (f"once at the n-th, n = {lo:g} … {hi:g} (uniform)" if self.mode == "@"
+                 else f"rate {lo:g} … {hi:g} (log-uniform)")
+        if self.param_scale == "choice":
+            param = "one of " + ", ".join("default" if c is None else f"{c:g}"
+                                          for c in self.choices)
+        elif self.param_range is None:
+            param = "—"
+        else:
+            param = (f"{self.param_range[0]:g} … {self.param_range[1]:g} {self.unit} "
+                     f"({self.param_scale})")
+        return f"| `{self.kind}` | {value} | {param} | {self.means} | {self.detector} |"
+
+
+def _draw(rng: random.Random, lo: float, hi: float, scale: str) -> float:
+    u = rng.random()
+    if u < BOUNDARY_SHARE:
+        return lo
+    if u < 2 * BOUNDARY_SHARE:
+        return hi
+    if scale == "int":
+        return rng.randint(int(lo), int(hi))
+    if scale in ("log", "log-int"):
+        v = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+        return min(hi, max(lo, round(v))) if scale == "log-int" else v
+    return rng.uniform(lo, hi)
+
+
+#: the faults every line (serial, TCP) emulator gets from this framework
+TRANSPORT_FAULT_KINDS: tuple[FaultKind, ...] = (
+    FaultKind("no-reply", "=", (1e-3, 1.0), means="a reply is lost",
+              detector="driver timeout → retry; typed InstrumentTimeout"),
+    FaultKind("late-reply", "=", (1e-3, 1.0), (0.05, 600.0), "log", unit="s",
+              means="a reply comes this much later",
+              detector="late window, resynchronise, repeat"),
+    FaultKind("garble", "=", (1e-3, 1.0), means="1-3 bits flipped in a reply",
+              detector="two reads must agree; plausibility; typed ProtocolError"),
+    FaultKind("truncate", "=", (1e-3, 1.0), means="a reply cut short",
+              detector="framing / value count → retry; typed ProtocolError"),
+    FaultKind("disconnect", "@", (1, 12), (0.05, 1e5), "log", unit="s",
+              means="the link drops for this long",
+              detector="reconnect within the window, else typed InstrumentError"),
+)
+TRANSPORT_FAULTS = tuple(k.kind for k in TRANSPORT_FAULT_KINDS)
 
 
 @dataclass
@@ -48,7 +155,10 @@ class FaultRule:
 class FaultInjector:
     """Decides, reply by reply, whether a fault of a given kind happens.  Seeded, so repeatable."""
 
-    def __init__(self, spec: str = "", seed: int = 0, known_kinds: tuple[str, ...] | None = None):
+    def __init__(self, spec: str = "", seed: int = 0,
+                 known_kinds: tuple[str, ...] | Mapping[str, FaultKind] | None = None):
+        """`known_kinds`: the kinds allowed (a mapping to their `FaultKind` also checks each
+        rule's opportunity count and parameter against the kind's range)."""
         self.rules: dict[str, FaultRule] = {}
         self._counters: dict[str, int] = {}
         self._rng = random.Random(seed)
@@ -57,18 +167,26 @@ class FaultInjector:
             rule = self._parse(item)
             if known_kinds is not None and rule.kind not in known_kinds:
                 raise ValueError(f"unknown fault kind {rule.kind!r}; known: {', '.join(known_kinds)}")
+            if isinstance(known_kinds, Mapping):
+                known_kinds[rule.kind].check(rule, item)
+            elif rule.at_count is not None and rule.at_count < 1:
+                raise ValueError(f"fault {item!r}: the opportunity count starts at 1")
             self.rules[rule.kind] = rule
 
     @staticmethod
     def _parse(item: str) -> FaultRule:
         head, _, param = item.partition(":")
-        parameter = float(param) if param else None
-        if "@" in head:
-            kind, _, n = head.partition("@")
-            return FaultRule(kind.strip(), at_count=int(n), parameter=parameter)
+        try:
+            parameter = float(param) if param else None
+            if "@" in head:
+                kind, _, n = head.partition("@")
+                return FaultRule(kind.strip(), at_count=int(n), parameter=parameter)
+            prob = float(head.partition("=")[2]) if "=" in head else 1.0
+        except ValueError:
+            raise ValueError(f"fault {item!r}: KIND=RATE, KIND@N or KIND, then :PARAMETER "
+                             "(numbers)") from None
         if "=" in head:
-            kind, _, p = head.partition("=")
-            prob = float(p)
+            kind = head.partition("=")[0]
             if not 0.0 <= prob <= 1.0:
                 raise ValueError(f"fault probability out of [0, 1] in {item!r}")
             return FaultRule(kind.strip(), probability=prob, parameter=parameter)
@@ -127,7 +245,9 @@ class Emulator:
 
     #: the device name used by `sim://NAME` URLs and `sim serve NAME`
     device_name = "emulator"
-    #: device-level fault kinds the subclass understands (in addition to TRANSPORT_FAULTS)
+    #: device-level faults the subclass injects, with their ranges (in addition to the
+    #: transport faults); `device_faults` are their names
+    fault_kinds: tuple[FaultKind, ...] = ()
     device_faults: tuple[str, ...] = ()
     #: True for an instrument that works its commands strictly in turn: a late reply then
     #: delays the replies after it (they never overtake it), as on its real line
@@ -135,13 +255,22 @@ class Emulator:
 
     def __init__(self, clock: Clock | None = None, faults: str = "", seed: int = 0) -> None:
         self.clock: Clock = clock if clock is not None else VirtualClock()
-        self.faults = FaultInjector(faults, seed, TRANSPORT_FAULTS + self.device_faults)
+        self.faults = FaultInjector(faults, seed, self.known_faults())
         self._queue: list[tuple[float, int, bytes]] = []
         self._seq = itertools.count()
         self._out = bytearray()
         self._last_reply_due_s = -float("inf")
         self.connected = True
         self.disconnected_until_s: float | None = None
+
+    @classmethod
+    def known_faults(cls) -> dict[str, FaultKind]:
+        """Every fault this emulator understands → its declared range (a kind only named in
+        `device_faults` gets an unchecked entry)."""
+        kinds = {k.kind: k for k in (*TRANSPORT_FAULT_KINDS, *cls.fault_kinds)}
+        for name in cls.device_faults:
+            kinds.setdefault(name, FaultKind(name, "@", (1, 12), (-math.inf, math.inf)))
+        return kinds
 
     # --- host side -------------------------------------------------------------------------
     def feed(self, data: bytes) -> None:
@@ -301,13 +430,49 @@ class SimContext:
 
 
 _FACTORIES: dict[str, EmulatorFactory] = {}
+_FAULT_TABLES: dict[str, dict[str, FaultKind]] = {}
 CONTEXT = SimContext()
 
 
-def register(name: str, factory: EmulatorFactory) -> None:
+def register(name: str, factory: EmulatorFactory, *,
+             faults: Mapping[str, FaultKind] | None = None) -> None:
     """Make `sim://NAME` and `sim serve NAME` create emulators with `factory(clock=, faults=,
-    seed=, world=, **options)`."""
+    seed=, world=, **options)`; `faults` are the kinds it injects (default: what the
+    factory's emulator class declares)."""
     _FACTORIES[name] = factory
+    if faults is None and isinstance(factory, type) and issubclass(factory, Emulator):
+        faults = factory.known_faults()
+    if faults is not None:
+        declare_faults(name, faults)
+
+
+def declare_faults(name: str, faults: Mapping[str, FaultKind] | tuple[FaultKind, ...]) -> None:
+    """The faults device `name` injects, with their ranges: the registry the campaign's
+    scenarios, `sim serve --faults` and the tests derive from."""
+    table = dict(faults) if isinstance(faults, Mapping) else {k.kind: k for k in faults}
+    _FAULT_TABLES[name] = table
+
+
+def fault_table(name: str | None = None) -> dict[str, dict[str, FaultKind]]:
+    """device → kind → `FaultKind` (every emulated device, or just `name`)."""
+    _load_builtin()
+    if name is not None:
+        if name not in _FAULT_TABLES:
+            raise ValueError(f"unknown simulated device {name!r}; known: "
+                             f"{', '.join(sorted(_FAULT_TABLES))}")
+        return {name: dict(_FAULT_TABLES[name])}
+    return {k: dict(v) for k, v in sorted(_FAULT_TABLES.items())}
+
+
+def fault_table_text() -> str:
+    """The fault parameter table (markdown): device, kind, how it is drawn, what detects it."""
+    lines = ["| kind | drawn | parameter | what it does | what detects it |",
+             "|---|---|---|---|---|"]
+    out: list[str] = []
+    for device, kinds in fault_table().items():
+        out.append(f"\n**{device}**\n")
+        out += lines + [k.row() for _, k in sorted(kinds.items())]
+    return "\n".join(out).strip() + "\n"
 
 
 def known_devices() -> list[str]:
@@ -393,7 +558,16 @@ def _load_builtin() -> None:
                 raise
             continue
         if e.cls and name not in _FACTORIES:
-            _FACTORIES[name] = _class_factory(getattr(module, e.cls))
+            cls = getattr(module, e.cls)
+            _FACTORIES[name] = _class_factory(cls)
+            declare_faults(name, cls.known_faults())
+    for mod in FAULT_ONLY_MODULES:      # devices off the serial registry that declare faults
+        importlib.import_module(mod)
+
+
+#: modules of emulated devices outside `EMULATORS` (the QE Pro sits on the emulated USB bus,
+#: not on ``sim://``) that declare their faults when imported
+FAULT_ONLY_MODULES: tuple[str, ...] = ("normbox_lab.sim.qepro",)
 
 
 # --- what the emulators ask of the world -------------------------------------------------------

@@ -53,6 +53,7 @@ import numpy as np
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    RADIOMETER_FAULT_KINDS,
     KonicaMinoltaCommands,
     RadiometerOptics,
     Scene,
@@ -85,7 +86,8 @@ class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
     device_name = "cs1000a"
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMT"
-    device_faults = ("device-error", "busy", "over-range")
+    fault_kinds = RADIOMETER_FAULT_KINDS
+    device_faults = tuple(k.kind for k in RADIOMETER_FAULT_KINDS)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)
     latency_script = (b"RMT,1\n", b"\n", b"MES,1\n", b"\n", b"OK\n")
@@ -288,4 +290,4 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     return CS1000AEmulator(clock, faults, int(seed), world=world, **options)
 
 
-core.register("cs1000a", _factory)
+core.register("cs1000a", _factory, faults=CS1000AEmulator.known_faults())

@@ -61,6 +61,7 @@ from typing import Any
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    RADIOMETER_FAULT_KINDS,
     KonicaMinoltaCommands,
     RadiometerOptics,
     Scene,
@@ -121,7 +122,8 @@ class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
     device_name = "cs2000a"
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMTS"
-    device_faults = ("device-error", "busy", "over-range")
+    fault_kinds = RADIOMETER_FAULT_KINDS
+    device_faults = tuple(k.kind for k in RADIOMETER_FAULT_KINDS)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)
     latency_script = (b"RMTS,1\n", b"\n", b"MEAS,1\n", b"\n", b"OK00\n")
@@ -761,6 +763,6 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     return CS2000AEmulator(clock, faults, int(seed), world=world, **options)
 
 
-core.register("cs2000a", _factory)
+core.register("cs2000a", _factory, faults=CS2000AEmulator.known_faults())
 
 __all__ = ["CS2000AEmulator", "fmt_hex", "fmt_lv", "measurement_time_s"]

@@ -31,6 +31,8 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from normbox_lab.sim.core import FaultKind
+
 
 @dataclass(frozen=True)
 class Trapezoid:
@@ -285,6 +287,17 @@ class Axis:
             self.encoder_zero_deg = self._physical_deg
             self.homed = True
         return MotionEnd(m.kind, m.reason, m.end_s)
+
+
+#: the faults both rotator emulators inject besides the transport faults
+ROTATOR_FAULT_KINDS: tuple[FaultKind, ...] = (
+    FaultKind("stall", "@", (1, 12), (0.0, 1.0), "linear", unit="of the move",
+              means="the n-th move stalls after this fraction of it (the controller sees it)",
+              detector="controller stall / position error → typed DeviceError → prompt"),
+    FaultKind("power-blip", "=", (1e-3, 1.0), (0.05, 60.0), "log", unit="s",
+              means="the supply dips: controller reset, link down this long",
+              detector="reconnect, re-home; typed InstrumentError beyond the window"),
+)
 
 
 class PowerCycled:

@@ -119,6 +119,29 @@ WHITE_TARGET_COUNTS = 150_000.0
 #: condition faults and their default parameters
 CONDITION_FAULTS = {"saturation": 0.97, "tec-drift": 2.0, "dark-drift": 1000.0,
                     "lamp-dim": 1e-4}
+#: the QE Pro's faults (USB: none of the serial transport kinds) and their ranges
+FAULT_KINDS: tuple[core.FaultKind, ...] = (
+    core.FaultKind("disconnect", "@", (1, 12), (0.05, 1e5), "log", unit="s",
+                   means="the n-th spectrum request is lost; off the bus this long",
+                   detector="reopen within reconnect_timeout_s, else typed InstrumentError"),
+    core.FaultKind("saturation", "@", (1, 12), (0.01, 1.0), "log", unit="× full scale",
+                   means="a light leak holds pixels 500-519 at ≥ this level from the n-th "
+                         "acquisition on",
+                   detector="driver: 8+ pixels at one identical count (noise makes that "
+                            "impossible) → typed DeviceError(PLATEAU); at full scale: "
+                            "saturation flag"),
+    core.FaultKind("tec-drift", "@", (1, 12), (0.05, 30.0), "log", unit="°C",
+                   means="the detector warms by this much, the set point stays",
+                   detector="tec-off-setpoint gate (±0.5 °C); below it the dark follows"),
+    core.FaultKind("dark-drift", "@", (1, 12), (1.0, 1e5), "log", unit="counts/s",
+                   means="the dark current jumps by this much",
+                   detector="dark taken with every reading; darks bracketing the white "
+                            "reference must agree (gonio), dark-drift gate"),
+    core.FaultKind("lamp-dim", "@", (1, 12), (1e-4, 1.0), "log", unit="× output",
+                   means="the gonio lamp's output falls to this fraction",
+                   detector="lamp check against the white (±2 %) → re-reference; "
+                            "lamp-drift gate"),
+)
 
 
 def halogen_irradiance(wavelength_nm: np.ndarray, temperature_K: float = 3000.0) -> np.ndarray:
@@ -159,7 +182,7 @@ class SimulatedQEProDevice:
         self.detector_angle = _angle_source(detector_arm, "gonio-detector")
         self.tilt_deg = float(tilt_deg)
         self.arm_clearance_deg = float(arm_clearance_deg)
-        self.faults = core.FaultInjector(faults, seed, ("disconnect", *CONDITION_FAULTS))
+        self.faults = core.FaultInjector(faults, seed, {k.kind: k for k in FAULT_KINDS})
         self.conditions: dict[str, float] = {}      # latched condition faults → parameter
         self.rng = np.random.default_rng(seed)
         self.noise = bool(noise)                    # False: no shot or read noise
@@ -521,6 +544,9 @@ _HANDLERS: dict[int, tuple[str, Callable[..., bytes | None]]] = {
 _QUERIES = frozenset(k for k, (fmt, _) in _HANDLERS.items()
                      if k not in (0x00100000, 0x00100830, 0x00110010, 0x00110110, 0x00110410,
                                   0x00420010, 0x00420011))
+
+
+core.declare_faults("qepro", FAULT_KINDS)
 
 
 def device(key: str = "qepro", clock: Clock | None = None,

@@ -39,6 +39,20 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.sim.core import FaultKind
+
+#: the faults both Konica Minolta emulators inject besides the transport faults
+RADIOMETER_FAULT_KINDS: tuple[FaultKind, ...] = (
+    FaultKind("device-error", "@", (1, 12), (0, 99), "choice",
+              choices=(None, 0, 2, 5, 10, 17, 20, 30, 51, 52, 71, 81, 82, 83, 99),
+              unit="ER code", means="the n-th command answers ERnn (default ER51; drawn "
+                                    "from the codes the manuals list)",
+              detector="typed DeviceError with its meaning → operator prompt"),
+    FaultKind("busy", "=", (1e-3, 1.0), means="a command answers ER02 (busy)",
+              detector="waited out; persistent → typed DeviceError"),
+    FaultKind("over-range", "@", (1, 12), means="the n-th measurement is over range (ER10)",
+              detector="typed DeviceError → retry / flag instrument-error"),
+)
 
 KM_LM_W = 683.0
 DEFAULT_CCT_K = 2856.0

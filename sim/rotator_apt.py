@@ -87,7 +87,7 @@ import struct
 from typing import Any, ClassVar
 
 from normbox_lab.sim import core
-from normbox_lab.sim.motion import Axis, PowerCycled, Trapezoid
+from normbox_lab.sim.motion import ROTATOR_FAULT_KINDS, Axis, PowerCycled, Trapezoid
 
 HOST = 0x01
 CONTROLLER = 0x50
@@ -131,7 +131,8 @@ def long_frame(msg_id: int, data: bytes) -> bytes:
 
 class AptRotatorEmulator(PowerCycled, core.Emulator):
     device_name = "rotator-apt"
-    device_faults = ("stall", "power-blip")
+    fault_kinds = ROTATOR_FAULT_KINDS
+    device_faults = tuple(k.kind for k in ROTATOR_FAULT_KINDS)
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
                  serial_number: int = 55123456, power_up_angle_deg: float = 0.0,
@@ -490,4 +491,4 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     return AptRotatorEmulator(clock, faults, seed, **kw)
 
 
-core.register("rotator-apt", _factory)
+core.register("rotator-apt", _factory, faults=AptRotatorEmulator.known_faults())

@@ -60,7 +60,7 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.sim import core
-from normbox_lab.sim.motion import Axis, PowerCycled, Trapezoid
+from normbox_lab.sim.motion import ROTATOR_FAULT_KINDS, Axis, PowerCycled, Trapezoid
 
 STEPS_PER_DEG = 1.0 / 0.000234375
 SPEED_NATIVE = 1.6384
@@ -82,7 +82,8 @@ def lrc(text: str) -> str:
 
 class ZaberRotatorEmulator(PowerCycled, core.LineEmulator):
     device_name = "rotator-zaber"
-    device_faults = ("stall", "power-blip")
+    fault_kinds = ROTATOR_FAULT_KINDS
+    device_faults = tuple(k.kind for k in ROTATOR_FAULT_KINDS)
     terminators = (b"\n", b"\r")
 
     def __init__(self, clock: Any = None, faults: str = "", seed: int = 0, *,
@@ -392,4 +393,4 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     return ZaberRotatorEmulator(clock, faults, seed, **kw)
 
 
-core.register("rotator-zaber", _factory)
+core.register("rotator-zaber", _factory, faults=ZaberRotatorEmulator.known_faults())

@@ -3,7 +3,9 @@
 A `Scenario` is plain data: a protocol and its (small) parameters, the world, the instruments
 (any radiometer of the emulator registry, `sim.core.devices_for("radiometer")`; APT or Zaber
 sample rotator), a fault schedule over every fault kind
-every emulator has, the operator's answer to persistent faults (retry, skip, abort) and a list
+every emulator declares (`sim.core.fault_table`: kind, range, distribution; every parameter is
+drawn over its whole physical range, log-uniform where it spans decades, both ends included
+with probability `core.BOUNDARY_SHARE` each), the operator's answer to persistent faults (retry, skip, abort) and a list
 of operator actions (pause, emergency stop, `kill -9`), each fired at the n-th engine event of
 a kind in its own segment (process) of the run.  `draw(seed, index)` is deterministic (Python's
 `random.Random` seeded with a string), `Scenario.to_json()` / `from_json()` round-trip exactly,
@@ -23,39 +25,19 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 from normbox_lab.sim import core
+from normbox_lab.sim.core import FaultKind
 
-#: every fault kind of every emulator, with how it is drawn: (mode, value range, parameter
-#: choices).  mode "=" is a rate per reply/opportunity, "@" fires (or latches) once at the
-#: n-th opportunity.  Parameters: late-reply delays beyond the drivers' 10 s timeout,
-#: disconnects longer than their 10 s reconnect window, lamp drift in %/h, flicker in % rms …
-TRANSPORT_KINDS: dict[str, tuple[str, tuple[float, float], tuple[float | None, ...]]] = {
-    "no-reply": ("=", (0.02, 0.15), (None,)),
-    "late-reply": ("=", (0.02, 0.2), (2.0, 12.0, 30.0)),
-    "garble": ("=", (0.02, 0.2), (None,)),
-    "truncate": ("=", (0.02, 0.15), (None,)),
-    "disconnect": ("@", (1, 12), (1.0, 5.0, 30.0)),
-}
-DEVICE_KINDS: dict[str, dict[str, tuple[str, tuple[float, float], tuple[float | None, ...]]]] = {
-    "cs1000a": {"device-error": ("@", (1, 12), (51.0, None)),
-                "busy": ("=", (0.02, 0.2), (None,)),
-                "over-range": ("@", (1, 6), (None,))},
-    "cs2000a": {"device-error": ("@", (1, 12), (51.0, None)),
-                "busy": ("=", (0.02, 0.2), (None,)),
-                "over-range": ("@", (1, 6), (None,))},
-    "rotator-apt": {"stall": ("@", (1, 8), (0.5, 5.0)),
-                    "power-blip": ("=", (0.05, 0.3), (None,))},
-    "rotator-zaber": {"stall": ("@", (1, 8), (0.5, 5.0)),
-                      "power-blip": ("=", (0.05, 0.3), (None,))},
-    "sphere": {"unstable": ("@", (1, 10), (20.0, 60.0, 400.0)),
-               "lamp-fail": ("@", (2, 12), (None,)),
-               "lamp-drift": ("@", (1, 6), (-10.0, -3.0, 5.0)),
-               "flicker": ("@", (1, 6), (2.0, 5.0))},
-    "qepro": {"disconnect": ("@", (1, 8), (1.0, 5.0, 30.0)),
-              "saturation": ("@", (1, 8), (None,)),
-              "tec-drift": ("@", (1, 8), (2.0, 6.0)),
-              "dark-drift": ("@", (1, 8), (None, 5000.0)),
-              "lamp-dim": ("@", (2, 8), (0.5, 0.9, 1e-4))},
-}
+
+def fault_kinds(device: str) -> dict[str, FaultKind]:
+    """Every fault kind the emulator of `device` declares, transport kinds included for a
+    line device (`sim.core.fault_table`): a scenario draws each over its whole range."""
+    return core.fault_table(device)[device]
+
+
+def all_fault_kinds() -> dict[str, dict[str, FaultKind]]:
+    return core.fault_table()
+
+
 #: the emulators on a serial line (the QE Pro is USB: no line, so none of the serial transport
 #: kinds): every device of the emulator registry
 LINE_DEVICES = tuple(core.EMULATORS)
@@ -182,16 +164,6 @@ def draw_params(rng: random.Random, protocol: str) -> dict[str, Any]:
             "angle_deg": float(rng.choice(ANGLES_DEG))}
 
 
-def device_kinds(device: str) -> dict[str, tuple[str, tuple[float, float],
-                                                 tuple[float | None, ...]]]:
-    """The device fault kinds of `device` and how each is drawn: the table above, else what
-    the emulator class declares (`fault_draws`)."""
-    if device in DEVICE_KINDS:
-        return DEVICE_KINDS[device]
-    cls = core.emulator_class(device) if device in core.EMULATORS else None
-    return dict(getattr(cls, "fault_draws", {}))
-
-
 def _alternative_formats(radiometer: str) -> list[str]:
     """The radiometer driver's data formats other than ASCII (the driver registry's)."""
     from normbox_lab.acquire.registry import DRIVERS
@@ -201,13 +173,9 @@ def _alternative_formats(radiometer: str) -> list[str]:
 
 
 def _draw_fault(rng: random.Random, role: str, device: str) -> Fault:
-    kinds = dict(device_kinds(device))
-    if device in LINE_DEVICES:
-        kinds.update(TRANSPORT_KINDS)
-    kind = rng.choice(sorted(kinds))
-    mode, (lo, hi), params = kinds[kind]
-    value = round(rng.uniform(lo, hi), 3) if mode == "=" else rng.randint(int(lo), int(hi))
-    return Fault(role, kind, mode, value, rng.choice(params))
+    kinds = fault_kinds(device)
+    kind = kinds[rng.choice(sorted(kinds))]
+    return Fault(role, kind.kind, kind.mode, kind.draw_value(rng), kind.draw_param(rng))
 
 
 def draw(seed: int, index: int, *, normbox_share: float = 0.0,
@@ -285,5 +253,4 @@ def lab_toml(scenario: Scenario) -> str:
     return text
 
 
-__all__ = ["ACTIONS", "ACTION_EVENTS", "DEVICE_KINDS", "PROTOCOLS", "TRANSPORT_KINDS",
-           "Action", "Fault", "Scenario", "draw", "lab_toml", "port_url"]
+__all__ = ["ACTIONS", "ACTION_EVENTS", "PROTOCOLS", "Action", "Fault", "Scenario", "all_fault_kinds", "draw", "fault_kinds", "lab_toml", "port_url"]

@@ -62,7 +62,7 @@ power blip: the configuration is back at its defaults and the last measurement i
 
 from __future__ import annotations
 
-from typing import Any, ClassVar
+from typing import Any
 
 import numpy as np
 
@@ -102,12 +102,15 @@ def _number(text: str) -> float | None:
 class SpecbosEmulator(core.LineEmulator):
     device_name = "specbos1211"
     replies_in_order = True         # one command at a time: a late reply holds back the next
-    device_faults = ("device-error", "over-range")
-    #: how the simulation campaign draws each device fault: (mode, value range, parameter
-    #: choices), as `sim.scenario.TRANSPORT_KINDS` ("=" a rate, "@" once at the n-th)
-    fault_draws: ClassVar[dict[str, tuple[str, tuple[float, float], tuple[float | None, ...]]]] = {
-        "device-error": ("@", (1, 12), (171.0, 4.0, None)),
-        "over-range": ("@", (1, 6), (None,))}
+    fault_kinds: tuple[core.FaultKind, ...] = (
+        core.FaultKind("device-error", "@", (1, 12), (0, 999), "choice",
+                       choices=(None, 4, 10, 120, 138, 147, 171), unit="error number",
+                       means="the n-th command answers NAK with this error (default 171)",
+                       detector="typed DeviceError with its meaning → operator prompt"),
+        core.FaultKind("over-range", "@", (1, 12), means="the n-th measurement is over range",
+                       detector="typed DeviceError → retry / flag instrument-error"),
+    )
+    device_faults = tuple(k.kind for k in fault_kinds)
     terminators = (b"\r",)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)

@@ -83,7 +83,20 @@ def preset_spectrum(name: str) -> np.ndarray:
 
 class SphereEmulator(core.LineEmulator):
     device_name = "sphere"
-    device_faults = ("unstable", "lamp-fail", "lamp-drift", "flicker")
+    fault_kinds: tuple[core.FaultKind, ...] = (
+        core.FaultKind("unstable", "@", (1, 12), (1.0, 3600.0), "log", unit="s",
+                       means="a 2 % dip, then not stable for this long",
+                       detector="stability check → suspend, wait, retake; prompt"),
+        core.FaultKind("lamp-fail", "@", (1, 12), means="the lamp goes out (ERROR state)",
+                       detector="typed DeviceError(LAMP) → prompt"),
+        core.FaultKind("lamp-drift", "@", (1, 12), (-100.0, 100.0), "linear", unit="%/h",
+                       means="the output drifts at this rate (the monitor follows it)",
+                       detector="lamp-drift gate (monitor vs reference, 0.5 %)"),
+        core.FaultKind("flicker", "@", (1, 12), (0.01, 20.0), "log", unit="% rms",
+                       means="output noise of this size",
+                       detector="lamp-unstable gate (monitor scatter, 0.25 %)"),
+    )
+    device_faults = tuple(k.kind for k in fault_kinds)
     terminators = (b"\n", b"\r")
     presets = ("D65", "A")
 
@@ -291,4 +304,4 @@ def _factory(clock: Any = None, faults: str = "", seed: int = 0, world: Any = No
     return SphereEmulator(clock, faults, seed, **kw)
 
 
-core.register("sphere", _factory)
+core.register("sphere", _factory, faults=SphereEmulator.known_faults())
