@@ -16,6 +16,7 @@ def store(tmp_path):
 
 
 def test_pragmas_and_schema(store):
+    store.create_run("light-map")          # the file is opened for writing at the first write
     assert store._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
     assert store._db.execute("PRAGMA synchronous").fetchone()[0] == 2  # FULL
     assert store.schema_version() == SCHEMA_VERSION
@@ -152,6 +153,9 @@ def test_a_foreign_sqlite_file_is_refused_untouched(tmp_path):
         Store(other)
     with Store(tmp_path / "new.sqlite"):
         pass
+    assert not (tmp_path / "new.sqlite").exists()      # nothing written: no file made
+    with Store(tmp_path / "new.sqlite") as s:
+        s.create_run("light-map")
     db = sqlite3.connect(tmp_path / "new.sqlite")
     assert db.execute("PRAGMA application_id").fetchone()[0] == APPLICATION_ID
     db.close()

@@ -54,11 +54,12 @@ import numpy as np
 from normbox_lab import __version__
 from normbox_lab.acquire.store_file import (
     APPLICATION_ID,
+    ReadView,
     RunLock,
     damaged,
     describe,
     preflight,
-    read_only_uri,
+    read_only_problem,
     refusal,
 )
 from normbox_lab.core.errors import StoreError
@@ -321,65 +322,95 @@ class Store:
         self.read_only = bool(read_only)
         self._wall_s = clock_wall_s or time.time
         self._lock = threading.RLock()
-        memory = str(path) == ":memory:"
-        exists = False if memory else preflight(self.path, SCHEMA_VERSION)
-        if exists:
-            self._check_read_only()            # recognised with the WAL, nothing recovered
-        try:
-            if self.read_only and not exists:  # nothing there: an empty store, in memory
-                self._db = sqlite3.connect(":memory:", isolation_level=None,
-                                           check_same_thread=False)
-            elif self.read_only:
-                self._db = sqlite3.connect(read_only_uri(self.path), uri=True,
-                                           isolation_level=None, check_same_thread=False,
-                                           timeout=30.0)
-            else:
-                self._db = sqlite3.connect(str(self.path), isolation_level=None,
-                                           check_same_thread=False, timeout=30.0)
-        except sqlite3.Error as exc:
-            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
-        try:
-            self._recognise()                  # reads only: nothing is written to a refusal
-            if self.read_only and exists:
-                self._in_memory_if_older()
-            elif not self.read_only:
-                self._db.execute("PRAGMA journal_mode=WAL")
-                self._db.execute("PRAGMA synchronous=FULL")
-            self._db.execute("PRAGMA foreign_keys=ON")
-            if not (self.read_only and exists):
-                self._migrate()
-        except sqlite3.Error as exc:
-            self._db.close()
-            raise StoreError(f"{self.path}: not a normbox-lab store, or unreadable ({exc})") from exc
-        except StoreError:
-            self._db.close()
-            raise
-
-    def _check_read_only(self) -> None:
-        """Recognise the file and check its pages through a read-only connection (it reads a
-        WAL's pages; it recovers nothing, checkpoints nothing): a refusal changes nothing."""
-        try:
-            db = sqlite3.connect(read_only_uri(self.path), uri=True, timeout=30.0)
-        except sqlite3.Error as exc:
-            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
-        try:
-            why = refusal(self.path, *describe(db), SCHEMA_VERSION)
+        self._view: ReadView | None = None
+        self._writer = False
+        if str(path) == ":memory:":
+            self._open_writer(":memory:")
+            return
+        if not self.read_only:
+            why = read_only_problem(self.path)   # named at once, before anything is opened
             if why:
                 raise StoreError(why)
-            rows = [line for r in db.execute("PRAGMA quick_check").fetchall()
+        exists = preflight(self.path, SCHEMA_VERSION)
+        self._open_reader(exists)
+
+    def _open_reader(self, exists: bool) -> None:
+        """Every store is first opened for reading only (`ReadView`: the file and its side
+        files keep their bytes); the file is opened for writing at the first write
+        (`_ensure_writer`), so a command that fails before it writes leaves the store, its
+        ``-wal``, ``-shm`` and ``-journal`` as they were, and a missing or empty file is
+        neither created nor given a schema."""
+        if not exists:                     # nothing there: an empty store, in memory
+            self._db = sqlite3.connect(":memory:", isolation_level=None,
+                                       check_same_thread=False)
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._migrate()
+            return
+        try:
+            self._view = ReadView(self.path)
+        except (OSError, sqlite3.Error) as exc:
+            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
+        self._db = self._view.db
+        try:
+            self._recognise()
+            rows = [line for r in self._db.execute("PRAGMA quick_check").fetchall()
                     for line in str(r[0]).splitlines() if line.strip()]
             if rows != ["ok"]:
                 first = rows[0].lstrip("* ")[:120]
                 raise StoreError(f"{self.path}: the store is damaged ({len(rows)} problem(s), "
                                  f"first: {first}); restore a copy (`sqlite3 FILE 'PRAGMA "
                                  "integrity_check'` lists them)")
+            self._in_memory_if_older()
+            self._db.execute("PRAGMA foreign_keys=ON")
         except sqlite3.Error as exc:
-            msg = str(exc)
-            if "readonly" in msg or "read-only" in msg:
-                return       # a hot rollback journal: recognised by its header, recovered on open
+            self._close_reader()
             raise damaged(self.path, exc) from exc
-        finally:
-            db.close()
+        except StoreError:
+            self._close_reader()
+            raise
+
+    def _close_reader(self) -> None:
+        self._db.close()
+        if self._view is not None:
+            self._view.close()
+            self._view = None
+
+    def _open_writer(self, target: str) -> None:
+        try:
+            self._db = sqlite3.connect(target, isolation_level=None, check_same_thread=False,
+                                       timeout=30.0)
+        except sqlite3.Error as exc:
+            raise StoreError(f"{self.path}: cannot open ({exc})") from exc
+        try:
+            self._recognise()
+            self._db.execute("PRAGMA journal_mode=WAL")
+            self._db.execute("PRAGMA synchronous=FULL")
+            self._db.execute("PRAGMA foreign_keys=ON")
+            self._migrate()
+        except sqlite3.Error as exc:
+            self._db.close()
+            why = read_only_problem(self.path) if target != ":memory:" else ""
+            raise StoreError(why or f"{self.path}: not a normbox-lab store, or unreadable "
+                                    f"({exc})") from exc
+        except StoreError:
+            self._db.close()
+            raise
+        self._writer = True
+
+    def _ensure_writer(self) -> None:
+        """Open the file for writing, at the first write (see `_open_reader`)."""
+        if self._writer:
+            return
+        if self.read_only:
+            raise StoreError(f"{self.path}: opened read-only; nothing was written")
+        with self._lock:
+            if self._writer:
+                return
+            why = read_only_problem(self.path)
+            if why:
+                raise StoreError(why)
+            self._close_reader()
+            self._open_writer(str(self.path))
 
     def _in_memory_if_older(self) -> None:
         """A read-only store of an older schema: copied into memory and migrated there."""
@@ -418,7 +449,7 @@ class Store:
 
     def close(self) -> None:
         with self._lock:
-            self._db.close()
+            self._close_reader()
 
     def __enter__(self) -> Self:
         return self
@@ -458,6 +489,7 @@ class Store:
             return str(self._db.execute("PRAGMA integrity_check").fetchone()[0])
 
     def _tx(self) -> _Transaction:
+        self._ensure_writer()
         return _Transaction(self._db, self._lock)
 
     # --- runs ----------------------------------------------------------------------------------

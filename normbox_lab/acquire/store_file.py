@@ -15,7 +15,9 @@ asks whether a live process holds it without taking it.
 from __future__ import annotations
 
 import os
+import shutil
 import sqlite3
+import tempfile
 from pathlib import Path
 from typing import Any, Self
 
@@ -135,6 +137,70 @@ def read_only_uri(path: Path) -> str:
     return uri(path, immutable="1")
 
 
+#: the files SQLite keeps beside a store (write-ahead log, its index, a rollback journal)
+SIDE_SUFFIXES = ("-wal", "-shm", "-journal")
+
+
+def side_files(path: Path) -> list[Path]:
+    return [path.with_name(path.name + s) for s in SIDE_SUFFIXES]
+
+
+class ReadView:
+    """A connection that reads a store without touching it or its side files.
+
+    With no ``-wal`` or ``-journal`` beside the file it is opened ``immutable=1`` (SQLite
+    looks at nothing else).  With one, SQLite would recover (a hot journal), checkpoint or
+    re-index (``-shm``) the real files even on a read-only open, so the file and its side
+    files are copied into a private folder and read there: what a reader sees is the store
+    with every committed transaction, and the real files keep their bytes."""
+
+    def __init__(self, path: Path) -> None:
+        self.folder: str | None = None
+        sides = [p for p in side_files(path) if p.exists() and not p.name.endswith("-shm")]
+        if not sides:
+            self.db = sqlite3.connect(uri(path, immutable="1"), uri=True,
+                                      isolation_level=None, check_same_thread=False)
+            return
+        self.folder = tempfile.mkdtemp(prefix="normbox-store-read-")
+        copy = Path(self.folder) / path.name
+        try:
+            shutil.copyfile(path, copy)
+            for side in sides:
+                shutil.copyfile(side, copy.with_name(copy.name + side.name[len(path.name):]))
+            self.db = sqlite3.connect(str(copy), isolation_level=None, check_same_thread=False,
+                                      timeout=30.0)
+        except (OSError, sqlite3.Error):
+            self.close()
+            raise
+
+    def close(self) -> None:
+        db = getattr(self, "db", None)
+        if db is not None:
+            db.close()
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+            self.folder = None
+
+
+def read_only_problem(path: Path) -> str:
+    """Why a store at `path` cannot be written ("" when it can): a file, a side file or a
+    folder the process may not write (SQLite creates the ``-wal`` and ``-shm`` beside the
+    store, so its folder must be writable too).  Asked before anything is opened, so a
+    read-only store is named read-only at once, not after a run's start-up."""
+    folder = path.resolve().parent
+    if path.exists() and not os.access(path, os.W_OK):
+        return (f"{path}: the store is read-only (the file is not writable); nothing was "
+                "changed: make it writable, or use a read-only command (runs, qa, export)")
+    for side in side_files(path):
+        if side.exists() and not os.access(side, os.W_OK):
+            return (f"{path}: the store is read-only ({side.name} is not writable); nothing "
+                    "was changed")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        return (f"{path}: the store is read-only (its folder {folder} is not writable, and "
+                "SQLite writes its journal beside the store); nothing was changed")
+    return ""
+
+
 def refusal(path: Path, app_id: int, version: int, tables: set[str], newest: int) -> str:
     """Why a file is not a store this program (schema version `newest`) may open ("" when it
     is)."""
@@ -200,5 +266,5 @@ def preflight(path: Path, newest: int) -> bool:
     return True
 
 
-__all__ = ["APPLICATION_ID", "RunLock", "damaged", "describe", "preflight", "read_only_uri",
-           "refusal", "uri"]
+__all__ = ["APPLICATION_ID", "SIDE_SUFFIXES", "ReadView", "RunLock", "damaged", "describe",
+           "preflight", "read_only_problem", "read_only_uri", "refusal", "side_files", "uri"]
