@@ -20,6 +20,8 @@ from report_fixtures import synthetic_report_data
 
 from normbox_lab.analyze.report_style import MIN_FONT_PT, REPORT_COLUMN_PX
 
+#: the page's column at 800 px (`report._CSS`: body padding .75 rem below 900 px)
+NARROW_COLUMN_PX = 800.0 - 2 * 12.0
 FONT_SIZE = re.compile(r"font-size:\s*([0-9.]+)px")
 
 
@@ -42,8 +44,9 @@ def svg_text_sizes_pt(html: str) -> dict[str, tuple[float, float]]:
     return out
 
 
-def drawn_boxes(fig: Any) -> tuple[list[tuple[str, Any]], list[tuple[str, Any, Any]]]:
-    """(texts, legends) as drawn by Agg: [(text, Bbox)], [(legend, Bbox, its texts)]."""
+def drawn_boxes(fig: Any) -> tuple[list[tuple[str, Any, Any]], list[tuple[Any, Any, Any]]]:
+    """(texts, legends) as drawn by Agg: [(text, Bbox, its axes)], [(legend, Bbox, its
+    texts)]."""
     from matplotlib.backends.backend_agg import FigureCanvasAgg, RendererAgg
 
     texts: list[tuple[Any, Any]] = []
@@ -64,7 +67,10 @@ def drawn_boxes(fig: Any) -> tuple[list[tuple[str, Any]], list[tuple[str, Any, A
     legends = [leg for leg in [*fig.legends, *(ax.get_legend() for ax in fig.axes)]
                if leg is not None and leg.get_visible()]
     legend_boxes = [(leg, leg.get_window_extent(renderer), set(leg.get_texts())) for leg in legends]
-    return [(t.get_text(), b) for t, b in texts], legend_boxes
+    # the axes a text belongs to: found in its artist tree (a polar tick label's `.axes` is
+    # not set)
+    owner = {id(t): ax for ax in fig.axes for t in ax.findobj(lambda a: hasattr(a, "get_text"))}
+    return [(t.get_text(), b, owner.get(id(t))) for t, b in texts], legend_boxes
 
 
 def _overlap(a: Any, b: Any, tol_px: float = 0.5) -> bool:
@@ -73,18 +79,34 @@ def _overlap(a: Any, b: Any, tol_px: float = 0.5) -> bool:
 
 
 def overlaps(fig: Any) -> list[str]:
-    """Every pair of drawn texts whose boxes intersect, and every text that touches a legend
-    box it does not belong to."""
+    """Every pair of drawn texts whose boxes intersect, every text that touches a legend box
+    it does not belong to, every text that reaches into the plot area of an axes it does not
+    belong to (a tick label in the neighbouring panel), and every text cut by the figure's
+    edge."""
     texts, legends = drawn_boxes(fig)
+    renderer = fig.canvas.get_renderer()
+    # the plot area as drawn (a polar half-disc: its wedge, not the square around it)
+    areas = [(ax, ax.patch.get_window_extent(renderer)) for ax in fig.axes if ax.get_visible()]
+    legend_texts = {t.get_text() for _, _, own in legends for t in own}
     found = []
     for i in range(len(texts)):
         for j in range(i + 1, len(texts)):
             if _overlap(texts[i][1], texts[j][1]):
                 found.append(f"{texts[i][0]!r} / {texts[j][0]!r}")
+    page = fig.bbox
+    for text, b, owner in texts:
+        if b.x0 < page.x0 - 0.5 or b.x1 > page.x1 + 0.5 or b.y0 < page.y0 - 0.5 \
+                or b.y1 > page.y1 + 0.5:
+            found.append(f"{text!r} / outside the figure")
+        if text in legend_texts:
+            continue
+        for ax, area in areas:
+            if ax is not owner and _overlap(b, area, tol_px=1.0):
+                found.append(f"{text!r} / the plot area of {ax.get_title() or ax.get_label()!r}")
     for leg, box, own in legends:
         own_text = {t.get_text() for t in own}
         title = leg.get_title().get_text()
-        for text, b in texts:
+        for text, b, _owner in texts:
             if text in own_text or text == title:
                 continue
             if _overlap(box, b, tol_px=-1.0):     # touching counts
@@ -128,6 +150,33 @@ def test_every_figure_text_is_at_least_9_pt_at_the_reports_width(report_figures)
     assert set(sizes) == set(figs) and len(sizes) >= 12
     small = {fid: round(pt, 2) for fid, (pt, _own) in sizes.items() if pt < MIN_FONT_PT - 1e-6}
     assert small == {}, f"text below {MIN_FONT_PT} pt at the report's width: {small}"
+
+
+def test_the_polar_plots_spectra_and_heat_maps_keep_9_pt_at_800_px(report_figures):
+    """At 800 px the page's column is 776 px (body padding 12 px): these figures are at most
+    that wide, so the browser does not scale them down."""
+    html, _figs = report_figures
+    widths = dict(re.findall(r'<figure id="([^"]+)">.*?<img[^>]*width="([0-9.]+)"', html,
+                             re.DOTALL))
+    named = [f for f in widths if f.startswith("fig-polar-") or f in ("fig-reference",
+                                                                      "fig-deltae")]
+    assert len(named) == 5
+    assert {f: float(widths[f]) for f in named if float(widths[f]) > NARROW_COLUMN_PX} == {}
+
+
+def test_fig_1s_colour_bar_reaches_the_largest_value():
+    """Panels that share a scale (ΔE00 map and noise floor, vmax 1.0) with a value of 1.17:
+    the colour bar goes to 1.17, and both panels keep one scale."""
+    from normbox_lab.analyze import report_figures as rf
+    from normbox_lab.analyze.report import ImageFigure, ImagePanel
+
+    de = np.full((6, 8), 0.4)
+    de[2, 3] = 1.17
+    f = ImageFigure("fig-1", "t", "c", [ImagePanel("ΔE00", de, 1.0, "ΔE00"),
+                                        ImagePanel("noise floor", de / 4, 1.0, "ΔE00")])
+    fig = rf.fig_images(f)
+    clims = [ax.images[0].get_clim() for ax in fig.axes if ax.images]
+    assert clims == [(0.0, 1.17), (0.0, 1.17)]
 
 
 def test_no_labels_overlap_in_any_figure(report_figures):

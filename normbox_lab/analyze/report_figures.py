@@ -61,7 +61,7 @@ def _angle_colourbar(fig: Any, axes: Any, angle_deg: np.ndarray) -> None:
     bounds = np.concatenate([angle_deg - step / 2, [angle_deg[-1] + step / 2]])
     sm = ScalarMappable(norm=BoundaryNorm(bounds, len(cols)), cmap=ListedColormap(cols))
     if fig.get_layout_engine() is None:                  # a hand-placed grid: own axes
-        cax = fig.add_axes([0.925, 0.15, 0.012, 0.7])
+        cax = fig.add_axes([fig.subplotpars.right + 0.02, 0.15, 0.012, 0.7])
         cb = fig.colorbar(sm, cax=cax)
     else:
         cb = fig.colorbar(sm, ax=axes, fraction=0.025, pad=0.01, aspect=30)
@@ -83,9 +83,10 @@ def fig_reference(c: ComparisonResult) -> Any:
     height_in = 1.45 * nrow + 0.9
     fig = new_figure(7.8, height_in, layout=None)
     fig.subplots_adjust(left=0.1, right=0.86, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
-                        wspace=0.32, hspace=0.5)
+                        wspace=0.5, hspace=0.5)
     cols = angle_colours(c.angle_deg.size)
-    ref, label = scaled_for_axis(c.reference, f"spectral radiance [{RADIANCE_UNIT}]")
+    ref, label = scaled_for_axis(c.reference, f"spectral radiance [{RADIANCE_UNIT}]",
+                                 force=True)
     axes = fig.subplots(nrow, ncol, sharex=True, squeeze=False)
     steps = []
     for p in range(nrow * ncol):
@@ -189,12 +190,14 @@ A4_TEXT_WIDTH_IN = (210.0 - 2 * 14.0) / 25.4
 _SUPERSCRIPT = str.maketrans("-0123456789", "⁻⁰¹²³⁴⁵⁶⁷⁸⁹")
 
 
-def scaled_for_axis(values: np.ndarray, label: str) -> tuple[np.ndarray, str]:
-    """Values in units of 10ⁿ when they are below 10⁻² or from 10⁴ on, the power written into
-    the axis label ("RMSE [10⁻⁵ W·sr⁻¹·m⁻²·nm⁻¹]") instead of matplotlib's "1e-5" offset text."""
+def scaled_for_axis(values: np.ndarray, label: str, force: bool = False
+                    ) -> tuple[np.ndarray, str]:
+    """Values in units of 10ⁿ when they are below 10⁻² or from 10⁴ on (`force`: whenever the
+    largest is not in [1, 10)), the power written into the axis label ("RMSE [10⁻⁵
+    W·sr⁻¹·m⁻²·nm⁻¹]") instead of matplotlib's "1e-5" offset text."""
     v = np.asarray(values, dtype=float)
     top = float(np.nanmax(np.abs(v))) if np.isfinite(v).any() else 0.0
-    if top == 0.0 or 1e-2 <= top < 1e4:
+    if top == 0.0 or (1e-2 <= top < 1e4 and not force) or 1.0 <= top < 10.0:
         return v, label
     n = int(np.floor(np.log10(top)))
     power = f"10{str(n).translate(_SUPERSCRIPT)}"
