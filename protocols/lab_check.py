@@ -37,7 +37,7 @@ from typing import Any
 
 from normbox_lab.acquire.steps import KINDS, PlanError, Step, StepKind, prompt
 from normbox_lab.acquire.store import ReadingRecord
-from normbox_lab.core.errors import DeviceError, InstrumentError, NormboxError, NotReady
+from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.core.spectral import WHITE_PATCH, patch_name
 
 PROTOCOL = "lab-check"
@@ -144,18 +144,18 @@ def _fail(check: str, role: str, message: str, source: str = "") -> CheckResult:
 # --- the check functions (run: the engine's StepRunner; step: the check's step) -------------------
 
 def _history(run: Any, role: str, check: str) -> tuple[float, str] | None:
-    """The value of the last passing `check` of `role` in an earlier lab-check run."""
+    """The value of `check` of `role` in the newest earlier lab-check run that passed every
+    check it made (a value from a run with a fault elsewhere is no reference)."""
     best = None
     for rec in run.store.runs():
-        if rec.protocol != PROTOCOL or rec.id == run.run_id:
+        if rec.protocol != PROTOCOL or rec.id == run.run_id or rec.status != "done":
             continue
-        try:
-            r = run.store.reading(rec.id, f"{role}/{check}")
-        except (KeyError, NormboxError):
+        results = {f"{m.get('role')}/{m.get('check')}": m for m in results_of(run.store, rec.id)}
+        m = results.get(f"{role}/{check}")
+        if m is None or m.get("value") is None or not all(r.get("passed")
+                                                          for r in results.values()):
             continue
-        m = r.metadata
-        if m.get("passed") and m.get("value") is not None:
-            best = (float(m["value"]), f"run {rec.id}")
+        best = (float(m["value"]), f"run {rec.id}")
     return best
 
 
