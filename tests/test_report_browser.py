@@ -1,6 +1,6 @@
-"""The HTML report read in a real browser (headless Chromium): every figure decodes, nothing
-overflows horizontally at 1280 px, body text is at least 12 px, and each section is
-photographed.
+"""The HTML report read in a real browser (headless Chromium) at 1400 and 800 px: every figure
+decodes, nothing overflows horizontally, no table needs a scroll bar (every table fits 800 px),
+body text is at least 12 px, and each section is photographed at both widths.
 
 The report is the synthetic campaign's (tests/report_fixtures.py) unless NORMBOX_REPORT_HTML
 names one (e.g. the demo's `demo-out/report.html`); screenshots go to NORMBOX_SCREENSHOT_DIR
@@ -23,7 +23,7 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-WIDTH_PX = 1280
+WIDTHS_PX = (1400, 800)
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
          "--disable-background-networking", "--disable-component-update", "--disable-sync",
          "--hide-scrollbars", "--virtual-time-budget=10000"]
@@ -84,9 +84,18 @@ def report_html(tmp_path_factory) -> Path:
     from report_fixtures import synthetic_report_data
 
     from normbox_lab.analyze.report import ImageFigure, ImagePanel, write_report
+    from normbox_lab.analyze.report_renderers import RendererRow
+    from normbox_lab.core.spectral import patch_name
 
     data = synthetic_report_data(step_nm=20.0, seed=1)
     data.polar_materials = ["patch08"]
+    # the store's patch names ("23 neutral 3.5 (1.05 D)"): the widest first column
+    data.comparison.patch_names = [f"{k} {patch_name(k)}" for k in range(1, 25)]
+    n_a = data.comparison.angle_deg.size
+    data.renderers = [RendererRow("normbox-lab", "normbox-lab 0.1 (default)", 0.41, 1.9,
+                                  [3.0] * n_a, [300, 10, 2, 0], 1),
+                      RendererRow("mitsuba-rgb", "mitsuba 3.9.1 llvm_ad_rgb", 1.34, 2.71,
+                                  [39.7] * n_a, [150, 100, 62, 0], 2)]
     rng = np.random.default_rng(0)
     data.images = [ImageFigure("fig-camera", "Virtual camera (synthetic panels)",
                                "Random panels: the layout of an image figure.",
@@ -98,23 +107,25 @@ def report_html(tmp_path_factory) -> Path:
     return write_report(tmp_path_factory.mktemp("browser") / "report.html", data)
 
 
-def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Path) -> None:
+@pytest.mark.parametrize("width_px", WIDTHS_PX)
+def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Path,
+                                                width_px: int) -> None:
     browser = _chromium()
     text = report_html.read_text(encoding="utf-8")
     assert "<script" not in text
     probe = tmp_path / "probe.html"
     probe.write_text(text.replace("</body>", f"<script>{CHECK_JS}</script></body>"),
                      encoding="utf-8")
-    done = _run(browser, tmp_path / "profile", f"--window-size={WIDTH_PX},1000",
+    done = _run(browser, tmp_path / "profile", f"--window-size={width_px},1000",
                 "--dump-dom", probe.as_uri())
     m = re.search(r'data-check="([^"]*)"', done.stdout)
     assert m, f"no measurement in the dumped DOM; chromium said: {done.stderr[-2000:]}"
     check = json.loads(m.group(1).replace("&quot;", '"').replace("&amp;", "&"))
-    assert check["width"] == WIDTH_PX
+    assert check["width"] == width_px
     figures = text.count("<figure id=")
     assert check["images"] == figures > 5
     assert check["broken"] == [], f"figures that do not decode: {check['broken']}"
-    assert check["scrollWidth"] <= WIDTH_PX, check["sticking"]
+    assert check["scrollWidth"] <= width_px, check["sticking"]
     assert check["sticking"] == [], check["sticking"]
     assert check["scrolling"] == [], f"tables wider than the page: {check['scrolling']}"
     assert check["minFont"] >= 12.0, check["minWhere"]
@@ -129,7 +140,7 @@ def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Pat
         page.write_text(text.replace(
             "</style>", f"section:not(#{sid}){{display:none}}{keep}</style>"), encoding="utf-8")
         height = int(min(max(sec["height"] + (420 if k == 0 else 80), 400), 6000))
-        shot = out / f"report-{k + 1:02d}-{sid}.png"
-        _run(browser, tmp_path / "profile", f"--window-size={WIDTH_PX},{height}",
+        shot = out / f"report-{width_px}-{k + 1:02d}-{sid}.png"
+        _run(browser, tmp_path / "profile", f"--window-size={width_px},{height}",
              f"--screenshot={shot}", page.as_uri())
         assert shot.exists() and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", sid
