@@ -356,21 +356,11 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
     random numbers), so the map shows the materials' fit, not the lamp or the noise.  Both
     previews get the Bradford adaptation of the *truth* image's W&W estimate, so they stay
     comparable."""
-    from normbox_lab.analyze.report_data import ImageFigure, ImagePanel
     from normbox_lab.images import figure1, normbox_view, whitebalance
-    from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map, write_png
-    from normbox_lab.predict.materials import Material, holder_material, truth_patch, truth_wall
+    from normbox_lab.images.color import XYZ_to_srgb
 
     run_id = store.get_run(ref_run).id
-    fits = latest_fits(store)
-    missing = [k for k in (fit_key(patch), "wall") if k not in fits]
-    if missing:
-        raise StoreError(f"no fits for {', '.join(missing)}: run `normbox-lab fit` first")
-    holder = holder_material()
-    truth_mats = {"patch": truth_patch(int(patch), truth), "wall": truth_wall(truth),
-                  "holder": holder}
-    fitted_mats = {"patch": Material.from_fit(fits[fit_key(patch)]),
-                   "wall": Material.from_fit(fits["wall"]), "holder": holder}
+    truth_mats, fitted_mats = _camera_materials(store, patch, truth)
     t0 = time.perf_counter()
     fig = figure1.figure1(truth_mats, fitted_mats, float(angle_deg), lamp=lamp, geometry=geometry,
                          width=width, height=height,
@@ -382,22 +372,63 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
     white_Y = float(fig.white_XYZ[1])
     balanced = [XYZ_to_srgb(whitebalance.adapt_to_display(x, est.illuminant_XYZ), white_Y)
                 for x in (fig.truth_XYZ, fig.fitted_XYZ)]
+    stats = _camera_stats(fig)
+    where = f"patch {patch} at {float(angle_deg):g}°, {width}×{height} px, {fig.truth.spp} spp"
+    figures = _camera_image_figures(fig, stats, est, gw, balanced, where, w)
+    ids = [f.store(store, run_ref=run_id) for f in figures]
+    stem = f"figure1-p{int(patch):02d}-{float(angle_deg):g}deg"
+    files = _write_camera_files(Path(out_dir), stem, fig, balanced, est, white_Y, where, truth,
+                                exr)
+    return CameraFigures(int(patch), float(angle_deg), stats,
+                         (float(est.illuminant_xy[0]), float(est.illuminant_xy[1])),
+                         (float(gw[0]), float(gw[1])), files, ids, render_s)
+
+
+def _camera_materials(store: Store, patch: int, truth: str
+                      ) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The truth materials and the fitted ones (latest fits) of the patch and the wall."""
+    from normbox_lab.predict.materials import Material, holder_material, truth_patch, truth_wall
+
+    fits = latest_fits(store)
+    missing = [k for k in (fit_key(patch), "wall") if k not in fits]
+    if missing:
+        raise StoreError(f"no fits for {', '.join(missing)}: run `normbox-lab fit` first")
+    holder = holder_material()
+    truth_mats = {"patch": truth_patch(int(patch), truth), "wall": truth_wall(truth),
+                  "holder": holder}
+    fitted_mats = {"patch": Material.from_fit(fits[fit_key(patch)]),
+                   "wall": Material.from_fit(fits["wall"]), "holder": holder}
+    return truth_mats, fitted_mats
+
+
+def _camera_stats(fig: Any) -> dict[str, float]:
+    """The figure's ΔE00 summary, the region means (ΔE00 of the mean XYZ per material: free
+    of most Monte-Carlo noise) and the convergence figures (``converged_*``)."""
+    from normbox_lab.images.color import delta_e00_map
+
     stats = fig.summary()
-    # region means are free of most Monte-Carlo noise: ΔE00 of the mean XYZ per material
     for region in ("patch", "wall"):
         m = fig.truth.mask(region)
         if np.any(m):
             stats[f"{region}_region"] = float(delta_e00_map(
                 fig.truth_XYZ[m].mean(axis=0), fig.fitted_XYZ[m].mean(axis=0), fig.white_XYZ))
-    where = f"patch {patch} at {float(angle_deg):g}°, {width}×{height} px, {fig.truth.spp} spp"
-    conv = fig.noise_summary()
-    stats.update({f"converged_{k}": v for k, v in conv.items()})
+    stats.update({f"converged_{k}": v for k, v in fig.noise_summary().items()})
+    return stats
+
+
+def _camera_image_figures(fig: Any, stats: dict[str, float], est: Any, gw: Any,
+                          balanced: list[Any], where: str, w: float) -> list[Any]:
+    """``fig-camera`` (truth, prediction, ΔE00 and noise-floor maps) and ``fig-whitebalance``."""
+    from normbox_lab.analyze.report_data import ImageFigure, ImagePanel
+
+    conv = {k.removeprefix("converged_"): v for k, v in stats.items()
+            if k.startswith("converged_")}
     de_map = fig.delta_e00_blocks if fig.delta_e00_blocks is not None else fig.delta_e00
     nf_map = (fig.noise_floor_blocks if fig.noise_floor_blocks is not None
               else np.full(de_map.shape, np.nan))
     finite = de_map[np.isfinite(de_map)]
     vmax = max(1.0, float(np.percentile(finite, 99.0))) if finite.size else 5.0
-    figures = [
+    return [
         ImageFigure("fig-camera", "Virtual camera: truth vs prediction (paper Fig. 1)",
                     f"The Normbox seen from its open side, {where}: truth materials, fitted "
                     "materials (same lamp, same random numbers), the ΔE00 between them and, "
@@ -430,9 +461,15 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
                      ImagePanel("1 − Chroma", est.one_minus_chroma, vmax=1.0),
                      ImagePanel("W&W balanced", balanced[0])], where),
     ]
-    ids = [f.store(store, run_ref=run_id) for f in figures]
-    out = Path(out_dir)
-    stem = f"figure1-p{int(patch):02d}-{float(angle_deg):g}deg"
+
+
+def _write_camera_files(out: Path, stem: str, fig: Any, balanced: list[Any], est: Any,
+                        white_Y: float, where: str, truth: str, exr: bool) -> dict[str, Path]:
+    """The PNGs (truth, fitted, ΔE00, raw truth) and, with `exr`, the truth as a multilayer
+    spectral OpenEXR with its white-balanced preview."""
+    from normbox_lab.images import whitebalance
+    from normbox_lab.images.color import write_png
+
     files = {"truth_png": write_png(out / f"{stem}-truth.png", balanced[0]),
              "fitted_png": write_png(out / f"{stem}-fitted.png", balanced[1]),
              "delta_e00_png": write_png(out / f"{stem}-delta-e00.png", fig.delta_e_rgb()),
@@ -450,6 +487,4 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
             out / f"{stem}-truth.exr", fig.truth, preview_rgb=preview,
             extra_spectral={"emission": fig.truth.emission},     # the layers sum to radiance
             attributes={"normbox.scene": where, "normbox.materials": f"truth ({truth})"})
-    return CameraFigures(int(patch), float(angle_deg), stats,
-                         (float(est.illuminant_xy[0]), float(est.illuminant_xy[1])),
-                         (float(gw[0]), float(gw[1])), files, ids, render_s)
+    return files
