@@ -197,7 +197,7 @@ def test_ctrl_c_pauses_after_the_current_reading_and_resume_completes(tmp_path):
     key = last.split(" paused before ")[1].split(" ")[0]
     assert key.startswith("a") and key not in stored
     assert last == (f"run {run_id} paused before {key} — resume with: normbox-lab run "
-                    f"reference-sweep --resume {run_id} --store {store}")
+                    f"reference-sweep --resume {run_id} --store {store} --world analytic")
     command = last.split("resume with: normbox-lab ")[1].split()
     proc2 = subprocess.run([sys.executable, str(Path(__file__)), "cli", *command,
                             "--world", "analytic", "--plain"],

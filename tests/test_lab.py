@@ -267,7 +267,7 @@ def test_run_command_dry_run_pause_and_resume(fake_drivers, capsys):
         assert run.parameters["angles_deg"] == [30, 90]
         segs = [d for _, k, d in s.events(run.id) if k == "segment"]
         assert [d["world"] for d in segs] == ["analytic", "analytic"]
-    assert main(["run", "--resume", run_id, "--store", store, "--param", "patches=[2]"]) == 1
+    assert main(["run", "--resume", run_id, "--store", store, "--param", "patches=[2]"]) == 2
 
 
 def test_world_follows_attached_emulators_and_gonio_names():

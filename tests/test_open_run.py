@@ -56,7 +56,8 @@ def test_a_lab_built_from_a_config_records_its_world_and_is_closed(tmp_path):
                       world="analytic", make_lab=build_lab,
                       params={"angles_deg": [30], "patches": [1, 2]})
     try:
-        assert opened.engine.segment_info == {"world": "analytic", "lab": "<simulated template>"}
+        assert opened.engine.segment_info == {"world": "analytic", "lab": "<simulated template>",
+                                              "time_scale": 0.0, "seed": 1}
         assert opened.lab.operator is not None          # the virtual operator answers
         assert opened.dry_run().lines()[-1].startswith("ETA ")
     finally:

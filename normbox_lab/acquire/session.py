@@ -32,7 +32,7 @@ from normbox_lab.acquire.plan import (
     resolve_parameters,
 )
 from normbox_lab.acquire.runner import Engine
-from normbox_lab.core.errors import StoreError
+from normbox_lab.core.errors import NormboxError, StoreError
 
 
 @dataclass
@@ -88,7 +88,7 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
              operator: Operator | None = None,
              make_operator: Callable[[Any], Operator] | None = None,
              virtual_operator: bool | None = None, fault_policy: str = "retry",
-             make_lab: Callable[..., Any] | None = None,
+             make_lab: Callable[..., Any] | None = None, force: bool = False,
              **engine_options: Any) -> OpenRun:
     """Assemble a run.
 
@@ -109,7 +109,14 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
                   fault_policy=…)``; a simulated config needs one (the simulation is passed in
                   from outside: ``normbox_lab.sim.labsim.build_lab``), a real config defaults
                   to `normbox_lab.acquire.lab.build_lab`
-    engine_options  passed to `Engine` (wait_when_paused, retry, poll_s …)
+    force         resume even under another world or lab config than the run recorded
+                  (refused otherwise: a part-done run would mix two simulated truths)
+    engine_options  passed to `Engine` (wait_when_paused, retry, poll_s …); its
+                  ``segment_info`` is recorded with the segment (a caller that passes a built
+                  lab names its world there: ``{"world": "analytic"}``)
+
+    Every segment records what a resume needs to run in the same lab: the world, the lab
+    config's path, the time scale and the seed (the config's text is the run's own record).
     """
     from normbox_lab.acquire.store import Store
 
@@ -130,10 +137,13 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
             protocol, run_id = rec.protocol, rec.id
             module = load_protocol(protocol)
             full = resolve_parameters(module, None, rec.parameters)
+            worlds = [d["world"] for _, k, d in store.events(rec.id)
+                      if k == "segment" and "world" in d]
+            recorded_world = worlds[-1] if worlds else None
             if world is None:
-                worlds = [d["world"] for _, k, d in store.events(rec.id)
-                          if k == "segment" and "world" in d]
-                world = worlds[-1] if worlds else None
+                world = recorded_world
+            elif isinstance(world, str):
+                _check_same_world(rec.uuid, recorded_world, world, force)
         else:
             if not protocol:
                 raise PlanError("name a protocol (reference-sweep, brdf-inplane, light-map, "
@@ -170,6 +180,16 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
                                 fault_policy=fault_policy)
             closers.append(lab.close)
             info = {"world": world, "lab": config.path}
+        extra = dict(engine_options.get("segment_info") or {})
+        if resume is not None:
+            if lab is not None and "world" in extra and not info:
+                _check_same_world(rec.uuid, recorded_world, str(extra["world"]), force)
+            _check_same_lab(rec.uuid, rec.lab_config, config if config is not None
+                            else _config_of(lab), force)
+        current = config if config is not None else _config_of(lab)
+        if current is not None:
+            info.setdefault("lab", current.path)
+            info.update(time_scale=current.time_scale, seed=current.seed)
         if lab.operator is None and make_operator is not None:
             lab.operator = make_operator(lab)
         plan = build_plan(protocol, full, lab, module=module)
@@ -194,6 +214,46 @@ def _require_recent_check(protocol: str, config: Any, store: Any) -> None:
     from normbox_lab.acquire.trust import require_recent_check
 
     require_recent_check(store, float(hours), time.time())
+
+
+def _check_same_world(run_uuid: str, recorded: str | None, given: str, force: bool) -> None:
+    """A run measured in one simulated world resumes in that world (a part-done run would
+    mix two simulated truths), unless forced."""
+    if recorded is None or recorded == given or force:
+        return
+    from normbox_lab.acquire.params import ParameterError
+
+    raise ParameterError(f"run {run_uuid} was measured in the {recorded!r} world, not "
+                         f"{given!r}: resume it with --world {recorded} (--force mixes the "
+                         "two worlds' truths in one run)")
+
+
+#: LabConfig fields a resume may change: where the file is, its text, the speed
+_RESUME_MAY_CHANGE = ("path", "text", "time_scale", "name")
+
+
+def _check_same_lab(run_uuid: str, recorded_text: str, current: Any, force: bool) -> None:
+    """A run resumes with the lab config it recorded (instruments, ports, geometry, seed,
+    quality limits …; the time scale and the file's place may differ), unless forced."""
+    if force or current is None or not recorded_text or recorded_text == current.text:
+        return
+    import dataclasses
+
+    from normbox_lab.acquire.config import parse_config
+
+    try:
+        recorded = parse_config(recorded_text, "<the run's recorded lab config>")
+    except NormboxError:
+        return                               # an older record we cannot read: no check
+    differs = [f.name for f in dataclasses.fields(recorded) if f.name not in
+               _RESUME_MAY_CHANGE and getattr(recorded, f.name) != getattr(current, f.name)]
+    if not differs:
+        return
+    from normbox_lab.acquire.params import ParameterError
+
+    raise ParameterError(f"run {run_uuid} was measured with another lab config "
+                         f"({', '.join(differs)} differ in {current.path}): resume it with "
+                         "the --lab it ran with (--force resumes in this lab anyway)")
 
 
 def _config_of(lab: Any) -> Any:

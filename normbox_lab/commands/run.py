@@ -56,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--time-scale", type=option(TIME_SCALE, "--time-scale"),
                    default=None, metavar="S",
                    help="simulated labs: override the lab's time scale (0 = instant)")
+    p.add_argument("--force", action="store_true",
+                   help="with --resume: resume even under another world or lab config than "
+                        "the run recorded (refused otherwise: one run, one simulated truth)")
     p.add_argument("--plain", action="store_true",
                    help="one line per reading instead of a progress bar")
     p.set_defaults(handler=_run)
@@ -150,7 +153,7 @@ def _run(args: argparse.Namespace) -> int:
     with open_run(args.protocol, store=store, config=config, make_lab=build_lab,
                   params=overrides, resume=args.resume, world=args.world,
                   virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
-                  make_operator=terminal_operator) as opened:
+                  make_operator=terminal_operator, force=args.force) as opened:
         if args.dry_run:
             for line in opened.dry_run().lines():
                 print(line)
@@ -222,21 +225,54 @@ def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:
         print(_paused_line(engine, args))
         return EXIT_PAUSED
     if result.status != "done":
-        print(f"resume with: normbox-lab run --resume {result.uuid}{store_arg}")
+        print("resume with: " + resume_command(
+            engine.plan.protocol, result.uuid, store=args.store, lab=_lab_path(args),
+            world=_recorded_world(store, result.run_id), time_scale=args.time_scale))
     return 0 if result.status == "done" else 1
+
+
+def resume_command(protocol: str, run: int | str, *, store: str | None, lab: str | None,
+                   world: str | None, time_scale: float | None = None) -> str:
+    """The complete command that resumes `run` in the lab, world and speed it ran in: every
+    part quoted for a POSIX shell, so it can be pasted as it is."""
+    from shlex import quote
+
+    parts = ["normbox-lab", "run", protocol, "--resume", str(run)]
+    for name, value in (("store", store), ("lab", lab), ("world", world)):
+        if value:
+            parts += [f"--{name}", str(value)]
+    if time_scale is not None:
+        parts += ["--time-scale", f"{time_scale:g}"]
+    return " ".join(quote(p) for p in parts)
+
+
+def _lab_path(args: argparse.Namespace) -> str | None:
+    """The lab config the run used: --lab, else ./lab.toml when it was read (named, so the
+    command works from another directory too), else none (the simulated template)."""
+    if args.lab:
+        return args.lab
+    return str(Path("lab.toml").resolve()) if Path("lab.toml").exists() else None
+
+
+def _recorded_world(store, run_id) -> str | None:
+    """The world the run's latest segment recorded (None: not recorded, or a real lab)."""
+    if store is None or run_id is None:
+        return None
+    worlds = [d["world"] for _, k, d in store.events(run_id)
+              if k == "segment" and "world" in d]
+    return worlds[-1] if worlds and worlds[-1] != "none" else None
 
 
 def _paused_line(engine, args: argparse.Namespace) -> str:
     """"run N paused before KEY — resume with: normbox-lab run PROTOCOL --resume N …"."""
-    from shlex import quote
-
     run = engine.run_id if engine.run_id is not None else engine.run_uuid
     key = engine.next_key()
     where = f"before {key}" if key else "with every reading stored"
-    extra = "".join(f" --{name} {quote(value)}" for name, value in
-                    (("store", args.store), ("lab", args.lab)) if value)
-    return (f"run {run} paused {where} — resume with: normbox-lab run "
-            f"{quote(engine.plan.protocol)} --resume {run}{extra}")
+    world = engine.segment_info.get("world")
+    command = resume_command(engine.plan.protocol, run, store=args.store, lab=_lab_path(args),
+                             world=world if world != "none" else None,
+                             time_scale=args.time_scale)
+    return f"run {run} paused {where} — resume with: {command}"
 
 
 def _run_with_progress(engine, run_ref, progress_ref, clock_note):

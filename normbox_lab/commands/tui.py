@@ -96,8 +96,14 @@ def _tui(args: argparse.Namespace) -> int:
         rec = session.open_store().get_run(engine.run_uuid)
         print(f"run {rec.uuid} (id {rec.id}): {rec.status}, {rec.done}/{rec.planned} readings")
         if rec.status != "done":
-            store_arg = f" --store {args.store}" if args.store else ""
-            print(f"resume with: normbox-lab run --resume {rec.uuid}{store_arg} "
-                  "(or from the console: r)")
+            from normbox_lab.commands.run import resume_command
+
+            lab = args.lab or (str(Path("lab.toml").resolve()) if Path("lab.toml").exists()
+                               else None)
+            world = session.world_kind if session.world_kind != "none" else None
+            print("resume with: " + resume_command(rec.protocol, rec.uuid, store=args.store,
+                                                   lab=lab, world=world,
+                                                   time_scale=args.time_scale))
+            print("(or in the console: r)")
     session.close()
     return 0 if result is None or result.status in ("done", "paused") else 1

@@ -241,8 +241,12 @@ class Session:
         else:
             self.operator = ConsoleOperator(lab.world)
             operator = self.operator
+        # the run records its world and lab (a resume elsewhere is refused: one run, one
+        # simulated truth); the lab config, the time scale and the seed come with `lab`
         engine = open_run(protocol, lab=lab, store=self.open_store(), params=params,
-                          resume=resume, operator=operator, wait_when_paused=True).engine
+                          resume=resume, operator=operator, wait_when_paused=True,
+                          segment_info={"world": self.world_kind,
+                                        "lab": self.config.path}).engine
         engine.subscribe(self._on_event)
         return engine
 
