@@ -159,14 +159,18 @@ class _Doc:
         out.append("<div class='scroll'><table><thead><tr>")
         out += [f"<th>{_esc(h)}</th>" for h in header]
         out.append("</tr></thead><tbody>")
+        # prose reads from the left: a column with a long text cell is left-aligned in every
+        # row (one alignment per column)
+        prose = {j for row in rows for j, v in enumerate(row)
+                 if j > 0 and isinstance(v, str) and len(v) > 16}
         for i, row in enumerate(rows):
             out.append("<tr>")
             for j, v in enumerate(row):
                 cls = cell_class(i, j, v) if cell_class else ""
                 if j > 0 and isinstance(v, float | np.floating):
                     cls = f"{cls} num".strip()       # a number never breaks ("2.02×10⁻⁵")
-                elif j > 0 and isinstance(v, str) and len(v) > 16 and "text" not in cls:
-                    cls = f"{cls} text".strip()      # prose reads from the left
+                elif j in prose and isinstance(v, str) and "text" not in cls:
+                    cls = f"{cls} text".strip()
                 attr = f' class="{cls}"' if cls else ""
                 tag = "th" if j == 0 else "td"
                 out.append(f"<{tag}{attr}>{_esc(_fmt(v))}</{tag}>")
@@ -546,17 +550,18 @@ def _fits_section(doc: _Doc, d: ReportData) -> None:
                                                "cost E (Eq. 9)"],
               [[n, f.alpha, f.eta, _c_text(f.c), f"{f.w:g}", f.fit_error_pct, f.cost]
                for n, f in d.fits.items()], digits=3,
-              caption="Cook–Torrance/GGX fit per material (paper Sec. 4.3): roughness α, "
-              "one refractive index η, the correction c subtracted from the model (Eq. 6; "
-              "\"0 (unused)\" where the fit put it at zero, as the paper found for some "
-              "materials), the weight exponent w of cos^w θi in the cost, the relative fit "
-              "error, and the cost E at the optimum: the sum over the measured geometries and "
-              "wavelengths of the squared differences of ln(1 + cos^w θi · BRDF) (Löw et al.'s "
-              "log cost, paper Eqs. 7–9); E compares fits of one material at one w only. "
-              f"The paper: {pf.cite('fit_weight_w')}. This run fits every material with "
-              f"w = {', '.join(f'{w:g}' for w in ws)}: the paper gives w for patches 8 and 18 "
-              "alone, one w keeps the fits of all materials comparable, and `normbox-lab fit "
-              "--weight-exponent 4` refits with the paper's w of patch 18.")
+              caption="Cook–Torrance/GGX fit per material (paper Sec. 4.3). α: roughness; "
+              "η: one refractive index; c: the constant subtracted from the model (paper "
+              "Eq. 6), \"0 (unused)\" where the fit set it to zero, as the paper found for "
+              "some materials; w: the exponent of the weight cos^w θi in the cost; fit error: "
+              "relative RMS difference of fit and measurement; cost E: the fit's cost at its "
+              "optimum, the sum of squared differences of ln(1 + cos^w θi · BRDF) over the "
+              "measured geometries and wavelengths (Löw et al.'s log cost, paper Eqs. 7–9), "
+              "comparable only between fits of one material at one w. The paper: "
+              f"{pf.cite('fit_weight_w')}. This run fits every material with w = "
+              f"{', '.join(f'{w:g}' for w in ws)}: the paper publishes w for two patches "
+              "only, and one w keeps all fits comparable; normbox-lab fit RUN "
+              "--weight-exponent 4 refits every material with patch 18's w = 4.")
     names = list(d.polar_materials) if d.polar_materials is not None else (
         [n for n in ("patch08", "patch18") if n in d.fits]
         or [n for n in d.fits if n != d.wall_name][:1])

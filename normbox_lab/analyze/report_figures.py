@@ -112,6 +112,11 @@ def fig_reference(c: ComparisonResult) -> Any:
     return fig
 
 
+def _deg(v: float) -> str:
+    """An angle with a typographic minus: "−30°"."""
+    return f"{float(v):g}°".replace("-", "\u2212")
+
+
 def _short_patch(name: str) -> str:
     """"19 white 9.5 (.05 D)" → "19 white": a panel title fits its panel."""
     words = str(name).split()
@@ -376,10 +381,10 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
                  label=f"patch {c.patch_names[p]}")
         rows.append([c.patch_names[p], f"{c.angle_deg[0]:g}°",
                      100.0 * float(np.sqrt(np.nanmean(c.nse[p, 0] ** 2))),
-                     f"patch fit at θi = {float(ti):g}°, θo = {float(to):g}°",
+                     f"patch fit at θi = {_deg(ti)}, θo = {_deg(to)}",
                      100.0 * float(np.sqrt(np.nanmean(err ** 2)))])
     ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}° (direct light dominates)")
-    ax3.set_title(f"patch fitting error at θi = {float(ti):g}°, θo = {float(to):g}°")
+    ax3.set_title(f"patch fitting error at θi = {_deg(ti)}, θo = {_deg(to)}")
     pb = min(max(int(d.nse_fit_patch_b), 0), len(c.patch_names) - 1)
     nse_b = nse_paper_sign(c.nse[pb, -1])
     ax2.plot(c.wavelength_nm, 100.0 * nse_b, lw=1.1, color="C0",
@@ -390,10 +395,10 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
         wti, wto = d.wall_geometry_deg
         werr = fit_error_at(d.fits[d.wall_name], d.brdf_data[d.wall_name], wti, wto)
         ax4.plot(d.brdf_data[d.wall_name].wavelength_nm, 100.0 * werr, color="C5", lw=1.1)
-        ax4.set_title(f"wall fitting error at θi = {wti:g}°, θo = {wto:g}°")
+        ax4.set_title(f"wall fitting error at θi = {_deg(wti)}, θo = {_deg(wto)}")
         rows.append([c.patch_names[pb], f"{c.angle_deg[-1]:g}°",
                      100.0 * float(np.sqrt(np.nanmean(nse_b ** 2))),
-                     f"wall fit at θi = {wti:g}°, θo = {wto:g}°",
+                     f"wall fit at θi = {_deg(wti)}, θo = {_deg(wto)}",
                      100.0 * float(np.sqrt(np.nanmean(werr ** 2)))])
     for ax in (ax1, ax2):
         ax.axhline(0.0, color="0.5", lw=0.7)
