@@ -167,6 +167,7 @@ class Engine:
         self._estimates: dict[str, float] = {}
         self._committed: set[str] = set()
         self._skipped: list[str] = []
+        self._taken = 0                   # readings taken in this segment
         self._gates: RunGates | None = None
         self._ratio = 1.0
         self._hook_context: dict[str, Any] = {}
@@ -344,54 +345,12 @@ class Engine:
                 self._run_lock.release()
 
     def _run_segment(self, resume: int | str | None) -> RunResult:
-        self._abort.clear()
-        self._pause.clear()
-        self._stop.clear()
-        if resume is None:
-            self._open_new_run()
-        else:
-            self._reopen_run(resume)
-        self._skipped = []
-        # the limits of the lab config the run recorded (its [quality] table)
-        self._gates = RunGates(self.store, self.run_id, limits_from_text(
-            self.store.get_run(self.run_id).lab_config, "lab config"))
-        self._known = {}     # physical state after a (re)start: unknown
-        self._light_cache = {}
-        self.state = "running"
-        t0 = self.clock.now_s()
-        taken = 0
+        """One segment: open (or reopen) the run, take the readings still missing, record
+        how it ended."""
+        t0 = self._start_segment(resume)
         status = "done"
         try:
-            eta_s = self.dry_run(self._committed).total_s
-        except (InstrumentError, OSError) as exc:      # no ETA is no reason to stop
-            log.warning("no ETA: %s", exc)
-            self._estimates, eta_s = {}, float("nan")
-        self._remaining_s = sum(self._estimates.values())
-        self._emit("run-started", run_uuid=self.run_uuid, segment=self.segment,
-                   planned=self.plan.planned, done=len(self._committed), eta_s=eta_s,
-                   resumed=resume is not None, **self._time_model())
-        try:
-            self._check_preconditions()
-            self._prepare()
-            last_commit = self.plan.last_commit_index
-            for i, step in enumerate(self.plan.steps):
-                if self._abort.is_set():
-                    raise OperatorAbort("abort requested")
-                if not step.commits:
-                    if i > last_commit:          # trailing steps (e.g. return home)
-                        self._run_state_step(i, for_key=step.key)
-                    continue
-                if step.key in self._committed:
-                    continue
-                if self._checkpoint(step.key):
-                    status = "paused"
-                    break
-                try:
-                    self._take(i)
-                    taken += 1
-                except Skip:
-                    self._skipped.append(step.key)
-                    self._reestimate()
+            status = self._take_missing()
         except StopAtPrompt as exc:
             # stopped while a question was open: the unanswered step is asked again on resume
             status = "paused"
@@ -414,6 +373,65 @@ class Engine:
             self.state = "finished"
             self._emit("run-finished", status=status, error=repr(exc))
             raise
+        return self._finish_segment(status, self._taken, t0)
+
+    def _start_segment(self, resume: int | str | None) -> float:
+        """Open or reopen the run, reset the segment's state, estimate, announce; the lab
+        time the segment started."""
+        self._abort.clear()
+        self._pause.clear()
+        self._stop.clear()
+        if resume is None:
+            self._open_new_run()
+        else:
+            self._reopen_run(resume)
+        self._skipped = []
+        self._taken = 0
+        # the limits of the lab config the run recorded (its [quality] table)
+        self._gates = RunGates(self.store, self.run_id, limits_from_text(
+            self.store.get_run(self.run_id).lab_config, "lab config"))
+        self._known = {}     # physical state after a (re)start: unknown
+        self._light_cache = {}
+        self.state = "running"
+        t0 = self.clock.now_s()
+        try:
+            eta_s = self.dry_run(self._committed).total_s
+        except (InstrumentError, OSError) as exc:      # no ETA is no reason to stop
+            log.warning("no ETA: %s", exc)
+            self._estimates, eta_s = {}, float("nan")
+        self._remaining_s = sum(self._estimates.values())
+        self._emit("run-started", run_uuid=self.run_uuid, segment=self.segment,
+                   planned=self.plan.planned, done=len(self._committed), eta_s=eta_s,
+                   resumed=resume is not None, **self._time_model())
+        return t0
+
+    def _take_missing(self) -> str:
+        """Walk the plan: every reading not yet committed, with the state steps it needs
+        (counted in `_taken`); "done" or "paused".  Aborts, stops and errors propagate."""
+        self._check_preconditions()
+        self._prepare()
+        last_commit = self.plan.last_commit_index
+        for i, step in enumerate(self.plan.steps):
+            if self._abort.is_set():
+                raise OperatorAbort("abort requested")
+            if not step.commits:
+                if i > last_commit:          # trailing steps (e.g. return home)
+                    self._run_state_step(i, for_key=step.key)
+                continue
+            if step.key in self._committed:
+                continue
+            if self._checkpoint(step.key):
+                return "paused"
+            try:
+                self._take(i)
+                self._taken += 1
+            except Skip:
+                self._skipped.append(step.key)
+                self._reestimate()
+        return "done"
+
+    def _finish_segment(self, status: str, taken: int, t0: float) -> RunResult:
+        """The run-end gates, the run's status with its detail, the closing event."""
         done = len(self._committed)
         self._gates.finish(self.plan.protocol)
         detail: dict[str, Any] = {"taken": taken, "done": done}
