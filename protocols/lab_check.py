@@ -443,7 +443,7 @@ class CheckKind(StepKind):
 
         meta = {**metadata, **result.as_metadata()}
         record = ReadingRecord("check", {"samples": np.asarray(result.samples, dtype=float)},
-                               meta, _checked(step), run.clock.now_s())
+                               meta, _checked(step), run.clock.wall_time_s())
         run.store.add_record(run.run_id, step.key, record)
         if not result.passed:
             gate = "calibration" if result.check == "calibration" else "lab-check"
