@@ -264,3 +264,24 @@ def test_written_config_runs_a_sweep_unchanged(tmp_path):
             assert serials == {"radiometer": "2000123", "rotator": "55123456",
                                "sphere": "LE7-SIM-0001"}
         assert path.read_text() == text_before
+
+
+def test_cli_discover_prints_the_table_and_writes_a_config_that_loads(tmp_path, capsys):
+    from normbox_lab import cli
+
+    with served("cs1000a", "tcp") as rad, served("rotator-apt", "tcp") as rot, \
+            served("sphere", "tcp") as sph:
+        path = tmp_path / "lab.toml"
+        rc = cli.main(["lab", "discover", rad.url, rot.url, sph.url, "--no-scan", "--no-usb",
+                       "--timeout-s", "0.2", "--write", str(path)])
+        out = capsys.readouterr().out.splitlines()
+        assert rc == 0
+        assert out[0].split() == ["PORT", "INSTRUMENT", "MODEL", "SERIAL", "FIRMWARE", "DRIVER"]
+        assert [line.split()[2] for line in out[1:4]] == ["CS-1000A", "K10CR1", "LE7-4x"]
+        assert out[4].startswith("3 instrument(s) found on 3 port(s) in ")
+        assert out[5] == f"wrote {path}: check it with `normbox-lab lab check --lab {path}`"
+        assert set(load_config(path).instruments) == {"radiometer", "rotator", "sphere"}
+        # a second --write without --force refuses to overwrite the lab's config
+        rc = cli.main(["lab", "discover", rad.url, rot.url, sph.url, "--no-scan", "--no-usb",
+                       "--timeout-s", "0.2", "--write", str(path)])
+        assert rc == 1 and "exists already" in capsys.readouterr().err
