@@ -444,6 +444,7 @@ class QEPro:
                 counts = counts + offset
         saturated = bool(np.max(raw) >= self.max_counts - 0.5)
         self._refuse_plateau(raw, dark_px)
+        self._refuse_dead_pixel(raw, dark_px)
         tec = self.tec_temperature_c() if self.has_tec else float("nan")
         return Acquisition(counts, raw, self.integration_time_s, saturated, tec)
 
@@ -468,6 +469,28 @@ class QEPro:
             raise DeviceError("PLATEAU", f"{run} adjacent pixels ({first}–{first + run - 1}) "
                               f"hold one count, {raw[first]:.0f}: an ADC plateau or light "
                               "leak, not a spectrum", instrument=self.instrument_id)
+
+    def _refuse_dead_pixel(self, raw: np.ndarray, dark_px: list[int]) -> None:
+        """`DeviceError("PIXEL")` when a pixel reads the electrical offset (within 6× the read
+        noise) while both its neighbours see light far above it (≥ 20× the read noise and
+        ≥ 1000 counts): a dead pixel, or a byte lost in its word.  The optics spread light over
+        several pixels, so no spectrum has such a hole."""
+        if not dark_px:
+            return
+        dark = raw[dark_px]
+        offset = float(np.mean(dark))
+        read_noise = max(float(np.std(dark)), 1.0)
+        if read_noise <= 1.0 and float(np.ptp(dark)) == 0.0:
+            return                                   # a noise-free (simulated) device
+        lit = np.maximum(20.0 * read_noise, 1000.0)
+        x = raw - offset
+        hole = (np.abs(x[1:-1]) < 6.0 * read_noise) & (x[:-2] > lit) & (x[2:] > lit)
+        hole[[i - 1 for i in dark_px if 0 < i < raw.size - 1]] = False
+        if hole.any():
+            i = int(np.flatnonzero(hole)[0]) + 1
+            raise DeviceError("PIXEL", f"pixel {i} reads {raw[i]:.0f} counts (the offset) "
+                              f"between {raw[i - 1]:.0f} and {raw[i + 1]:.0f}: a dead pixel, "
+                              "not a spectrum", instrument=self.instrument_id)
 
     def _linearised(self, counts: np.ndarray, coeffs: Any) -> np.ndarray:
         """``counts / polyval(coeffs, counts)`` (seabreeze's nonlinearity correction), or

@@ -489,6 +489,18 @@ MAX_RADIANCE_W_SR_M2_NM = 100.0
 #: mean is a corrupted value (the instruments' 5 nm bandwidth keeps 1 nm neighbours within a
 #: few per cent of the peak even on the sharpest lamp line)
 SPIKE_FRACTION_OF_PEAK = 0.2
+#: a band further than this fraction of its own level (the larger of it and its neighbours)
+#: from its neighbours' mean (or, at either end, from the line through the next two): the
+#: instruments' 5 nm bandwidth makes a 1 nm step of more than a few per cent impossible, so
+#: a lost digit (×0…0.5), a block of zeros or a byte lost on one band is no measurement
+SPIKE_FRACTION_OF_LEVEL = 0.25
+#: bands below this (W·sr⁻¹·m⁻²·nm⁻¹) are not judged relative to their level: the wire's
+#: resolution (5 significant digits; values below 1e-9 are sent as 0)
+SPIKE_FLOOR_W_SR_M2_NM = 1e-8
+#: a stretch is "broad" where bands change by less than this (natural log per nm: 10 %)
+BROAD_SLOPE = 0.1
+#: a band at 0 beside one above this fraction of the peak, on a broad stretch, is a dropout
+ZERO_EDGE_OF_PEAK = 1e-3
 #: Lv reported vs 683·Σ L·ȳ of the reported spectrum (5 significant digits on the wire)
 LV_RELATIVE_TOLERANCE = 0.02
 LV_ABSOLUTE_TOLERANCE_CD_M2 = 1e-3
@@ -534,6 +546,9 @@ def implausibility(spectrum: np.ndarray, luminance_cd_m2: float,
     if peak > 0 and deviation[worst] > SPIKE_FRACTION_OF_PEAK * peak:
         return (f"band {RADIOMETER_WAVELENGTHS_NM[worst + 1]:.0f} nm is "
                 f"{x[worst + 1]:.4g}, its neighbours {x[worst]:.4g} and {x[worst + 2]:.4g}")
+    step = _relative_step(x)
+    if step:
+        return step
     if math.isfinite(luminance_cd_m2):
         lv_spectrum = 683.0 * float(np.sum(x * ybar_1nm()))
         if abs(lv_spectrum - luminance_cd_m2) > max(
@@ -549,6 +564,50 @@ def implausibility(spectrum: np.ndarray, luminance_cd_m2: float,
             return (f"x, y {x_reported:.4f}, {y_reported:.4f} disagree with the spectrum's "
                     f"own {x_spectrum:.4f}, {y_spectrum:.4f}")
     return ""
+
+
+def _relative_step(x: np.ndarray) -> str:
+    """Why a band of `x` (380–780 nm, 1 nm) cannot be a measurement on a 5 nm bandwidth, or ""
+    when none is found.  Judged where the spectrum is locally broad: the two bands beyond each
+    neighbour change by less than `BROAD_SLOPE` per nm (a lamp line's wings and the valley
+    between two lines are not judged: their steep sides are real).  There a band further than
+    `SPIKE_FRACTION_OF_LEVEL` of its level from its neighbours' mean (at either end: from the
+    log-linear extension of the next two), or a 0 beside a band above `ZERO_EDGE_OF_PEAK` of
+    the peak, is no measurement: a lost digit, a lost byte, a block of zeros."""
+    n = x.size
+    if n < 5:
+        return ""
+    peak = float(np.max(np.abs(x)))
+    floor = max(SPIKE_FLOOR_W_SR_M2_NM, 1e-6 * peak)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        logs = np.where(x > floor, np.log(np.maximum(x, floor)), np.nan)
+        steady = np.abs(np.diff(logs)) < BROAD_SLOPE      # steady[j]: bands j, j+1 smooth
+    steady = np.nan_to_num(steady.astype(float), nan=0.0).astype(bool)
+    expected = np.full(n, np.nan)
+    judged = np.zeros(n, dtype=bool)
+    i = np.arange(2, n - 2)
+    expected[i] = 0.5 * (x[i - 1] + x[i + 1])
+    judged[i] = steady[i - 2] & steady[i + 1]
+    for end, a, b, outer in ((0, 1, 2, 2), (1, 2, 3, 3), (n - 1, n - 2, n - 3, n - 4),
+                             (n - 2, n - 3, n - 4, n - 5)):
+        if x[a] > floor and x[b] > floor:                  # one side: log-linear extension
+            expected[end] = x[a] * x[a] / x[b]
+            judged[end] = bool(steady[min(a, b)]) and bool(steady[min(b, outer)])
+    level = np.maximum(np.abs(x), np.abs(np.nan_to_num(expected)))
+    off = judged & (level > floor) & (np.abs(x - np.nan_to_num(expected)) >
+                                      SPIKE_FRACTION_OF_LEVEL * level)
+    # a zero (or less) beside a band well above the wire's resolution, on a broad stretch
+    edge = np.zeros(n, dtype=bool)
+    big = x > max(ZERO_EDGE_OF_PEAK * peak, SPIKE_FLOOR_W_SR_M2_NM)
+    edge[:-2] |= (x[:-2] <= 0) & big[1:-1] & steady[1:]
+    edge[2:] |= (x[2:] <= 0) & big[1:-1] & steady[:-1]
+    bad = np.flatnonzero(off | edge)
+    if not bad.size:
+        return ""
+    k = int(bad[0])
+    ref = expected[k] if np.isfinite(expected[k]) else (x[k - 1] if k else x[k + 1])
+    return (f"band {RADIOMETER_WAVELENGTHS_NM[k]:.0f} nm is {x[k]:.4g} where its neighbours "
+            f"give {ref:.4g}: not a 5 nm bandwidth")
 
 
 @dataclass

@@ -60,6 +60,10 @@ class FaultKind:
     unit: str = ""
     means: str = ""
     detector: str = ""
+    #: False for a fault nothing in the lab detects (docs/fault-behaviour.md gives the error
+    #: it leaves): modelled and tested, but not drawn by the campaign, whose oracle would
+    #: rightly call every reading it touches wrong
+    campaign: bool = True
 
     def draw_value(self, rng: random.Random) -> float:
         lo, hi = self.value_range
@@ -108,7 +112,8 @@ class FaultKind:
         else:
             param = (f"{self.param_range[0]:g} … {self.param_range[1]:g} {self.unit} "
                      f"({self.param_scale})")
-        return f"| `{self.kind}` | {value} | {param} | {self.means} | {self.detector} |"
+        drawn = value if self.campaign else f"not drawn (undetectable); {value}"
+        return f"| `{self.kind}` | {drawn} | {param} | {self.means} | {self.detector} |"
 
 
 def _draw(rng: random.Random, lo: float, hi: float, scale: str) -> float:

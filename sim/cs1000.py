@@ -53,6 +53,7 @@ import numpy as np
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    DATA_FAULT_KINDS,
     RADIOMETER_FAULT_KINDS,
     KonicaMinoltaCommands,
     RadiometerOptics,
@@ -86,8 +87,8 @@ class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
     device_name = "cs1000a"
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMT"
-    fault_kinds = RADIOMETER_FAULT_KINDS
-    device_faults = tuple(k.kind for k in RADIOMETER_FAULT_KINDS)
+    fault_kinds = RADIOMETER_FAULT_KINDS + DATA_FAULT_KINDS
+    device_faults = tuple(k.kind for k in fault_kinds)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)
     latency_script = (b"RMT,1\n", b"\n", b"MES,1\n", b"\n", b"OK\n")
@@ -242,7 +243,7 @@ class CS1000AEmulator(KonicaMinoltaCommands, core.LineEmulator):
 
     # --- the measurement ----------------------------------------------------------------------
     def _start(self) -> None:
-        spectrum, colour_block = self.optics.observe()
+        spectrum, colour_block = self.optics.observe(self.faults)
         lv = colour_block["Lv"]
         over = lv > self.max_luminance_cd_m2 or self.faults.fires("over-range")
         t = integration_time_s(lv, self.speed, self.time_mode, self.manual_time_s)

@@ -61,6 +61,7 @@ from typing import Any
 
 from normbox_lab.sim import core
 from normbox_lab.sim.radiometer_common import (
+    DATA_FAULT_KINDS,
     RADIOMETER_FAULT_KINDS,
     KonicaMinoltaCommands,
     RadiometerOptics,
@@ -122,8 +123,8 @@ class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
     device_name = "cs2000a"
     replies_in_order = True         # one command at a time: a late reply holds back the next
     remote_command = "RMTS"
-    fault_kinds = RADIOMETER_FAULT_KINDS
-    device_faults = tuple(k.kind for k in RADIOMETER_FAULT_KINDS)
+    fault_kinds = RADIOMETER_FAULT_KINDS + DATA_FAULT_KINDS
+    device_faults = tuple(k.kind for k in fault_kinds)
     #: `sim latency`: (take the line, its reply's end, start a measurement, the end of its
     #: first reply, its last reply)
     latency_script = (b"RMTS,1\n", b"\n", b"MEAS,1\n", b"\n", b"OK00\n")
@@ -722,7 +723,7 @@ class CS2000AEmulator(KonicaMinoltaCommands, core.Emulator):
 
     # --- the measurement ---------------------------------------------------------------------------
     def _start(self) -> None:
-        spectrum, c2 = self.optics.observe()
+        spectrum, c2 = self.optics.observe(self.faults)
         lv = c2["Lv"]
         over = lv > self.max_luminance_cd_m2 or self.faults.fires("over-range")
         ttt = measurement_time_s(lv, self.speed_mode, self.multi_time_s, self.manual_time_us)

@@ -185,8 +185,13 @@ class Axis:
 
     # --- commands ------------------------------------------------------------------------
     def start_move(self, target_counter_deg: float, now_s: float, *,
-                   stall_fraction: float | None = None) -> None:
+                   stall_fraction: float | None = None, slip_deg: float | None = None) -> None:
+        """`slip_deg`: the rotor loses this much of the move (steps lost: the counter still
+        reaches the target, the rotor stops short of it by `slip_deg`)."""
         self._start("move", target_counter_deg, self.trapezoid, now_s, stall_fraction)
+        if slip_deg and self.motion is not None:
+            sign = 1.0 if target_counter_deg >= self.motion.start_counter_deg else -1.0
+            self.offset_deg -= sign * float(slip_deg)
 
     def start_home(self, now_s: float) -> None:
         # drive the rotor to the home switch: physical 0° ⇔ counter −offset
@@ -294,6 +299,12 @@ ROTATOR_FAULT_KINDS: tuple[FaultKind, ...] = (
     FaultKind("stall", "@", (1, 12), (0.0, 1.0), "linear", unit="of the move",
               means="the n-th move stalls after this fraction of it (the controller sees it)",
               detector="controller stall / position error → typed DeviceError → prompt"),
+    FaultKind("slip", "@", (1, 12), (0.01, 5.0), "log", unit="°",
+              means="the n-th move loses steps: the rotor stops this far short of the "
+                    "commanded angle (the controller's step counter reaches it)",
+              detector="the readback (encoder) against the setpoint: beyond 1° DeviceError "
+                       "POSITION, beyond 0.05° the position gate (error); a stage without an "
+                       "independent encoder could not see it (docs/fault-behaviour.md)"),
     FaultKind("power-blip", "=", (1e-3, 1.0), (0.05, 60.0), "log", unit="s",
               means="the supply dips: controller reset, link down this long",
               detector="reconnect, re-home; typed InstrumentError beyond the window"),

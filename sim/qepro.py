@@ -118,7 +118,8 @@ AMBIENT_C = 25.0
 WHITE_TARGET_COUNTS = 150_000.0
 #: condition faults and their default parameters
 CONDITION_FAULTS = {"saturation": 0.97, "tec-drift": 2.0, "dark-drift": 1000.0,
-                    "lamp-dim": 1e-4}
+                    "lamp-dim": 1e-4, "dead-pixel": 600.0, "overflow": 2.0 ** 20}
+OVERFLOW_PIXEL = 700
 #: the QE Pro's faults (USB: none of the serial transport kinds) and their ranges
 FAULT_KINDS: tuple[core.FaultKind, ...] = (
     core.FaultKind("disconnect", "@", (1, 12), (0.05, 1e5), "log", unit="s",
@@ -141,6 +142,15 @@ FAULT_KINDS: tuple[core.FaultKind, ...] = (
                    means="the gonio lamp's output falls to this fraction",
                    detector="lamp check against the white (±2 %) → re-reference; "
                             "lamp-drift gate"),
+    core.FaultKind("dead-pixel", "@", (1, 12), (4, 1039), "int", unit="pixel",
+                   means="from the n-th acquisition on, this pixel sees no light (reads the "
+                         "electrical offset)",
+                   detector="driver: a pixel at the offset between two lit neighbours → "
+                            "typed DeviceError(PIXEL)"),
+    core.FaultKind("overflow", "@", (1, 12), (262144.0, 4294967295.0), "log",
+                   unit="counts", means="from the n-th acquisition on, pixel 700 reads this "
+                                        "value, beyond the 18-bit full scale",
+                   detector="driver: counts outside 0 … 262143 → typed ProtocolError"),
 )
 
 
@@ -299,7 +309,12 @@ class SimulatedQEProDevice:
                                          self.conditions["saturation"] * MAX_COUNTS)
         counts[DARK_PIXELS] = OFFSET_COUNTS + self.rng.normal(0.0, READ_NOISE_COUNTS,
                                                               len(DARK_PIXELS)) * self.noise
-        return np.clip(np.round(counts), 0, MAX_COUNTS)
+        counts = np.clip(np.round(counts), 0, MAX_COUNTS)
+        if "dead-pixel" in self.conditions:          # no light, no dark current: the offset
+            counts[int(self.conditions["dead-pixel"])] = round(OFFSET_COUNTS)
+        if "overflow" in self.conditions:            # a word beyond the ADC's 18 bits
+            counts[OVERFLOW_PIXEL] = min(float(self.conditions["overflow"]), 2.0 ** 32 - 1)
+        return counts
 
 
 class WhiteStandardSlide:

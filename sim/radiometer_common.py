@@ -13,9 +13,11 @@ Instrument behaviour (``noise="on"``, the default; seeded, one draw per measurem
   - radiometric error: one gain g ~ U(0.98, 1.02) on the whole spectrum (±2 %).
 ``noise="off"`` disables both (δ = 0, g = 1): the reported spectrum is the scene's.
 
-Colorimetry: CIE 1931 2° colour-matching functions from colour-science (``MSDS_CMFS``),
-integrated explicitly at 1 nm: X = 683·Σ L·x̄·Δλ (so Y = Lv in cd/m²), Le = Σ L·Δλ,
-x, y, u′, v′ from XYZ, T and Δuv from colour's Ohno (2013) method on CIE 1960 uv.
+Colorimetry: CIE 1931 2° (and 1964 10°) colour-matching functions, integrated explicitly at
+1 nm: X = 683·Σ L·x̄·Δλ (so Y = Lv in cd/m²), Le = Σ L·Δλ, x, y, u′, v′ from XYZ, T and Δuv
+by Ohno's (2013) method on CIE 1960 uv.  The tables (CMFs, the Planckian table) are
+colour-science's, shipped as data (`normbox_lab.sim.colour_tables`): a served emulator never
+imports colour-science, and its first measurement is as fast as the next.
 
 Timing model (an assumption written for this lab — Konica Minolta publishes no
 luminance-vs-time table; see docs/radiometers.md):
@@ -39,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
+from normbox_lab.sim import colour_tables
 from normbox_lab.sim.core import FaultKind
 
 #: the faults both Konica Minolta emulators inject besides the transport faults
@@ -53,6 +56,28 @@ RADIOMETER_FAULT_KINDS: tuple[FaultKind, ...] = (
     FaultKind("over-range", "@", (1, 12), means="the n-th measurement is over range (ER10)",
               detector="typed DeviceError → retry / flag instrument-error"),
 )
+#: faults of the data a radiometer delivers (every emulator that measures through
+#: `RadiometerOptics.observe(faults)`); counted per measurement, latched from the n-th on
+DATA_FAULT_KINDS: tuple[FaultKind, ...] = (
+    FaultKind("stale-data", "=", (1e-3, 1.0),
+              means="a measurement's data block repeats the previous measurement's",
+              detector="quality gate identical-spectrum (error): noise makes two "
+                       "measurements differ"),
+    FaultKind("lost-digit", "@", (1, 12), (380, 780), "int", unit="nm",
+              means="from the n-th measurement on, this band's value loses its leading "
+                    "digit in every transfer",
+              detector="driver plausibility: a band off its neighbours by > 25 % of their "
+                       "level (5 nm bandwidth) → re-read, ImplausibleData"),
+    FaultKind("zero-block", "@", (1, 12), (1, 401), "log-int", unit="bands",
+              means="from the n-th measurement on, this many adjacent bands read 0",
+              detector="driver plausibility (a step to zero); all 401: radiometer-range "
+                       "gate (Lv 0)"),
+    FaultKind("negative", "@", (1, 12), (1e-5, 0.1), "log", unit="× peak",
+              means="from the n-th measurement on, the dark is over-subtracted where the "
+                    "signal is below this fraction of the peak: those bands read negative",
+              detector="driver plausibility (the step where the over-subtraction starts); "
+                       "quality gate radiance-negative (error): radiance is never < 0"),
+)
 
 KM_LM_W = 683.0
 DEFAULT_CCT_K = 2856.0
@@ -62,21 +87,10 @@ RADIOMETRIC_ERROR = 0.02
 
 Scene = Callable[[], tuple[np.ndarray, np.ndarray]]
 
-_CMFS: dict[int, np.ndarray] = {}
-_OBSERVERS = {2: "CIE 1931 2 Degree Standard Observer", 10: "CIE 1964 10 Degree Standard Observer"}
-
-
 def cmfs(observer_deg: int = 2) -> np.ndarray:
-    """(401, 3) x̄ ȳ z̄ at 380–780 nm, 1 nm, from colour-science's MSDS_CMFS (lazy import)."""
-    if observer_deg not in _CMFS:
-        import colour
-
-        c = colour.MSDS_CMFS[_OBSERVERS[observer_deg]]
-        wl = np.asarray(c.wavelengths, dtype=float)
-        vals = np.asarray(c.values, dtype=float)
-        _CMFS[observer_deg] = np.stack([np.interp(RADIOMETER_WAVELENGTHS_NM, wl, vals[:, i])
-                                        for i in range(3)], axis=1)
-    return _CMFS[observer_deg]
+    """(401, 3) x̄ ȳ z̄ at 380–780 nm, 1 nm: colour-science's MSDS_CMFS, from the shipped
+    tables (read-only)."""
+    return colour_tables.cmfs(observer_deg)
 
 
 def planck_W_sr_m2_nm(wavelength_nm: np.ndarray, temperature_K: float) -> np.ndarray:
@@ -111,10 +125,7 @@ def colorimetry(radiance_W_sr_m2_nm: np.ndarray, observer_deg: int = 2) -> dict[
     x, y = X / s, Y / s
     up, vp = 4 * X / d, 9 * Y / d
     try:
-        import colour
-
-        T, duv = (float(v) for v in colour.temperature.uv_to_CCT_Ohno2013(
-            np.array([up, vp * 2.0 / 3.0])))
+        T, duv = colour_tables.uv_to_cct_ohno2013(up, vp * 2.0 / 3.0)
     except (ValueError, ArithmeticError):
         T, duv = math.nan, math.nan
     if not (1000.0 <= T <= 99999.0 and abs(duv) <= 0.1):
@@ -134,6 +145,15 @@ def resample(wavelength_nm: np.ndarray, radiance: np.ndarray, shift_nm: float = 
     out = np.interp(x, wl, L)
     out[(x < wl[0] - 1.0) | (x > wl[-1] + 1.0)] = 0.0
     return out
+
+
+def lose_leading_digit(value: float) -> float:
+    """A value whose leading mantissa digit was lost on the wire: 4.5678e-03 → .5678e-03."""
+    if value == 0.0 or not math.isfinite(value):
+        return value
+    exponent = math.floor(math.log10(abs(value)))
+    mantissa = abs(value) / 10.0 ** exponent
+    return math.copysign((mantissa - math.floor(mantissa)) * 10.0 ** exponent, value)
 
 
 def env_time_factor(default: float = 1.0) -> float:
@@ -165,15 +185,16 @@ class RadiometerOptics:
         return default_spectrum()
 
     def prepare(self) -> None:
-        """Import colour-science and build its tables now (the first `observe()` would
-        otherwise spend seconds on it): colorimetry of the default light, 2° and 10°."""
+        """Read the colorimetric tables now (a few ms), so the first `observe()` is as fast
+        as the next: colorimetry of the default light, 2° and 10°."""
         _, spd = default_spectrum()
         colorimetry(spd, 2)
         colorimetry(spd, 10)
 
-    def observe(self) -> tuple[np.ndarray, dict[str, float]]:
+    def observe(self, faults: Any = None) -> tuple[np.ndarray, dict[str, float]]:
         """One measurement: (reported spectrum, its 2° colorimetry) with the instrument's
-        errors.  Call `colorimetry(spectrum, 10)` for the 10° block."""
+        errors, and the data faults of `DATA_FAULT_KINDS` when `faults` (the emulator's
+        `FaultInjector`) arms them.  Call `colorimetry(spectrum, 10)` for the 10° block."""
         wl, L = self.light()
         if self.noise:
             shift = float(self.rng.uniform(-WAVELENGTH_ERROR_NM, WAVELENGTH_ERROR_NM))
@@ -181,7 +202,36 @@ class RadiometerOptics:
         else:
             shift, gain = 0.0, 1.0
         spectrum = np.maximum(resample(wl, L, shift) * gain, 0.0)
-        return spectrum, colorimetry(spectrum)
+        if faults is None:
+            return spectrum, colorimetry(spectrum)
+        return self._data_faults(faults, spectrum)
+
+    def _data_faults(self, faults: Any, spectrum: np.ndarray
+                     ) -> tuple[np.ndarray, dict[str, float]]:
+        latched = self.__dict__.setdefault("_latched", {})
+        for kind, default in (("lost-digit", 560.0), ("zero-block", 20.0),
+                              ("negative", 1e-3)):
+            if kind not in latched and faults.fires(kind):
+                latched[kind] = faults.parameter(kind, default)
+                if kind == "zero-block":
+                    width = int(min(401, max(1, round(latched[kind]))))
+                    latched["zero-start"] = int(self.rng.integers(0, 401 - width + 1))
+        previous = self.__dict__.get("_previous")
+        if faults.fires("stale-data") and previous is not None:
+            return previous[0].copy(), dict(previous[1])       # the last block, again
+        if "zero-block" in latched:                             # dead detector elements
+            start = latched["zero-start"]
+            spectrum[start:start + int(min(401, max(1, round(latched["zero-block"]))))] = 0.0
+        if "negative" in latched:                               # dark over-subtracted
+            floor = float(latched["negative"]) * float(np.max(spectrum))
+            spectrum = np.where(spectrum < floor, spectrum - floor, spectrum)
+        colour = colorimetry(spectrum)                          # the instrument's own
+        self._previous = (spectrum.copy(), dict(colour))
+        if "lost-digit" in latched:                             # lost on the wire
+            i = round(latched["lost-digit"]) - int(RADIOMETER_WAVELENGTHS_NM[0])
+            spectrum = spectrum.copy()
+            spectrum[i] = lose_leading_digit(float(spectrum[i]))
+        return spectrum, colour
 
 
 class KonicaMinoltaCommands:

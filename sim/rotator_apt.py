@@ -295,7 +295,8 @@ class AptRotatorEmulator(PowerCycled, core.Emulator):
             stall = self.faults.parameter("stall", 0.5)
             self.motion_error = False
         self.motion_kind = kind
-        self.axis.start_move(target_deg, now, stall_fraction=stall)
+        slip = self.faults.parameter("slip", 0.5) if self.faults.fires("slip") else None
+        self.axis.start_move(target_deg, now, stall_fraction=stall, slip_deg=slip)
 
     def _run(self, sign: int, trap: Trapezoid, kind: str, now: float) -> None:
         self.axis.trapezoid = trap

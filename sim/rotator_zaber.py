@@ -284,7 +284,9 @@ class ZaberRotatorEmulator(PowerCycled, core.LineEmulator):
             self.axis.start_move(current + run_deg, now, stall_fraction=stall)
         else:
             self.axis.trapezoid = self._trapezoid()
-            self.axis.start_move(target / STEPS_PER_DEG, now, stall_fraction=stall)
+            slip = self.faults.parameter("slip", 0.5) if self.faults.fires("slip") else None
+            self.axis.start_move(target / STEPS_PER_DEG, now, stall_fraction=stall,
+                                 slip_deg=slip)
         self._reply(axis, True)
 
     def _settings(self, now: float) -> dict[str, Any]:

@@ -30,8 +30,9 @@ from normbox_lab.sim.core import FaultKind
 
 def fault_kinds(device: str) -> dict[str, FaultKind]:
     """Every fault kind the emulator of `device` declares, transport kinds included for a
-    line device (`sim.core.fault_table`): a scenario draws each over its whole range."""
-    return core.fault_table(device)[device]
+    line device (`sim.core.fault_table`), that the campaign draws (each over its whole
+    range); a kind nothing in the lab can detect (`FaultKind.campaign` False) is not drawn."""
+    return {k: v for k, v in core.fault_table(device)[device].items() if v.campaign}
 
 
 def all_fault_kinds() -> dict[str, dict[str, FaultKind]]:

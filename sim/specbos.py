@@ -67,7 +67,12 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.sim import core
-from normbox_lab.sim.radiometer_common import RadiometerOptics, Scene, env_time_factor
+from normbox_lab.sim.radiometer_common import (
+    DATA_FAULT_KINDS,
+    RadiometerOptics,
+    Scene,
+    env_time_factor,
+)
 
 ACK, NAK, BEL = b"\x06", b"\x15", b"\x07"
 IDENTITY = "JETI_SB1211"
@@ -109,6 +114,7 @@ class SpecbosEmulator(core.LineEmulator):
                        detector="typed DeviceError with its meaning → operator prompt"),
         core.FaultKind("over-range", "@", (1, 12), means="the n-th measurement is over range",
                        detector="typed DeviceError → retry / flag instrument-error"),
+        *DATA_FAULT_KINDS,
     )
     device_faults = tuple(k.kind for k in fault_kinds)
     terminators = (b"\r",)
@@ -326,7 +332,7 @@ class SpecbosEmulator(core.LineEmulator):
         """ACK now; the measurement runs for the timing model's time on the configuration
         (`answer`: *MEAS's own, whose data follow the BEL)."""
         conf = answer if answer is not None else self.conf
-        spectrum, colour = self.optics.observe()
+        spectrum, colour = self.optics.observe(self.faults)
         lv = colour["Lv"]
         adaptive = conf["expo"] == 1
         t_ms = adaptive_tint_ms(lv, conf["maxtin"]) if adaptive else conf["tint"]

@@ -53,7 +53,7 @@ import numpy as np
 
 from normbox_lab.core.spectral import RADIOMETER_WAVELENGTHS_NM
 from normbox_lab.predict.scene import panel_map as truth_panel_map
-from normbox_lab.sim import core
+from normbox_lab.sim import colour_tables, core
 
 WARMUP_TAU_S = 60.0
 WARMUP_DEFICIT = 0.2
@@ -73,11 +73,8 @@ def preset_spectrum(name: str) -> np.ndarray:
     if name == "A":
         c2 = 1.4388e7  # nm·K
         s = WAVELENGTHS_NM ** -5 / (np.exp(c2 / (WAVELENGTHS_NM * 2856.0)) - 1.0)
-    else:
-        import colour
-
-        sd = colour.SDS_ILLUMINANTS["D65"]
-        s = np.interp(WAVELENGTHS_NM, sd.wavelengths, sd.values)
+    else:              # CIE D65 (colour-science's table, shipped: no import at serve time)
+        s = colour_tables.d65()
     return s / np.interp(560.0, WAVELENGTHS_NM, s)
 
 
@@ -95,6 +92,12 @@ class SphereEmulator(core.LineEmulator):
         core.FaultKind("flicker", "@", (1, 12), (0.01, 20.0), "log", unit="% rms",
                        means="output noise of this size",
                        detector="lamp-unstable gate (monitor scatter, 0.25 %)"),
+        core.FaultKind("monitor-stuck", "@", (1, 12), (-100.0, 100.0), "linear", unit="%/h",
+                       means="from the n-th command the monitor (MEAS:LUM?) keeps its value "
+                             "while the output drifts at this rate",
+                       detector="undetectable by the lab as built (one light sensor, no "
+                                "reference re-measured): docs/fault-behaviour.md bounds it",
+                       campaign=False),
     )
     device_faults = tuple(k.kind for k in fault_kinds)
     terminators = (b"\n", b"\r")
@@ -107,6 +110,11 @@ class SphereEmulator(core.LineEmulator):
         self.serial = serial
         self.map = truth_panel_map(homogeneity_percent)
         self.reset()
+
+    def prepare(self) -> None:
+        """Read the D65 table now, so the first ``MEAS:SPEC?`` answers as fast as the next."""
+        for name in self.presets:
+            preset_spectrum(name)
 
     def reset(self) -> None:
         self.on = False
@@ -121,6 +129,8 @@ class SphereEmulator(core.LineEmulator):
         self.hours = 412.0
         self.drift_since_s: float | None = None     # lamp-drift latched at
         self.flicker_rms = 0.0
+        #: monitor-stuck: (time it latched, the value MEAS:LUM? keeps answering)
+        self.stuck: tuple[float, float] | None = None
 
     # --- physics the world reads -------------------------------------------------------------
     def _warm(self, now_s: float) -> float:
@@ -148,6 +158,9 @@ class SphereEmulator(core.LineEmulator):
         if self.drift_since_s is not None:
             fault_drift = (self.faults.parameter("lamp-drift", -10.0) / 100.0
                            * (now - self.drift_since_s) / 3600.0)
+        if self.stuck is not None:       # the output drifts, the monitor does not see it
+            fault_drift += (self.faults.parameter("monitor-stuck", -10.0) / 100.0
+                            * (now - self.stuck[0]) / 3600.0)
         return (self.level_percent / 100.0 * self._warm(now) * (1.0 + DRIFT_PER_H * hours_on)
                 * (1.0 + fault_drift) * (1.0 - dip)
                 * (1.0 + self.rng.gauss(0.0, math.hypot(NOISE_RMS, self.flicker_rms))))
@@ -194,6 +207,8 @@ class SphereEmulator(core.LineEmulator):
             self.drift_since_s = now
         if not self.flicker_rms and self.faults.fires("flicker"):
             self.flicker_rms = self.faults.parameter("flicker", 2.0) / 100.0
+        if self.stuck is None and self.on and self.faults.fires("monitor-stuck"):
+            self.stuck = (now, NOMINAL_LUMINANCE_CD_M2 * self.relative_output())
         head, _, arg = text.partition(" ")
         head = head.upper()
         arg = arg.strip()
@@ -259,7 +274,8 @@ class SphereEmulator(core.LineEmulator):
             spd = spd * (1.0 + np.array([self.rng.gauss(0.0, 0.002) for _ in spd]))
             self.emit(b"380,1,401,REL\n" + ",".join(f"{v:.5f}" for v in spd).encode() + b"\n")
         elif head == "MEAS:LUM?":
-            self._ok(f"{NOMINAL_LUMINANCE_CD_M2 * self.relative_output():.2f}")
+            lum = NOMINAL_LUMINANCE_CD_M2 * self.relative_output()
+            self._ok(f"{lum if self.stuck is None else self.stuck[1]:.2f}")
         elif head == "PANEL:MAP?":
             if not arg:
                 self._ok(",".join(f"{v:.5f}" for v in self.map.ravel()))

@@ -169,8 +169,8 @@ def test_a_radiometer_that_reads_5_percent_high_is_caught(tmp_path, monkeypatch)
 
     observe = radiometer_common.RadiometerOptics.observe
 
-    def high(self):
-        spectrum, _ = observe(self)
+    def high(self, faults=None):
+        spectrum, _ = observe(self, faults)
         spectrum = spectrum * 1.05
         return spectrum, radiometer_common.colorimetry(spectrum)
 

@@ -38,6 +38,10 @@ repeatability-cv       warning   CV of the luminance of a repeatability run >
                                  `repeatability_cv_percent`
 radiometer-range       error     Lv outside `radiometer_min_luminance_cd_m2` …
                                  `radiometer_max_luminance_cd_m2`
+radiance-negative      error     a radiometer band below −2e-9 W·sr⁻¹·m⁻²·nm⁻¹ (outside the
+                                 physical range: a dark over-subtracted)
+identical-spectrum     error     a radiometer spectrum equal bit for bit to an earlier
+                                 reading's of the run (a repeated data block)
 instrument-error       warning   the instrument answered with an error code (e.g. CS-1000A
                                  ER10 over range); the reading was retried or skipped
 instrument-error:      error     data corrupted on the wire were refused (re-read); the
@@ -246,6 +250,28 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
     return out
 
 
+#: radiance below minus this is outside the physical range (the wire's resolution: values
+#: below 1e-9 W·sr⁻¹·m⁻²·nm⁻¹ are sent as 0)
+RADIANCE_FLOOR_W_SR_M2_NM = 2e-9
+#: a spectrum with at least this many non-zero bands that equals an earlier reading's to
+#: the last bit is a repeated data block (the radiometers' noise and ±0.3 nm / ±2 % draw
+#: make two measurements differ)
+IDENTICAL_MIN_BANDS = 10
+
+
+def spectrum_digest(arrays: Mapping[str, Any]) -> bytes | None:
+    """The bytes of a radiometer reading's radiance (None when it has too few non-zero bands
+    to call two readings the same measurement)."""
+    import numpy as np
+
+    rad = np.ascontiguousarray(np.asarray(arrays.get("radiance_W_sr_m2_nm", ()), dtype="<f8"))
+    if int(np.count_nonzero(rad)) < IDENTICAL_MIN_BANDS:
+        return None
+    import hashlib
+
+    return hashlib.sha256(rad.tobytes()).digest()
+
+
 def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
                    limits: QualityLimits) -> list[FlagSpec]:
     """Gates on one radiometer reading."""
@@ -257,6 +283,14 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
     if bad:
         out.append(FlagSpec(key, "radiance-nonfinite", "error", float(bad), 0.0,
                             f"{bad} radiance values are NaN or infinite"))
+    finite = rad[np.isfinite(rad)]
+    if finite.size and float(finite.min()) < -RADIANCE_FLOOR_W_SR_M2_NM:
+        lo = float(finite.min())
+        n = int(np.count_nonzero(finite < -RADIANCE_FLOOR_W_SR_M2_NM))
+        out.append(FlagSpec(key, "radiance-negative", "error", lo, -RADIANCE_FLOOR_W_SR_M2_NM,
+                            f"{n} band(s) below zero, down to {lo:.4g} W/sr/m²/nm: radiance is "
+                            "never negative (a dark over-subtracted: the low bands may be "
+                            "wrong)"))
     colo = metadata.get("colorimetry") or {}
     lv = colo.get("Lv_cd_m2")
     if lv is not None:
@@ -336,7 +370,12 @@ class RunGates:
         self.found: list[FlagSpec] = []
         #: reading keys with a flag in the store (earlier segments) or recorded since
         self._flagged = {row["key"] for row in store.flag_rows(run_id=run_id)}
+        #: radiance digest → the first reading that had it (`identical-spectrum`)
+        self._spectra: dict[bytes, str] = {}
         for r in store.readings(run_id):
+            digest = spectrum_digest(r.arrays) if r.kind == "spectral" else None
+            if digest is not None:
+                self._spectra.setdefault(digest, r.key)
             mon = r.metadata.get("lamp_monitor_cd_m2")
             if mon is not None and self.lamp_first is None:
                 self.lamp_first = (r.key, float(mon))
@@ -360,11 +399,25 @@ class RunGates:
             specs = brdf_flags(key, metadata, arrays, self.limits)
         elif kind == "spectral":
             specs = spectral_flags(key, metadata, arrays, self.limits)
+            specs += self._identical(key, arrays)
         else:                           # e.g. a lab check's result: it flags itself
             specs = []
         specs += self._lamp(key, metadata)
         specs += position_flags(key, metadata)
         return self._record(specs)
+
+    def _identical(self, key: str, arrays: Mapping[str, Any]) -> list[FlagSpec]:
+        """`identical-spectrum`: this reading's radiance equals an earlier reading's bit for
+        bit — a data block the instrument repeated (a stale buffer), not a measurement."""
+        digest = spectrum_digest(arrays)
+        if digest is None:
+            return []
+        first = self._spectra.setdefault(digest, key)
+        if first == key:
+            return []
+        return [FlagSpec(key, "identical-spectrum", "error", None, None,
+                         f"the radiance equals that of {first} bit for bit: a repeated data "
+                         "block (two measurements always differ by their noise)")]
 
     def _lamp(self, key: str, metadata: Mapping[str, Any]) -> list[FlagSpec]:
         """`lamp-drift` and `lamp-unstable` (see the module table): values that may be wrong,
