@@ -259,3 +259,21 @@ def test_a_stage_that_loses_steps_is_seen_by_its_readback(model, slip_deg):
         assert loc.setpoint == 60.0 and abs(loc.readback - (60.0 - slip_deg)) < 0.01
         assert abs(loc.readback - loc.setpoint) > loc.tolerance
     assert abs(emu.angle_deg() - (60.0 - slip_deg)) < 0.01        # where the sample stands
+
+
+# --- the command line derives from the registry ------------------------------------------------
+
+def test_sim_faults_lists_the_registry_and_serve_refuses_outside_it(capsys):
+    from normbox_lab.cli import main
+
+    assert main(["sim", "faults", "sphere"]) == 0
+    out = capsys.readouterr().out
+    for kind in core.fault_table("sphere")["sphere"]:
+        assert f"`{kind}`" in out
+    assert "-100 … 100 %/h" in out and "not drawn (undetectable)" in out
+    assert main(["sim", "serve", "sphere", "--pty", "--faults", "lamp-drift@1:500"]) == 2
+    err = capsys.readouterr().err
+    assert "-100 … 100" in err and err.count("\n") == 1
+    assert main(["sim", "serve", "cs1000a", "--pty", "--faults", "melt=0.1"]) == 2
+    err = capsys.readouterr().err
+    assert "stale-data" in err and "lost-digit" in err          # the known kinds, listed

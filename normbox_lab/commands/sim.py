@@ -50,13 +50,22 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "in_waiting counts every byte, so read_all() clients such as "
                         "colour-specio work; socket:// reports at most 1 byte")
     s.add_argument("--faults", default="", metavar="SPEC",
-                   help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7'")
+                   help="fault injection, e.g. 'no-reply=0.1,garble=0.05,disconnect@7': the "
+                        "kinds DEVICE declares, within their ranges (`sim faults DEVICE` "
+                        "lists them)")
     s.add_argument("--seed", type=option(SEED, "--seed"),
                    default=0, help="seed of the emulator's randomness")
     s.add_argument("--option", action="append", default=[], metavar="K=V",
                    help="an emulator option, as in the sim:// URL (e.g. noise=off, "
                         "time_factor=0.05 for the radiometers); repeatable")
     s.set_defaults(handler=_serve)
+    fl = simsub.add_parser(
+        "faults", help="the fault kinds each emulator declares: range, distribution, detector",
+        description="The fault registry (sim.core.fault_table): what `sim serve --faults`, "
+                    "the sim:// URLs and the campaign accept and draw.")
+    fl.add_argument("device", nargs="?", metavar="DEVICE",
+                    help="one device (default: every emulated device)")
+    fl.set_defaults(handler=_faults)
     lat = simsub.add_parser(
         "latency", help="first-measurement latency of a served radiometer from a cold start",
         description="Start `sim serve DEVICE --tcp 127.0.0.1:0` in a new process (noise off, "
@@ -166,6 +175,20 @@ def _serve(args: argparse.Namespace) -> int:
         return _fail(str(exc))
     print(server.endpoint, flush=True)
     serve.serve_until_signalled(server)       # SIGTERM/SIGINT: the process ends there
+    return 0
+
+
+def _faults(args: argparse.Namespace) -> int:
+    from normbox_lab.sim import core
+
+    try:
+        table = core.fault_table(args.device)
+    except ValueError as exc:
+        return _fail(str(exc))
+    for device, kinds in table.items():
+        print(f"{device}:")
+        for _, k in sorted(kinds.items()):
+            print("  " + k.row().strip("|").replace(" | ", "  |  ").strip())
     return 0
 
 
