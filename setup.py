@@ -16,4 +16,9 @@ for folder, name in MAPPED_FOLDERS.items():
     package_dir[name] = folder
     packages += [name] + [f"{name}.{sub}" for sub in find_packages(folder)]
 
-setup(packages=packages, package_dir=package_dir)
+#: data files shipped inside the packages (read at run time, in editable and normal installs;
+#: listed here only: `include_package_data` would also take any stray file in a package folder)
+PACKAGE_DATA = {"normbox_lab.sim": ["data/*.npz"]}
+
+setup(packages=packages, package_dir=package_dir, package_data=PACKAGE_DATA,
+      include_package_data=False)

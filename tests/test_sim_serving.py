@@ -111,24 +111,25 @@ def test_serve_help_says_ptys_cannot_carry_modem_lines(capsys):
     assert "--tcp ::1:0" in out
 
 
-def test_colour_science_is_loaded_before_the_endpoint_line(monkeypatch, capsys):
-    from normbox_lab.sim import radiometer_common
+def test_the_colour_tables_are_loaded_before_the_endpoint_line(monkeypatch, capsys):
+    from normbox_lab.sim import colour_tables
     from normbox_lab.sim.cs2000 import CS2000AEmulator
 
     events = []
-    monkeypatch.setattr(radiometer_common, "_CMFS", {})
+    colour_tables.tables.cache_clear()
     real_prepare = CS2000AEmulator.prepare
 
     def prepare(self):
         real_prepare(self)
-        events.append(("prepared", sorted(radiometer_common._CMFS), capsys.readouterr().out))
+        loaded = colour_tables.tables.cache_info().currsize      # 1: read from the file
+        events.append(("prepared", loaded, capsys.readouterr().out))
 
     monkeypatch.setattr(CS2000AEmulator, "prepare", prepare)
     monkeypatch.setattr(serve.TcpServer, "serve", lambda self, stop=None: events.append(
         ("served", capsys.readouterr().out)))
     assert main(["sim", "serve", "cs2000a", "--tcp", "127.0.0.1:0"]) == 0
-    (tag, observers, out_then), (tag2, out_later) = events
-    assert (tag, observers, out_then) == ("prepared", [2, 10], "")     # nothing printed yet
+    (tag, loaded, out_then), (tag2, out_later) = events
+    assert (tag, loaded, out_then) == ("prepared", 1, "")     # nothing printed yet
     assert tag2 == "served" and out_later.startswith("tcp: 127.0.0.1:")
 
 
