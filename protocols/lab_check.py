@@ -83,12 +83,12 @@ class Limit:
 DARK_LV_CD_M2 = Limit(None, 0.05, "cd/m²", "lab criterion: a dark reading (lamp off, box "
                       "closed) below 0.05 cd/m², 1/40 of the white patch at 90° at full level "
                       "in the Normbox (≈2 cd/m²)")
-REPEATABILITY = Limit(None, 4.0, "% (max-min)/mean", "Konica Minolta CS-1000A specifications: "
-                      "±2 % radiometric accuracy; readings of a stable source stay inside that "
-                      "band (a span of 4 %)")
+REPEATABILITY = Limit(None, 4.0, "% (max-min)/mean", "Konica Minolta CS-1000A / CS-2000A "
+                      "specifications: ±2 % luminance accuracy; readings of a stable source "
+                      "stay inside that band (a span of 4 %)")
 HISTORY_PERCENT = 4.0
-HISTORY_SOURCE = ("lab history: the last passing lab check of this instrument, ±4 % (each "
-                  "reading within the CS-1000A's stated ±2 %)")
+HISTORY_SOURCE = ("lab history: the last lab check that passed every check, ±4 % (each "
+                  "reading within the radiometer's stated ±2 %)")
 BACKLASH = Limit(None, 0.1, "°", "lab criterion: 2 % of the 5° sample-angle step (the "
                  "K10CR1 is specified at ±0.1° bidirectional repeatability per Thorlabs' "
                  "K10CR1 specifications)")

@@ -137,17 +137,17 @@ def test_guarded_port_refuses_bytes_no_identification_declares():
     port.close()
 
 
-def test_no_ascii_probe_can_frame_an_apt_motion_message():
-    """An ASCII probe reaching an APT controller is read as 6-byte headers at any alignment:
-    none may carry a motion message id (home, move, jog, velocity, stop)."""
-    motion_ids = {0x0443, 0x0448, 0x0453, 0x0457, 0x046A, 0x0465}
-    for name, e in registry.DRIVERS.items():
-        ident = e.identification
-        if ident is None or ident.binary:
-            continue
-        stream = b"".join(ex.send for ex in ident.exchanges)
-        for i in range(len(stream) - 1):
-            assert int.from_bytes(stream[i:i + 2], "little") not in motion_ids, name
+def test_no_ascii_probe_can_frame_an_apt_message():
+    """An ASCII probe reaching an APT controller is read as 6-byte headers at any alignment
+    (no byte has the long-message bit 0x80): every id it could form is at least 0x0A0A (an LF
+    or CR as its high byte), above every message of the K10CR1 subset (≤ 0x0492), the motion
+    ones (home 0x0443, move 0x0448/0x0453, velocity 0x0457, jog 0x046A) included."""
+    stream = b"".join(ex.send for e in registry.DRIVERS.values()
+                      if e.identification is not None and not e.identification.binary
+                      for ex in e.identification.exchanges)
+    assert stream and max(stream) < 0x80
+    ids = {int.from_bytes(stream[i:i + 2], "little") for i in range(len(stream) - 1)}
+    assert min(ids) >= 0x0A0A
 
 
 def test_port_problems_are_one_line_and_name_the_dialout_group():

@@ -102,8 +102,14 @@ def _check(args: argparse.Namespace) -> int:
     from normbox_lab.protocols import lab_check
     from normbox_lab.sim.labsim import build_lab
 
+    def terminal_operator(lab):
+        # a real lab: the operator places the white patch at the terminal
+        from normbox_lab.acquire.operator import TerminalOperator
+
+        return TerminalOperator(world=lab.world)
+
     report = lab_check.run_check(config, args.store, overrides, make_lab=build_lab,
-                                 world=args.world)
+                                 world=args.world, make_operator=terminal_operator)
     for line in report.lines():
         print(line)
     return 0 if report.passed else 1
