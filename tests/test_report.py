@@ -110,6 +110,14 @@ def test_summary_comes_first_with_the_headline_numbers(comparison_report):
     assert f"{np.nanmean(c.delta_e00):.2f}" in summary
     assert f"adapted convention: {np.nanmean(adapted):.2f}" in summary
     assert f"{100 * np.nanmean(c.nrmse):.1f} %" in summary
+    # the largest ΔE00 of each convention, each with its own patch and angle (the card showed
+    # the paper convention's maximum beside the adapted mean before)
+    pa, aa = np.unravel_index(np.nanargmax(adapted), adapted.shape)
+    pp, ap = np.unravel_index(np.nanargmax(c.delta_e00), c.delta_e00.shape)
+    assert (f"patch {c.patch_names[pp]} at {c.angle_deg[ap]:g}°; adapted convention: "
+            f"{np.nanmax(adapted):.2f} (patch {c.patch_names[pa]} at {c.angle_deg[aa]:g}°)"
+            in summary)
+    assert f"<div class='v'>{np.nanmax(c.delta_e00):.2f}</div>" in summary
     # NRMSE by angle in percent, the worst configuration, the rating counts
     nrmse_row = re.search(r'id="tab-nrmse-angle">.*?</table>', summary, re.DOTALL).group(0)
     for a in range(c.angle_deg.size):

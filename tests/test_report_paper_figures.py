@@ -239,3 +239,8 @@ def test_the_report_html_names_the_papers_figures_from_the_table(stored_campaign
     assert _html(pf.cite("fit_weight_w")) in html
     m = re.search(r'<figure id="fig-nse">.*?base64,([^"]+)"', html, re.DOTALL)
     assert "(reference − prediction)/reference" in base64.b64decode(m.group(1)).decode()
+    # the page's text: every negative number with the typographic minus (U+2212)
+    text = re.sub(r"<[^>]+>", " ", re.sub(r"<style>.*?</style>|data:[^\"']+", "", html,
+                                          flags=re.DOTALL))
+    assert re.findall(r"(?<![\w-])-\d[^ ]*", text) == []
+    assert re.search(r"−\d", text)            # there are negative numbers to check

@@ -16,6 +16,8 @@ def test_one_number_format():
                                     0.9996)] == [
         "1.00", "1.60", "2.02×10⁻⁵", "0.0747", "1.00", "0.999", "1.23×10⁵", "0.180", "1.00"]
     assert fmt_number(float("nan")) == "—"
+    # negative numbers with the typographic minus, never the ASCII hyphen
+    assert [fmt_number(v) for v in (-0.0971, -2.02e-5)] == ["\u22120.0971", "\u22122.02×10⁻⁵"]
 
 
 def test_renderer_rows_paper_column_and_simulated_verdict():

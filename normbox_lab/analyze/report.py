@@ -96,7 +96,8 @@ SIGNIFICANT_DIGITS = 3
 
 def fmt_number(v: float, digits: int = SIGNIFICANT_DIGITS) -> str:
     """A number with exactly `digits` significant digits, trailing zeros kept ("1.00",
-    "1.60", "0.0747"); below 10⁻³ or from 10⁵ on as "2.02×10⁻⁵" (no "e" notation)."""
+    "1.60", "0.0747"); below 10⁻³ or from 10⁵ on as "2.02×10⁻⁵" (no "e" notation); a
+    negative number with the typographic minus ("−0.0971", U+2212)."""
     v = float(v)
     if np.isnan(v):
         return "—"
@@ -107,8 +108,10 @@ def fmt_number(v: float, digits: int = SIGNIFICANT_DIGITS) -> str:
     mantissa, exponent = f"{v:.{digits - 1}e}".split("e")
     e = int(exponent)                  # of the rounded value: 0.9996 → 1.00e+00
     if -3 <= e < 5:
-        return f"{float(f'{mantissa}e{e}'):.{max(digits - 1 - e, 0)}f}"
-    return f"{mantissa}×10{str(int(exponent)).translate(_SUPERSCRIPT)}"
+        text = f"{float(f'{mantissa}e{e}'):.{max(digits - 1 - e, 0)}f}"
+    else:
+        text = f"{mantissa}×10{str(int(exponent)).translate(_SUPERSCRIPT)}"
+    return text.replace("-", "\u2212", 1) if text.startswith("-") else text
 
 
 def _fmt(v: Any, digits: int = SIGNIFICANT_DIGITS) -> str:
@@ -200,7 +203,7 @@ def _rating_class(_i: int, j: int, v: Any) -> str:
     if j == 0 or not isinstance(v, float | np.floating) or not np.isfinite(v):
         return ""
     shown = float(fmt_number(float(v)).replace("×10", "e").translate(
-        str.maketrans("⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "-0123456789")))
+        str.maketrans("−⁻⁰¹²³⁴⁵⁶⁷⁸⁹", "--0123456789")))
     return f"r{int(rating_index(shown))}"
 
 
