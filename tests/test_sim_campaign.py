@@ -274,3 +274,68 @@ def test_keep_leaves_every_scenario_on_disk(tmp_path):
     assert (kept / "store.sqlite").is_file() and (kept / "lab.toml").is_file()
     assert (kept / "seg0.journal").read_text().count('"ev": "reading-stored"') == 4
     assert Path(kept / "seg0.stdout").read_text().count("\n") >= 5
+
+
+# --- issue 37: faults the campaign never drew, and the oracle band by band -----------------------
+def _gonio_case(fault: Fault) -> Scenario:
+    return Scenario(seed=1, index=0, protocol="brdf-inplane",
+                    params={"materials": [3], "theta_i_deg": [-40], "theta_o_deg": [-20, 30]},
+                    faults=(fault,))
+
+
+def _flag_gates(r_workdir: Path) -> set[str]:
+    from normbox_lab.acquire.store import Store
+
+    with Store(r_workdir / "store.sqlite", read_only=True) as s:
+        return {f["gate"] for f in s.flag_rows()}
+
+
+@pytest.mark.parametrize(("fault", "gate"), [
+    # a dark current that jumped between the white reference and its dark: +92 % in the blue,
+    # unflagged, before the white was bracketed by two darks (now: no wrong value stored)
+    (Fault("spectrometer", "dark-drift", "@", 3, 20000.0), None),
+    # a plateau at half scale: BRDF ×0.000 over 615–627 nm, unflagged (now: PLATEAU, skipped)
+    (Fault("spectrometer", "saturation", "@", 1, 0.5), "skipped"),
+])
+def test_the_two_cases_the_campaign_never_drew_are_caught(tmp_path, fault, gate):
+    r = campaign.run_one(_gonio_case(fault), tmp_path, keep=True)
+    assert r.violations == [], [v.line() for v in r.violations]
+    if gate is not None:
+        assert gate in _flag_gates(tmp_path / r.scenario.name)
+
+
+def test_the_oracle_sees_a_lost_digit_the_driver_would_let_through(tmp_path, monkeypatch):
+    """400 nm loses its leading digit: too small a change for the older checks (20 % of the
+    peak, Lv within 2 %).  With the 5 nm-bandwidth check switched off the band-by-band oracle
+    calls the stored reading wrong; with it on, nothing wrong is stored."""
+    from normbox_lab.drivers import radiometer_common
+
+    scenario = small_sweep(params={"angles_deg": [60], "patches": [7]},
+                           faults=(Fault("radiometer", "lost-digit", "@", 1, 400.0),))
+    assert campaign.run_one(scenario, tmp_path / "on").violations == []
+    monkeypatch.setattr(radiometer_common, "_relative_step", lambda x: "")
+    r = campaign.run_one(scenario, tmp_path / "off")
+    assert [v.cls for v in r.violations] == ["a:spectral"]
+    assert "400 nm" in r.violations[0].message and "1/401 bands" in r.violations[0].message
+
+
+def test_the_gonio_oracle_judges_each_band_against_its_counting_noise():
+    from normbox_lab.sim import qepro as q
+
+    w = invariants.analytic_world()
+    wl = np.arange(380.0, 781.0)
+    truth = np.interp(wl, w.wavelength_nm, w._rho("patch-14")) / np.pi
+    px_wl = np.polyval(q.WAVELENGTH_COEFFS[::-1], np.arange(q.PIXELS))
+    signal = 60000.0 * np.exp(-((px_wl - 600.0) / 200.0) ** 2)      # counts at 0.1 s
+    raw = q.OFFSET_COUNTS + signal
+    meta = {"material": 14, "theta_i_deg": -20.0, "theta_o_deg": 30.0,
+            "integration_time_s": 0.1, "white_integration_time_s": 0.1}
+    arrays = {"wavelength_nm": wl, "brdf_per_sr": truth.copy(), "raw_counts": raw}
+    assert invariants.check_brdf("k", meta, arrays, None) == []
+    sigma = invariants.brdf_sigma_rel(meta, arrays, truth)
+    assert 1e-3 < np.nanmin(sigma) < np.nanmax(sigma) < 0.05        # the blue is noisier
+    one_band = truth.copy()
+    one_band[240] *= 1.06                                            # 620 nm, 6 % high
+    arrays["brdf_per_sr"] = one_band
+    [problem] = invariants.check_brdf("k", meta, arrays, None)
+    assert "1/401 bands" in problem and "620 nm" in problem
