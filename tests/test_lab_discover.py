@@ -78,7 +78,7 @@ def lab():
                                               "zaber-b", "sphere", "busy")] + [garbage]
         findings = discover.discover(endpoints, scan_serial=False, usb=True,
                                      usb_backend="pyseabreeze", pyusb_backend=backend,
-                                     timeout_s=0.2)
+                                     timeout_s=0.5)
         yield servers, garbage, findings
 
 
@@ -179,7 +179,7 @@ def test_written_config_names_usb_adapters_by_serial_and_reopens_them(tmp_path, 
             served("sphere", "tcp") as sph:
         ports = [_usb_port(b.path, "FTB0002"), _usb_port(a.path, "FTA0001")]
         monkeypatch.setattr(list_ports, "comports", lambda include_links=False: ports)
-        findings = discover.discover([apt.url, rad.url, sph.url], usb=False, timeout_s=0.2)
+        findings = discover.discover([apt.url, rad.url, sph.url], usb=False, timeout_s=0.5)
         path = discover.write_lab_config(findings, tmp_path / "lab.toml")
         config = load_config(path)
         arms = {r: config.instruments[r] for r in ("gonio_light_arm", "gonio_detector_arm")}
@@ -248,7 +248,7 @@ def test_written_config_runs_a_sweep_unchanged(tmp_path):
             served("rotator-apt", "tcp") as rot, served("sphere", "tcp") as sph:
         warm(sph)
         findings = discover.discover([rad.url, rot.url, sph.url], scan_serial=False, usb=False,
-                                     timeout_s=0.2)
+                                     timeout_s=0.5)
         path = discover.write_lab_config(findings, tmp_path / "lab.toml")
         text_before = path.read_text()
         with Store(tmp_path / "s.sqlite") as store, open_run(
@@ -273,7 +273,7 @@ def test_cli_discover_prints_the_table_and_writes_a_config_that_loads(tmp_path, 
             served("sphere", "tcp") as sph:
         path = tmp_path / "lab.toml"
         rc = cli.main(["lab", "discover", rad.url, rot.url, sph.url, "--no-scan", "--no-usb",
-                       "--timeout-s", "0.2", "--write", str(path)])
+                       "--timeout-s", "0.5", "--write", str(path)])
         out = capsys.readouterr().out.splitlines()
         assert rc == 0
         assert out[0].split() == ["PORT", "INSTRUMENT", "MODEL", "SERIAL", "FIRMWARE", "DRIVER"]
@@ -283,5 +283,5 @@ def test_cli_discover_prints_the_table_and_writes_a_config_that_loads(tmp_path, 
         assert set(load_config(path).instruments) == {"radiometer", "rotator", "sphere"}
         # a second --write without --force refuses to overwrite the lab's config
         rc = cli.main(["lab", "discover", rad.url, rot.url, sph.url, "--no-scan", "--no-usb",
-                       "--timeout-s", "0.2", "--write", str(path)])
+                       "--timeout-s", "0.5", "--write", str(path)])
         assert rc == 1 and "exists already" in capsys.readouterr().err
