@@ -39,7 +39,7 @@ SCRIPT = r"""
 import json, sys
 from normbox_lab.acquire.config import parse_config
 from normbox_lab.acquire.engine import open_run
-from normbox_lab.sim.labsim import build_lab
+from normbox_lab.acquire.lab import build_lab
 from normbox_lab.core.errors import InstrumentError, NormboxError
 from normbox_lab.drivers import cs1000, cs2000, gonio, qepro, rotator_apt, rotator_zaber, sphere
 
