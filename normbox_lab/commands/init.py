@@ -20,8 +20,9 @@ def _init(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.config import load_config, write_sim_config
 
     if not args.sim:
-        print("normbox-lab: only simulated labs can be generated so far; write the template "
-              "with --sim and replace each `port` by your device path", file=sys.stderr)
+        print("normbox-lab: init writes simulated labs (--sim); for real instruments run "
+              "`normbox-lab lab discover --write LAB.toml` (docs/first-contact.md)",
+              file=sys.stderr)
         return 2
     path = write_sim_config(args.path, overwrite=args.force)
     cfg = load_config(path)  # what we write must load
