@@ -29,6 +29,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from normbox_lab.core.jit_stats import KernelLog, KernelStats
+
 QUICK_PATCHES = [19, 13, 7, 24]
 #: the virtual camera's view (the paper's Fig. 1): the orange patch at 45°
 CAMERA_PATCH = 7
@@ -56,6 +58,8 @@ class DemoResult:
     runs: dict[str, int]
     timings_s: dict[str, float] = field(default_factory=dict)
     summary: dict[str, Any] = field(default_factory=dict)
+    #: per stage: the Dr.Jit kernels it compiled or loaded, and the compile time
+    kernels: dict[str, KernelStats] = field(default_factory=dict)
 
 
 def error_spec(opts: DemoOptions) -> str | None:
@@ -194,13 +198,19 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
     angles = QUICK_ANGLES if opts.quick else FULL_ANGLES
     timings: dict[str, float] = {}
+    kernels: dict[str, KernelStats] = {}
     runs: dict[str, int] = {}
+    kernel_log = KernelLog()
+    kernel_log.start()
 
     def timed(name: str, fn: Callable[[], Any]) -> Any:
+        before = kernel_log.snapshot()
         t0 = time.perf_counter()
         value = fn()
         timings[name] = time.perf_counter() - t0
-        log(f"{name}: {timings[name]:.1f} s")
+        kernels[name] = k = kernel_log.snapshot() - before
+        log(f"{name}: {timings[name]:.1f} s (work {timings[name] - k.compile_s:.1f} s, "
+            f"{k.line()})" if k.launches else f"{name}: {timings[name]:.1f} s")
         return value
 
     world, render = timed("set-up", lambda: make_world(config, opts, quality))
@@ -245,6 +255,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     finally:
         lab.close()
         store.close()
+        kernel_log.stop()
     de, nr = comparison.delta_e00, comparison.nrmse
     summary = {"delta_e00_mean": float(np.nanmean(de)), "delta_e00_max": float(np.nanmax(de)),
                "nrmse_mean_pct": 100 * float(np.nanmean(nr)),
@@ -256,4 +267,4 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
                "camera_files": {k: str(v) for k, v in images.files.items()},
                "fit_error_pct": fit_errors,
                "flags": flags}
-    return DemoResult(report, store_path, runs, timings, summary)
+    return DemoResult(report, store_path, runs, timings, summary, kernels)

@@ -45,9 +45,12 @@ def _demo(args: argparse.Namespace) -> int:
     from rich.console import Console
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
+    from normbox_lab.core.machine import machine_header
     from normbox_lab.demo import DemoOptions, run_demo
 
     console = Console(stderr=True)
+    machine = machine_header()             # before the first kernel: cold or warm cache
+    console.print(machine)
     if args.errors is not None:
         from normbox_lab.core.error_sources import parse_error_spec
 
@@ -65,10 +68,21 @@ def _demo(args: argparse.Namespace) -> int:
 
         result = run_demo(opts, on_progress, log=lambda s: progress.console.print(s))
     total = sum(result.timings_s.values())
-    print("timing breakdown:")
+    print(machine)
+    print("timing breakdown (work = wall - kernel compilation):")
+    print(f"  {'stage':<16} {'wall':>8}    {'%':>5}   {'work':>8}  {'compile':>8}  kernels "
+          f"compiled / from disk / launches")
+    compiled = compile_s = 0.0
     for k, v in result.timings_s.items():
-        print(f"  {k:<16} {v:8.1f} s  {100 * v / total:5.1f} %")
-    print(f"  {'total':<16} {total:8.1f} s")
+        ks = result.kernels.get(k)
+        c = ks.compile_s if ks else 0.0
+        counts = f"{ks.compiled} / {ks.from_disk} / {ks.launches}" if ks else "-"
+        compiled += ks.compiled if ks else 0
+        compile_s += c
+        print(f"  {k:<16} {v:8.1f} s  {100 * v / total:5.1f} %  {v - c:8.1f} s {c:8.1f} s  "
+              f"{counts}")
+    print(f"  {'total':<16} {total:8.1f} s          {total - compile_s:8.1f} s "
+          f"{compile_s:8.1f} s  {int(compiled)} kernels compiled")
     s = result.summary
     print(f"ΔE00 mean {s['delta_e00_mean']:.2f} (max {s['delta_e00_max']:.2f}); "
           f"NRMSE mean {s['nrmse_mean_pct']:.2f} % (max {s['nrmse_max_pct']:.2f} %)")

@@ -65,7 +65,7 @@ from normbox_lab.predict.bandpath import (
     BandPathTracer,
     RectEmitter,
 )
-from normbox_lab.predict.kernel_safety import require_finite
+from normbox_lab.predict.kernel_safety import jit_table, require_finite
 from normbox_lab.predict.mitsuba_setup import jit_variant
 from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, lane_rng
 
@@ -174,7 +174,7 @@ class CameraTracer(BandPathTracer):
             from normbox_lab.predict.patchset import sobol_net
 
             points = 1 << max(int(spp) - 1, 0).bit_length()
-            net = m.UInt32(sobol_net(points, QMC_DIMS).ravel())
+            net = jit_table(m.UInt32, sobol_net(points, QMC_DIMS), np.uint32)
             shifter = lane_rng(m, dr, int(seed_state) ^ 0x51A7E5D, pix)
             base = (idx - (idx // c.spp) * c.spp) * QMC_DIMS
             draws = _Draws([m.Float((dr.gather(m.UInt32, net, base + d)

@@ -54,7 +54,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.core.spectral import BAND_WAVELENGTHS_NM
-from normbox_lab.predict.kernel_safety import require_finite
+from normbox_lab.predict.kernel_safety import jit_table, require_finite
 
 #: default bands: those of the stock spectral renderer (380…780 nm step 5, 5 nm hats)
 DEFAULT_WAVELENGTHS_NM = BAND_WAVELENGTHS_NM
@@ -195,8 +195,9 @@ class _TripletScene:
             p.update()
         import mitsuba as mi
 
-        self.params["panel.emitter.radiance.data"] = mi.TensorXf(
-            self._panel_rgb(lamp_rgb(lamp, wavelengths_nm)))
+        rgb = self._panel_rgb(lamp_rgb(lamp, wavelengths_nm))
+        self.params["panel.emitter.radiance.data"] = mi.TensorXf(jit_table(mi.Float, rgb),
+                                                                 shape=rgb.shape)
         self.params.update()
 
 

@@ -48,7 +48,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
-from normbox_lab.predict.kernel_safety import cell_index, lane_index, require_finite
+from normbox_lab.predict.kernel_safety import cell_index, jit_table, lane_index, require_finite
 from normbox_lab.predict.streams import FirstBounceDraws, chunk_seed, lane_rng
 
 INV_PI = 1.0 / np.pi
@@ -210,7 +210,7 @@ class BandPathTracer:
             raise KeyError(f"emitter slot {emitter_slot!r} is not among the BSDF slots")
         self.emitter_slot = self.slot_names.index(emitter_slot)
         fm = np.asarray(emitter.factor_map, dtype=np.float64)
-        self._factor_map = m.Float(np.concatenate([fm.ravel(), [0.0]]))   # ≥ 2 entries
+        self._factor_map = jit_table(m.Float, np.concatenate([fm.ravel(), [0.0]]))   # ≥ 2 entries
         self._map_shape = fm.shape
         self.refresh_geometry()
 
@@ -238,9 +238,9 @@ class BandPathTracer:
             breg = int(dr.reinterpret_array(m.UInt32, m.BSDFPtr(b))[0]) if b is not None else -1
             slot[reg] = self._bsdf_slot.get(breg, 0)
         nrm = np.concatenate(normals + [np.zeros((1, 3))])
-        self._shape_base = m.UInt32(base)
-        self._shape_slot = m.UInt32(slot)
-        self._normals = [m.Float(nrm[:, i]) for i in range(3)]
+        self._shape_base = jit_table(m.UInt32, base, np.uint32)
+        self._shape_slot = jit_table(m.UInt32, slot, np.uint32)
+        self._normals = [jit_table(m.Float, nrm[:, i]) for i in range(3)]
 
     # ---- tables ------------------------------------------------------------------------
     def material_tables(self, material: Any) -> dict[str, Any]:
@@ -287,14 +287,14 @@ class BandPathTracer:
             for key, column in par.items():
                 column[s] = t[key]
         le = g.table(emitter_wavelength_nm, emitter_radiance)
-        tab = {k: m.Float(v) for k, v in par.items()}
+        tab = {k: jit_table(m.Float, v) for k, v in par.items()}
 
         def pair(t: np.ndarray) -> np.ndarray:
             """(…, n) → (…, n, 2): value and slope to the next 1 nm sample."""
             return np.stack([t, np.diff(t, axis=-1, append=t[..., -1:])], axis=-1)
 
-        tab.update(kdks=m.Float(np.concatenate([pair(kd), pair(ks)], axis=-1).ravel()),
-                   kb=m.Float(pair(kb).ravel()), le=m.Float(pair(le).ravel()),
+        tab.update(kdks=jit_table(m.Float, np.concatenate([pair(kd), pair(ks)], axis=-1)),
+                   kb=jit_table(m.Float, pair(kb)), le=jit_table(m.Float, pair(le)),
                    n_fine=int(fine.size), has_kb=bool(np.any(kb)),
                    dispersive=bool(np.any(par["deta"])))
         return tab

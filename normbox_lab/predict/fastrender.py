@@ -34,6 +34,7 @@ from normbox_lab.predict.bandpath import (
     RectEmitter,
     max_rel_se,
 )
+from normbox_lab.predict.kernel_safety import jit_table
 from normbox_lab.predict.mitsuba_setup import in_variant, jit_variant
 from normbox_lab.predict.patchset import PatchSetTracer
 from normbox_lab.predict.precision import DEFAULT_TARGET_SE, PRESETS
@@ -166,12 +167,12 @@ class FastNormbox:
                     continue
                 v = self._ref_params[f"{key}.vertex_positions"].reshape(-1, 3)
                 v = v @ rel[:3, :3].T + rel[:3, 3]
-                params[f"{key}.vertex_positions"] = mi.Float(v.ravel().astype(np.float32))
+                params[f"{key}.vertex_positions"] = jit_table(mi.Float, v)
                 nk = f"{key}.vertex_normals"
                 if nk in self._ref_params:
                     nn = self._ref_params[nk].reshape(-1, 3) @ np.linalg.inv(rel[:3, :3])
                     nn /= np.maximum(np.linalg.norm(nn, axis=1, keepdims=True), 1e-30)
-                    params[nk] = mi.Float(nn.ravel().astype(np.float32))
+                    params[nk] = jit_table(mi.Float, nn)
             params.update()
         self._angle_deg = float(angle_deg)
         for tr in self._tracers.values():

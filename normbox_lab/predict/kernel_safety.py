@@ -46,3 +46,23 @@ def require_finite(values: Any, what: str) -> np.ndarray:
         raise RenderError(f"{what}: {int(bad.sum())} of {arr.size} values are NaN or "
                           f"infinite (first at index {first}); the estimate is not returned")
     return arr
+
+
+#: Dr.Jit's LLVM back end gathers (value, slope) pairs with one packet load only from a source
+#: that is 64-byte aligned; an array made from a NumPy buffer keeps NumPy's address, so the
+#: same code compiled a packet kernel in one process and separate gathers in the next (a new
+#: kernel, 10-25 s on a 2-core AVX2 CPU, in a second run with the same options).
+JIT_ALIGN_BYTES = 64
+
+
+def jit_table(array_type: Any, values: Any, dtype: Any = np.float32) -> Any:
+    """A Dr.Jit array (`array_type`: m.Float, m.UInt32, ...) holding `values`, from a
+    64-byte-aligned buffer: every kernel that gathers from it is the same kernel in every
+    process (packet gathers where the element count allows)."""
+    a = np.ascontiguousarray(values, dtype=dtype).ravel()
+    item = a.dtype.itemsize
+    buf = np.empty(a.size + JIT_ALIGN_BYTES // item, dtype=a.dtype)
+    off = (-buf.ctypes.data % JIT_ALIGN_BYTES) // item
+    out = buf[off:off + a.size]
+    out[:] = a
+    return array_type(out)

@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.predict.kernel_safety import cell_index
+from normbox_lab.predict.kernel_safety import cell_index, jit_table
 
 GRID_MIN_NM = 360.0
 GRID_STEP_NM = 5.0
@@ -41,7 +41,7 @@ def bsdf_class() -> Any:
     jit = dr.is_jit_v(mi.Float)
 
     def array(values: Any) -> Any:
-        return mi.Float(np.asarray(values, dtype=np.float32)) if jit \
+        return jit_table(mi.Float, values) if jit \
             else np.asarray(values, dtype=np.float64)
 
     def opaque(value: float) -> Any:
@@ -163,8 +163,8 @@ def panel_texture_class() -> Any:
             self.mean_value = float(np.mean(values) * np.mean(cell_map))
             flat = np.asarray(cell_map, dtype=np.float64).ravel()
             if jit:
-                self.values = mi.Float(np.asarray(values, dtype=np.float32))
-                self.map = mi.Float(flat.astype(np.float32))
+                self.values = jit_table(mi.Float, values)
+                self.map = jit_table(mi.Float, flat)
             else:
                 self.values = np.asarray(values, dtype=np.float64)
                 self.map = flat

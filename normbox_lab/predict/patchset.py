@@ -59,7 +59,7 @@ from normbox_lab.predict.bandpath import (
     smith_g1,
 )
 from normbox_lab.predict.guide import GUIDE_SHARE, GuideKernel
-from normbox_lab.predict.kernel_safety import cell_index, require_finite
+from normbox_lab.predict.kernel_safety import cell_index, jit_table, require_finite
 from normbox_lab.predict.streams import FIRST_BOUNCE_DRAWS, chunk_seed, lane_rng
 
 #: paths per sub-batch: one stratified estimate; its spread gives the standard error
@@ -195,7 +195,7 @@ class PatchSetTracer(BandPathTracer):
         rng = lane_rng(m, dr, seed, idx)
         # the wavelength cell of the lane, and frac from the triangle's density inside it
         sub = int(strata.counts.sum())
-        k = dr.gather(m.UInt32, m.UInt32(strata.cell_of_lane),
+        k = dr.gather(m.UInt32, jit_table(m.UInt32, strata.cell_of_lane, np.uint32),
                       idx % dr.opaque(m.UInt32, sub))
         kf = m.Float(k)
         upper = kf >= step
@@ -207,10 +207,10 @@ class PatchSetTracer(BandPathTracer):
         # shifted by the sub-batch's own random vector (randomised QMC: every lane uniform,
         # sub-batches independent, so their spread is still the standard error)
         if self.qmc:
-            net = m.UInt32(sobol_net(sub, QMC_DIMS).ravel())
+            net = jit_table(m.UInt32, sobol_net(sub, QMC_DIMS), np.uint32)
             shift = np.random.default_rng(int(seed)).integers(
                 0, 1 << 32, size=(n // sub, QMC_DIMS), dtype=np.uint32)
-            shifts = m.UInt32(shift.ravel())
+            shifts = jit_table(m.UInt32, shift, np.uint32)
             lane = (idx % dr.opaque(m.UInt32, sub)) * QMC_DIMS
             block = (idx // dr.opaque(m.UInt32, sub)) * QMC_DIMS
             draws = _Draws([m.Float((dr.gather(m.UInt32, net, lane + d)
@@ -234,8 +234,8 @@ class PatchSetTracer(BandPathTracer):
         q = cell_index(dr, m, u_mix * f(n_p), f(n_p))
         alphas = [f(v) for v in pt.alpha]
         p_specs = [f(v) for v in pt.p_spec]
-        alpha_q = dr.gather(m.Float, m.Float(pt.alpha + [pt.alpha[-1]]), q)
-        pspec_q = dr.gather(m.Float, m.Float(pt.p_spec + [pt.p_spec[-1]]), q)
+        alpha_q = dr.gather(m.Float, jit_table(m.Float, pt.alpha + [pt.alpha[-1]]), q)
+        pspec_q = dr.gather(m.Float, jit_table(m.Float, pt.p_spec + [pt.p_spec[-1]]), q)
         guide = GuideKernel(m, dr, self.guide, o, frame.n) if beta else None
         if guide is not None:
             u_face, u_s, u_t = draws.values[:3]        # the direction's three numbers
