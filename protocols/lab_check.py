@@ -80,9 +80,9 @@ class Limit:
 
 
 #: the limits that do not depend on the lab config (the others are built in `_limits`)
-DARK_LV_CD_M2 = Limit(None, 0.05, "cd/m²", "lab criterion: a dark reading (lamp off, box "
-                      "closed) below 0.05 cd/m², 1/40 of the white patch at 90° at full level "
-                      "in the Normbox (≈2 cd/m²)")
+DARK_LV_CD_M2 = Limit(None, 0.05, "cd/m²", "lab criterion: a dark reading (lamp off) below 5× "
+                      "the radiometer's lower range limit (0.01 cd/m², [quality]), under 0.1 % "
+                      "of the white patch at 90° at full level (≈68 cd/m² in the virtual Normbox)")
 REPEATABILITY = Limit(None, 4.0, "% (max-min)/mean", "Konica Minolta CS-1000A / CS-2000A "
                       "specifications: ±2 % luminance accuracy; readings of a stable source "
                       "stay inside that band (a span of 4 %)")
