@@ -21,6 +21,7 @@ from normbox_lab.acquire.lab import Lab
 from normbox_lab.acquire.lab import build_lab as assemble_lab
 from normbox_lab.core.clock import Clock, make_clock
 from normbox_lab.core.errors import NormboxError
+from normbox_lab.core.types import ReadingGeometry
 from normbox_lab.sim import core
 from normbox_lab.sim.analytic_world import AnalyticWorld
 from normbox_lab.sim.transport import register_url_scheme
@@ -88,8 +89,9 @@ class Simulation:
 
     def luminance_hint_cd_m2(self, params: Mapping[str, Any]) -> float:
         est = self._analytic()
-        if "patch" in params:
-            return est.luminance_cd_m2(int(params["patch"]), float(params.get("angle_deg", 90.0)))
+        g = ReadingGeometry.of(params)
+        if g.patch is not None:
+            return est.luminance_cd_m2(g.patch, g.angle_deg if g.angle_deg is not None else 90.0)
         if "x_mm" in params and "y_mm" in params:
             return est.panel_luminance_cd_m2(float(params["x_mm"]), float(params["y_mm"]))
         return 20.0

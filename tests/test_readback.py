@@ -150,3 +150,14 @@ def test_locations_round_trip_through_the_metadata():
     assert loc.deviation == pytest.approx(-0.3) and loc.out_of_tolerance()
     assert not Location(60.0, 60.04, "deg", 0.05).out_of_tolerance()
     assert not Location(60.0, 59.0, "deg", None).out_of_tolerance()   # no tolerance stated
+
+
+def test_the_console_shows_a_readback_beyond_its_tolerance():
+    from normbox_lab.tui.views import geometry_text
+
+    loc = Location(60.0, 59.7, "deg", 0.05).to_dict()
+    assert geometry_text({"angle_deg": 60.0, "locations": {"rotator": loc}}) == \
+        "60.0° (read 59.7°)"
+    assert geometry_text({"angle_deg": 60.0}) == "60.0°"                 # an old store
+    assert geometry_text({"theta_i_deg": -30.0, "theta_o_deg": 10.0}) == "θi -30 θo 10"
+    assert geometry_text({}) == "-"

@@ -36,7 +36,7 @@ from normbox_lab.core.capabilities import (
 )
 from normbox_lab.core.clock import Clock
 from normbox_lab.core.errors import NotReady, OperatorAbort
-from normbox_lab.core.types import BrdfReading
+from normbox_lab.core.types import ANGLE_DEG, BrdfReading
 
 PlanError = errors.PlanError   # defined with the hierarchy (core.errors); here by its old name
 
@@ -76,7 +76,7 @@ class Step:
 
 
 def move(key: str, role: str, angle_deg: float, label: str = "") -> Step:
-    return Step(key, "move", {"role": role, "angle_deg": float(angle_deg)},
+    return Step(key, "move", {"role": role, ANGLE_DEG: float(angle_deg)},
                 sets={role: float(angle_deg)}, label=label)
 
 
@@ -216,7 +216,7 @@ class MoveKind(StepKind):
 
     def estimate_s(self, step: Step, est: EstimateContext) -> float:
         stage = require(est.instrument(step.role), Movable, step.role, step.key)
-        target = float(step.params["angle_deg"])
+        target = float(step.params[ANGLE_DEG])
         t = float(stage.estimate_move_time_s(est.positions.get(step.role, 0.0), target))
         est.positions[step.role] = target
         return t
@@ -225,7 +225,7 @@ class MoveKind(StepKind):
         def act() -> None:
             stage = require(run.instrument(step.role), Movable, step.role, step.key)
             with run.busy(step.role, stage):
-                stage.move_to(float(step.params["angle_deg"]), wait=True)
+                stage.move_to(float(step.params[ANGLE_DEG]), wait=True)
         run.with_retry(for_key, step.role, act)
 
 

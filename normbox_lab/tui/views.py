@@ -123,12 +123,19 @@ def chromaticity_text(colorimetry: Any) -> str:
 
 
 def geometry_text(metadata: dict[str, Any]) -> str:
-    """"30.0°" for a radiometer reading, "θi −30 θo 10" for a BRDF reading."""
-    m = metadata
-    if "theta_i_deg" in m and "theta_o_deg" in m:
-        return f"θi {float(m['theta_i_deg']):g} θo {float(m['theta_o_deg']):g}"
-    angle = m.get("angle_deg")
-    return "-" if angle is None else f"{float(angle):.1f}°"
+    """"30.0°" for a radiometer reading, "θi −30 θo 10" for a BRDF reading (the setpoints;
+    a readback beyond its tolerance follows: "30.0° (read 29.7°)")."""
+    from normbox_lab.core.types import ReadingGeometry
+
+    g = ReadingGeometry.of(metadata)
+    if g.theta_i is not None and g.theta_o is not None:
+        return f"θi {g.theta_i.setpoint:g} θo {g.theta_o.setpoint:g}"
+    if g.sample_angle is None:
+        return "-"
+    text = f"{g.sample_angle.setpoint:.1f}°"
+    if g.sample_angle.out_of_tolerance():
+        text += f" (read {g.sample_angle.readback:.1f}°)"
+    return text
 
 
 def reading_row(r: Any, flags: Any = ()) -> tuple[str, ...]:
