@@ -89,9 +89,8 @@ REPEATABILITY = Limit(None, 4.0, "% (max-min)/mean", "Konica Minolta CS-1000A / 
 HISTORY_PERCENT = 4.0
 HISTORY_SOURCE = ("lab history: the last lab check that passed every check, ±4 % (each "
                   "reading within the radiometer's stated ±2 %)")
-BACKLASH = Limit(None, 0.1, "°", "lab criterion: 2 % of the 5° sample-angle step (the "
-                 "K10CR1 is specified at ±0.1° bidirectional repeatability per Thorlabs' "
-                 "K10CR1 specifications)")
+BACKLASH = Limit(None, 0.1, "°", "lab criterion: 2 % of the reference sweep's 5° "
+                 "sample-angle step")
 SPHERE_SCATTER = Limit(None, 0.5, "% (max-min)/mean", "lab criterion: the sphere's monitor "
                        "over 10 samples after it reports stable; ¼ of the ±2 % lamp-drift "
                        "quality limit (docs/quality.md)")
