@@ -161,3 +161,26 @@ def test_the_console_shows_a_readback_beyond_its_tolerance():
     assert geometry_text({"angle_deg": 60.0}) == "60.0°"                 # an old store
     assert geometry_text({"theta_i_deg": -30.0, "theta_o_deg": 10.0}) == "θi -30 θo 10"
     assert geometry_text({}) == "-"
+
+
+def test_a_brdf_reading_stores_both_arms_setpoint_and_readback(tmp_path):
+    core.CONTEXT.reset(VirtualClock())
+    lab = labsim.build_lab(parse_config(SIM_CONFIG_TEMPLATE), world="analytic")
+    try:
+        with Store(tmp_path / "b.sqlite") as store:
+            plan = eng.build_plan("brdf-inplane", {"materials": [7], "theta_i_deg": [-40],
+                                                   "theta_o_deg": [-30, 60]}, lab)
+            res = eng.Engine(lab, store, plan).run()
+            readings = list(store.readings(res.run_id))
+    finally:
+        lab.close()
+        core.CONTEXT.reset()
+    assert res.status == "done" and len(readings) == 2
+    for r in readings:
+        g = ReadingGeometry.of(r.metadata)
+        assert g.theta_i.setpoint == r.metadata["theta_i_deg"] == -40.0
+        assert g.theta_o.setpoint == r.metadata["theta_o_deg"]
+        for loc in (g.theta_i, g.theta_o):
+            assert loc.unit == "deg" and loc.tolerance == 0.05
+            assert loc.readback == pytest.approx(loc.setpoint, abs=1e-3)
+        assert g.integration_time.readback == r.metadata["integration_time_s"] > 0
