@@ -91,9 +91,9 @@ HISTORY_SOURCE = ("lab history: the last lab check that passed every check, ±4 
                   "reading within the radiometer's stated ±2 %)")
 BACKLASH = Limit(None, 0.1, "°", "lab criterion: 2 % of the reference sweep's 5° "
                  "sample-angle step")
-SPHERE_SCATTER = Limit(None, 0.5, "% (max-min)/mean", "lab criterion: the sphere's monitor "
-                       "over 10 samples after it reports stable; ¼ of the ±2 % lamp-drift "
-                       "quality limit (docs/quality.md)")
+SPHERE_SCATTER = Limit(None, 0.5, "% (max-min)/mean", "[quality] lamp_drift_percent (0.5 %, "
+                       "a quarter of the radiometer's ±2 %; docs/quality.md), applied to the "
+                       "monitor's 10 samples after the sphere reports stable")
 NONLINEARITY = Limit(0.5, 1.5, "(c0)", "Ocean Insight QE Pro: factory nonlinearity "
                      "coefficients stored on the device (OBP 0x00181100); c0 near 1")
 
@@ -331,7 +331,9 @@ def check_warmup(run: Any, step: Step) -> CheckResult:
         run.clock.sleep(1.0)
     mean = statistics.fmean(samples)
     scatter = 100.0 * (max(samples) - min(samples)) / mean if mean > 0 else math.inf
-    return _result("warm-up", step.role, scatter, SPHERE_SCATTER,
+    limit = Limit(None, float(step.params.get("scatter_percent", SPHERE_SCATTER.high)),
+                  SPHERE_SCATTER.unit, SPHERE_SCATTER.source)
+    return _result("warm-up", step.role, scatter, limit,
                    f"stable after {took:.0f} s at {level:g} %; monitor {mean:.4g} cd/m², "
                    f"scatter {scatter:.3f} %", samples)
 
@@ -513,7 +515,9 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
     if "sphere" in roles:
         common("sphere")
         out.append(_check("sphere", "warm-up", level_percent=level,
-                          timeout_s=float(params["warmup_timeout_s"])))
+                          timeout_s=float(params["warmup_timeout_s"]),
+                          scatter_percent=quality.lamp_drift_percent if quality is not None
+                          else SPHERE_SCATTER.high))
     if "radiometer" in roles and "rotator" in configured and "sphere" in configured:
         from normbox_lab.acquire.steps import move, wait_stable
 
