@@ -1,4 +1,4 @@
-"""Emulators and the CLI start at once (issue 34 §4).
+"""Emulators and the CLI start at once.
 
 - Every emulator `sim serve` offers is served in its own process and an outside client (a
   plain socket on ``--tcp``, or pyserial on the pty of the plain ``normbox-lab sim serve``)
@@ -32,7 +32,7 @@ import pytest
 
 #: what a served emulator must never have imported (colour-science pulls in the other three)
 HEAVY = ("colour", "matplotlib", "pandas", "scipy", "mitsuba", "drjit", "xarray", "textual")
-#: how long an outside client waits for a reply (the issue's client: 5 s)
+#: how long an outside client waits for a reply (a client that gives up after 5 s)
 CLIENT_WAIT_S = 5.0
 #: how long a process may take to print its endpoint line on a loaded machine before the test
 #: calls it hung (the figures, not this bound, show how fast it is)
@@ -226,7 +226,7 @@ def test_every_served_device_has_a_script():
     ("cs1000a", b"RMT,1\n", None),
 ])
 def test_the_plain_command_on_a_pty_answers_pyserial_within_5_s(device, first, spectrum):
-    """What the issue saw: `normbox-lab sim serve DEVICE --pty` and a pyserial client that
+    """What a user saw: `normbox-lab sim serve DEVICE --pty` and a pyserial client that
     waits 5 s; the sphere's first ``MEAS:SPEC?`` included."""
     import serial
 
@@ -384,6 +384,27 @@ def _help_figures(n: int = 5) -> tuple[float, float]:
     return float(np.median(walls)), float(np.median(cpus))
 
 
+def plain_start(device: str) -> tuple[float, float]:
+    """`python -m normbox_lab sim serve DEVICE --pty`, ended by SIGTERM as soon as it printed
+    its pty line: (wall seconds to the line, CPU seconds of the process)."""
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "normbox_lab", "sim", "serve", device,
+                             "--pty"], stdout=subprocess.PIPE)
+    try:
+        line = _read_line(proc.stdout.fileno(), t0 + ENDPOINT_WAIT_S)
+        wall = time.monotonic() - t0
+        assert line.startswith(b"pty: "), line
+        proc.send_signal(signal.SIGTERM)
+        _, status, usage = os.wait4(proc.pid, 0)
+        proc.returncode = os.waitstatus_to_exitcode(status)
+    finally:
+        if proc.returncode is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+    return wall, usage.ru_utime + usage.ru_stime
+
+
 def main() -> None:
     load = os.getloadavg()
     print(f"python {sys.version.split()[0]}, {os.cpu_count()} cores, "
@@ -397,6 +418,10 @@ def main() -> None:
         print(f"{device:<14} {s.endpoint_s:8.2f} {s.first_reply_s:9.2f} {spec} "
               f"{s.first_round_s:8.3f} {s.second_round_s:8.3f} {s.cpu_s:6.2f}  "
               f"{s.heavy.removeprefix('HEAVY').strip() or 'none'}")
+    for device in sorted(SCRIPTS):
+        wall, cpu = plain_start(device)
+        print(f"normbox-lab sim serve {device} --pty: pty line after {wall:.2f} s, "
+              f"{cpu:.2f} s CPU (start to SIGTERM)")
     wall, cpu = _help_figures()
     print(f"normbox-lab --help: {wall:.2f} s wall, {cpu:.2f} s CPU (median of 5)")
 

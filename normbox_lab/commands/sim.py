@@ -17,8 +17,8 @@ from normbox_lab.acquire.params import (
 )
 
 SERVE_EPILOG = """\
-The emulator is loaded completely (colour-science included) before the endpoint line is
-printed, and it keeps running while no client is connected. A new TCP connection, or a client
+The emulator is loaded completely (its colorimetric tables included) before the endpoint line
+is printed, and it keeps running while no client is connected. A new TCP connection, or a client
 opening the pty, starts from a clean line. Linux ptys cannot carry RTS/DTR (the modem-line
 ioctls fail on them): clients that set or pulse RTS/DTR themselves (some Thorlabs APT drivers
 pulse RTS on connect) should use --tcp and pyserial's socket://HOST:PORT URL.
