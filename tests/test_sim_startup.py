@@ -19,6 +19,7 @@ import math
 import os
 import re
 import select
+import shutil
 import signal
 import socket
 import subprocess
@@ -26,6 +27,7 @@ import sys
 import time
 import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -263,6 +265,31 @@ def test_the_shipped_tables_equal_colour_science():
     # the 2° ȳ peaks at 555 nm with 1.0; D65 is 100 at 560 nm
     assert int(np.argmax(t.cmfs_2deg[:, 1])) + 380 == 555
     assert t.d65[180] == pytest.approx(100.0)
+
+
+def test_a_normal_install_carries_the_tables(tmp_path):
+    """setuptools' build_py (what a wheel and a normal install contain) copies the data file
+    into normbox_lab/sim/data/, and the installed module finds it there."""
+    root = Path(__file__).resolve().parents[1]
+    src = tmp_path / "src"
+    src.mkdir()
+    for name in ("setup.py", "pyproject.toml", "README.md"):
+        (src / name).write_bytes((root / name).read_bytes())
+    ignore = shutil.ignore_patterns("__pycache__", "*.pyc")
+    for folder in ("normbox_lab", "sim", "drivers", "protocols"):
+        shutil.copytree(root / folder, src / folder, ignore=ignore)
+    subprocess.run([sys.executable, "setup.py", "-q", "build_py", "-d", str(tmp_path / "lib")],
+                   cwd=src, check=True, capture_output=True)
+    shipped = tmp_path / "lib" / "normbox_lab" / "sim" / "data" / "colorimetry_tables.npz"
+    assert shipped.read_bytes() == (root / "sim" / "data" / "colorimetry_tables.npz").read_bytes()
+    code = ("import sys\n"
+            "sys.meta_path[:] = [f for f in sys.meta_path if 'editable' not in repr(f)]\n"
+            "from normbox_lab.sim import colour_tables\n"
+            "print(colour_tables.TABLES_PATH, colour_tables.tables().planckian_table.shape)\n")
+    out = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, check=True, text=True,
+                         capture_output=True, env={**os.environ, "PYTHONPATH": str(tmp_path / "lib")}
+                         ).stdout
+    assert out.startswith(str(shipped)) and "(6849, 3)" in out
 
 
 def test_a_changed_table_is_seen(tmp_path):
