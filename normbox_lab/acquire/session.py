@@ -21,6 +21,7 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Self
 
+from normbox_lab.acquire import store_api
 from normbox_lab.acquire.estimate import DryRun
 from normbox_lab.acquire.events import Operator, RunResult
 from normbox_lab.acquire.plan import (
@@ -125,74 +126,37 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
         store = Store(store)
         closers.append(store.close)
     try:
-        run_id = None
         if resume is not None:
-            rec = store.get_run(resume)
-            if rec.status == "done":
-                raise StoreError(f"run {rec.uuid} is already done; nothing to resume")
-            _check_resumed_protocol(rec.uuid, rec.protocol, protocol)
-            if params:
-                raise PlanError("parameters cannot change a resumed run (they are stored "
-                                "with it)")
-            protocol, run_id = rec.protocol, rec.id
-            module = load_protocol(protocol)
-            full = resolve_parameters(module, None, rec.parameters)
-            worlds = [d["world"] for _, k, d in store.events(rec.id)
-                      if k == "segment" and "world" in d]
-            recorded_world = worlds[-1] if worlds else None
+            what = _resumed_protocol(store, resume, protocol, params)
             if world is None:
-                world = recorded_world
+                world = what.recorded_world
             elif isinstance(world, str):
-                _check_same_world(rec.uuid, recorded_world, world, force)
+                _check_same_world(what.record.uuid, what.recorded_world, world, force)
         else:
-            if not protocol:
-                raise PlanError("name a protocol (reference-sweep, brdf-inplane, light-map, "
-                                "repeatability, or a .py file), or resume a run")
-            if protocol.endswith(".py"):
-                protocol = str(Path(protocol).resolve())      # a resume may start elsewhere
-            module = load_protocol(protocol)
-            defaults = None
-            lab_config = config if config is not None else _config_of(lab)
-            if lab_defaults and lab_config is not None:
-                defaults = lab_config.protocol_defaults(
-                    Path(protocol).stem if protocol.endswith(".py") else protocol)
-            full = resolve_parameters(module, defaults, params)
-        _require_recent_check(protocol, config if config is not None else _config_of(lab), store)
+            what = _new_protocol(protocol, params, config if config is not None
+                                 else _config_of(lab), lab_defaults)
+        _require_recent_check(what.protocol, config if config is not None else _config_of(lab),
+                              store)
         info: dict[str, Any] = {}
         if lab is None:
-            from normbox_lab.acquire.lab import build_lab
-
-            if config is None:
-                raise PlanError("open_run needs a lab config or a lab")
-            if world is not None and not isinstance(world, str):
-                raise PlanError("open_run builds its lab with a world kind; pass a lab built "
-                                "with a world object instead")
-            world = (world or "normbox") if config.simulated else "none"
-            if make_lab is not None:
-                lab = make_lab(config, world=world, virtual_operator=virtual_operator,
-                               fault_policy=fault_policy)
-            elif world != "none":
-                raise PlanError("this lab config has sim:// ports: pass make_lab (the "
-                                "simulation is built outside acquire: "
-                                "normbox_lab.sim.labsim.build_lab)")
-            else:
-                lab = build_lab(config, virtual_operator=virtual_operator,
-                                fault_policy=fault_policy)
+            lab, world = _lab_from_config(config, world, make_lab, virtual_operator,
+                                          fault_policy)
             closers.append(lab.close)
             info = {"world": world, "lab": config.path}
         extra = dict(engine_options.get("segment_info") or {})
-        if resume is not None:
-            if lab is not None and "world" in extra and not info:
-                _check_same_world(rec.uuid, recorded_world, str(extra["world"]), force)
-            _check_same_lab(rec.uuid, rec.lab_config, config if config is not None
-                            else _config_of(lab), force)
+        if what.record is not None:
+            if "world" in extra and not info:
+                _check_same_world(what.record.uuid, what.recorded_world, str(extra["world"]),
+                                  force)
+            _check_same_lab(what.record.uuid, what.record.lab_config,
+                            config if config is not None else _config_of(lab), force)
         current = config if config is not None else _config_of(lab)
         if current is not None:
             info.setdefault("lab", current.path)
             info.update(time_scale=current.time_scale, seed=current.seed)
         if lab.operator is None and make_operator is not None:
             lab.operator = make_operator(lab)
-        plan = build_plan(protocol, full, lab, module=module)
+        plan = build_plan(what.protocol, what.parameters, lab, module=what.module)
         info.update(engine_options.pop("segment_info", None) or {})
         engine = Engine(lab, store, plan, operator=operator, segment_info=info,
                         **engine_options)
@@ -200,7 +164,77 @@ def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab
         for close in reversed(closers):
             close()
         raise
-    return OpenRun(engine, lab, store, plan, run_id, closers)
+    return OpenRun(engine, lab, store, plan,
+                   what.record.id if what.record is not None else None, closers)
+
+
+@dataclass
+class _ProtocolRun:
+    """What a run will execute: the protocol (name or resolved file), its module, its full
+    parameters and, for a resume, the stored run and the world its last segment recorded."""
+
+    protocol: str
+    module: Any
+    parameters: dict[str, Any]
+    record: Any = None
+    recorded_world: str | None = None
+
+
+def _resumed_protocol(store: store_api.Store, resume: int | str, protocol: str | None,
+                      params: Mapping[str, Any] | None) -> _ProtocolRun:
+    """The stored protocol and parameters of the run to resume (refused: a done run, another
+    protocol, new parameters)."""
+    rec = store.get_run(resume)
+    if rec.status == "done":
+        raise StoreError(f"run {rec.uuid} is already done; nothing to resume")
+    _check_resumed_protocol(rec.uuid, rec.protocol, protocol)
+    if params:
+        raise PlanError("parameters cannot change a resumed run (they are stored with it)")
+    module = load_protocol(rec.protocol)
+    worlds = [d["world"] for _, k, d in store.events(rec.id)
+              if k == "segment" and "world" in d]
+    return _ProtocolRun(rec.protocol, module, resolve_parameters(module, None, rec.parameters),
+                        rec, worlds[-1] if worlds else None)
+
+
+def _new_protocol(protocol: str | None, params: Mapping[str, Any] | None, lab_config: Any,
+                  lab_defaults: bool) -> _ProtocolRun:
+    """A new run's protocol and its parameters: defaults ← the lab config's
+    ``[protocols.NAME]`` (with `lab_defaults`) ← `params`."""
+    if not protocol:
+        raise PlanError("name a protocol (reference-sweep, brdf-inplane, light-map, "
+                        "repeatability, or a .py file), or resume a run")
+    if protocol.endswith(".py"):
+        protocol = str(Path(protocol).resolve())      # a resume may start elsewhere
+    module = load_protocol(protocol)
+    defaults = None
+    if lab_defaults and lab_config is not None:
+        defaults = lab_config.protocol_defaults(
+            Path(protocol).stem if protocol.endswith(".py") else protocol)
+    return _ProtocolRun(protocol, module, resolve_parameters(module, defaults, params))
+
+
+def _lab_from_config(config: Any, world: str | Any | None,
+                     make_lab: Callable[..., Any] | None, virtual_operator: bool | None,
+                     fault_policy: str) -> tuple[Any, str]:
+    """The lab of `config` and its world kind: `make_lab` builds it (a simulated config
+    needs one: the simulation is built outside acquire), else a real lab."""
+    from normbox_lab.acquire.lab import build_lab
+
+    if config is None:
+        raise PlanError("open_run needs a lab config or a lab")
+    if world is not None and not isinstance(world, str):
+        raise PlanError("open_run builds its lab with a world kind; pass a lab built "
+                        "with a world object instead")
+    world = (world or "normbox") if config.simulated else "none"
+    if make_lab is not None:
+        return make_lab(config, world=world, virtual_operator=virtual_operator,
+                        fault_policy=fault_policy), world
+    if world != "none":
+        raise PlanError("this lab config has sim:// ports: pass make_lab (the simulation is "
+                        "built outside acquire: normbox_lab.sim.labsim.build_lab)")
+    return build_lab(config, virtual_operator=virtual_operator,
+                     fault_policy=fault_policy), world
 
 
 def _require_recent_check(protocol: str, config: Any, store: Any) -> None:
