@@ -176,6 +176,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     import numpy as np
 
     from normbox_lab.acquire.config import format_config, parse_config
+    from normbox_lab.acquire.queries import lamp_from_light_map
     from normbox_lab.acquire.store import Store
     from normbox_lab.analyze.pipeline import (
         camera_figures_run,
@@ -184,7 +185,6 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
         predict_run,
         report_run,
     )
-    from normbox_lab.analyze.queries import lamp_from_light_map
     from normbox_lab.sim.labsim import build_lab
 
     progress = on_progress or (lambda stage, done, total: None)

@@ -36,7 +36,7 @@ FLOORS: tuple[tuple[tuple[str, ...], str], ...] = (
     (("analyze",), "fit, prediction runs, comparison, budget, QA, report"),
     (("campaign",), "the simulation campaign: scenarios, harness, invariants (the oracle)"),
     (("tui",), "the operator console"),
-    (("demo",), "the end-to-end demo"),
+    (("demo", "demo_bench"), "the end-to-end demo and its bench"),
     (("commands",), "the command line's subcommands"),
     (("cli",), "the console script's entry"),
     (("__main__",), "python -m normbox_lab"),

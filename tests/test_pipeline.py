@@ -8,9 +8,9 @@ instrument noise → the fits recover the materials and the prediction matches t
 import numpy as np
 import pytest
 
+from normbox_lab.acquire.queries import reference_data
 from normbox_lab.acquire.store import Store
 from normbox_lab.analyze.pipeline import compare_run, fit_run, predict_run, report_run
-from normbox_lab.analyze.queries import reference_data
 from normbox_lab.core.types import BrdfReading, SpectralReading
 from normbox_lab.predict.brdf_model import gonio_geometry
 from normbox_lab.predict.materials import truth_brdf_inplane, truth_material

@@ -111,7 +111,7 @@ def test_package_holds_everything_a_renderer_needs(exported):
     m = json.loads((pkg / "materials" / "p19.json").read_text())
     assert "GGX" in m["formula"] and "Fresnel" in m["formula"] and m["units"]["c"] == "sr⁻¹"
     with Store(store) as s:
-        from normbox_lab.analyze.queries import latest_fits
+        from normbox_lab.acquire.queries import latest_fits
 
         fit = latest_fits(s)["p19"]
     assert m["alpha"] == pytest.approx(fit.alpha) and m["eta"] == pytest.approx(fit.eta)

@@ -57,8 +57,7 @@ def budget_inputs_run(store: Store, ref_run: int | str, *, n_paths: int = 1 << 1
     import time
 
     from normbox_lab.acquire.config import parse_config
-    from normbox_lab.analyze.budget_derivatives import render_derivatives
-    from normbox_lab.analyze.queries import (
+    from normbox_lab.acquire.queries import (
         fit_key,
         lamp_from_light_map,
         latest_fits,
@@ -66,6 +65,7 @@ def budget_inputs_run(store: Store, ref_run: int | str, *, n_paths: int = 1 << 1
         reference_data,
         white_index,
     )
+    from normbox_lab.analyze.budget_derivatives import render_derivatives
     from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.materials import Material
     from normbox_lab.predict.renderers import artifact_name
@@ -145,10 +145,10 @@ def budget_run(store: Store, ref_run: int | str, *, sources: str | None = None,
 def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str, str]]:
     """(observation, the paper's value, ours) for the paper-scenario table of
     docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
+    from normbox_lab.acquire.queries import latest_fits, latest_run
     from normbox_lab.analyze.compare import ComparisonResult
     from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
     from normbox_lab.analyze.paper_figures import OBSERVATIONS, nse_paper_sign, quote, signed
-    from normbox_lab.analyze.queries import latest_fits, latest_run
 
     def paper(label: str) -> str:
         # the paper's column reads from the one table of the paper's figures

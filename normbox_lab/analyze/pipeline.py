@@ -25,8 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.queries import fit_key, latest_fits, reference_data, white_index
 from normbox_lab.acquire.store_api import Store
-from normbox_lab.analyze.queries import fit_key, latest_fits, reference_data, white_index
 from normbox_lab.core.errors import DataError, StoreError
 
 ProgressFn = Callable[[str, int, int], None]

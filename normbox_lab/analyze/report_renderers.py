@@ -76,8 +76,8 @@ def rendering_error(store: Store, run_id: int, spectral: str | None, rgb: str
                     ) -> RenderingError | None:
     """ΔE00(RGB prediction, spectral prediction) per patch × angle; None when either is
     missing.  `spectral` None: ours."""
+    from normbox_lab.acquire.queries import reference_data, white_index
     from normbox_lab.analyze.compare import compare
-    from normbox_lab.analyze.queries import reference_data, white_index
     from normbox_lab.core.errors import StoreError
     from normbox_lab.predict.renderers import artifact_name
 

@@ -16,9 +16,9 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.queries import fit_key, latest_fits
 from normbox_lab.acquire.store_api import Store
 from normbox_lab.analyze.compare import ComparisonResult, ErrorModelResult
-from normbox_lab.analyze.queries import fit_key, latest_fits
 from normbox_lab.analyze.report_data import ImageFigure, ReportData
 from normbox_lab.core.errors import StoreError
 

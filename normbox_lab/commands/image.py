@@ -175,7 +175,7 @@ def _camera(args: argparse.Namespace) -> int:
     from normbox_lab.predict.materials import holder_material, truth_patch, truth_wall
 
     if args.materials == "fitted":
-        from normbox_lab.analyze.queries import fit_key, latest_fits
+        from normbox_lab.acquire.queries import fit_key, latest_fits
         from normbox_lab.predict.materials import Material
 
         with _open_store(args) as store:
@@ -221,8 +221,8 @@ def _camera(args: argparse.Namespace) -> int:
 
 
 def _figure1(args: argparse.Namespace) -> int:
+    from normbox_lab.acquire.queries import lamp_from_light_map
     from normbox_lab.analyze.pipeline import camera_figures_run
-    from normbox_lab.analyze.queries import lamp_from_light_map
 
     with _open_store(args) as store:
         ref = args.run

@@ -124,8 +124,8 @@ def _target_se(text: str) -> float:
 
 
 def _predict(args: argparse.Namespace) -> int:
+    from normbox_lab.acquire.queries import lamp_from_light_map
     from normbox_lab.analyze.pipeline import predict_run
-    from normbox_lab.analyze.queries import lamp_from_light_map
     from normbox_lab.predict.executors import make_executor
 
     if args.address and args.executor != "dask":
