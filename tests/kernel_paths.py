@@ -6,7 +6,11 @@ array on a CPU where it is not checked may crash the process, so the caller read
 stderr and its exit status.  Each path prints `path <name> ok <seconds>` on stdout when it
 returns; a path that raises prints `path <name> error <type>: <message>` and the script exits 1.
 
-    python tests/kernel_paths.py [name ...]     (no names: every path)
+    python tests/kernel_paths.py [--no-debug] [name ...]     (no names: every path)
+
+With ``--no-debug`` the same paths run as the product runs them (no bounds checks): the
+kernels every process finds in Dr.Jit's on-disk cache, which a second process must not compile
+again (`test_kernel_cache.py`).
 """
 
 from __future__ import annotations
@@ -162,12 +166,14 @@ MITSUBA_FILM_PATHS = ("triplets", "stock_mitsuba")
 def main(names: list[str]) -> int:
     import drjit as dr
 
-    dr.set_flag(dr.JitFlag.Debug, True)
+    debug = "--no-debug" not in names
+    names = [n for n in names if n != "--no-debug"]
+    dr.set_flag(dr.JitFlag.Debug, debug)
     dr.set_flag(dr.JitFlag.KernelHistory, True)
     status = 0
     for name in names or list(PATHS):
         t0 = time.perf_counter()
-        dr.set_flag(dr.JitFlag.PacketOps, name not in MITSUBA_FILM_PATHS)
+        dr.set_flag(dr.JitFlag.PacketOps, not debug or name not in MITSUBA_FILM_PATHS)
         try:
             {**PATHS, **CONTROLS}[name]()
         except Exception as exc:  # noqa: BLE001 - reported per path, the script exits 1

@@ -52,7 +52,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     pr.add_argument("--repeats", type=int, default=None, help="repeats (default 3)")
     pr.add_argument("--seed", type=int, default=None)
     pr.set_defaults(handler=_predict)
+    d = bsub.add_parser("demo", help="the virtual campaign from a cold, then a warm kernel "
+                        "cache: compile and work time per stage (normbox_lab.demo_bench)",
+                        description=__import__("normbox_lab.demo_bench",
+                                               fromlist=["x"]).__doc__,
+                        formatter_class=argparse.RawDescriptionHelpFormatter)
+    d.add_argument("--quick", action="store_true", help="the reduced campaign (4 patches × 3 "
+                   "angles): the kernel-count goal only")
+    d.add_argument("--warm", action="store_true", help="keep the machine's own kernel cache "
+                   "(default: an empty one, as on a fresh machine)")
+    d.set_defaults(handler=_demo)
     p.set_defaults(handler=lambda a: p.print_help() or 2)
+
+
+def _demo(args: argparse.Namespace) -> int:
+    from normbox_lab.demo_bench import run_bench_demo
+
+    result = run_bench_demo(quick=args.quick, warm=args.warm)
+    return 0 if all(ok for _, _, ok in result["goals"]) else 1
 
 
 class _TimedCalls:

@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo-out", metavar="DIR",
                    help="where the lab config, the store and the report go (default demo-out)")
     p.add_argument("--store", metavar="FILE", help="default: DIR/normbox-demo.sqlite")
+    p.add_argument("--timings-json", metavar="FILE",
+                   help="also write each stage's wall and compile time and kernel counts, and "
+                        "the machine, as JSON (what `bench demo` reads)")
     p.add_argument("--strict", action="store_true",
                    help="exit non-zero when any quality flag is an error (the demo itself "
                         "goes on through flagged data and prints the flags)")
@@ -112,6 +115,21 @@ def _demo(args: argparse.Namespace) -> int:
     print(f"{n_all} flags: {n_err} errors, {n_all - n_err} warnings")
     print(f"store: {result.store} (runs {result.runs})")
     print(f"report: {result.report}")
+    if args.timings_json:
+        import json
+
+        Path(args.timings_json).write_text(json.dumps({
+            "machine": machine, "quick": bool(args.quick),
+            "stages": {k: {"wall_s": v, "compile_s": result.kernels[k].compile_s
+                           if k in result.kernels else 0.0,
+                           "compiled": result.kernels[k].compiled if k in result.kernels else 0,
+                           "from_disk": result.kernels[k].from_disk
+                           if k in result.kernels else 0,
+                           "launches": result.kernels[k].launches
+                           if k in result.kernels else 0,
+                           "ir_ops_max": result.kernels[k].ir_ops_max
+                           if k in result.kernels else 0}
+                       for k, v in result.timings_s.items()}}, indent=1))
     if args.strict and n_err:
         print(f"normbox-lab: error: --strict: {n_err} error flags", file=sys.stderr)
         return 1
