@@ -88,3 +88,23 @@ def synthetic_report_data(step_nm: float = 10.0, seed: int = 0, do_fit: bool = F
                              "for layout and plumbing only.")],
                       metadata={"seed": seed, "wavelength step nm": step_nm,
                                 "fitted": do_fit})
+
+
+def synthetic_budget(data: ReportData, n_draws: int = 16) -> tuple[dict, list[str]]:
+    """An error budget of the toy campaign (no rendering): the CS-1000A gain, the lamp, the
+    paper's 65°/80° angle offsets through a derivative of −2 %/°, and the fit's NSE; as the
+    report's `ReportData.budget` (the stored artifact's arrays and sources)."""
+    from normbox_lab.analyze.budget import BudgetInputs, compute_budget
+    from normbox_lab.core.error_sources import parse_error_spec
+
+    c = data.comparison
+    ref = np.asarray(c.reference)
+    x = BudgetInputs(c.wavelength_nm, c.angle_deg, list(range(1, ref.shape[0] + 1)), ref,
+                     np.asarray(c.prediction), 1e-4 * ref, -0.02 * ref, {}, None,
+                     np.asarray(c.nse), c.white_patch)
+    from normbox_lab.analyze.angles import estimate_angle_offsets
+
+    off = estimate_angle_offsets(x.reference, x.prediction, x.d_angle, x.angle_deg)
+    b = compute_budget(x, parse_error_spec("cs1000=0.02,lamp=+0.01,angle-offset=65:-0.3;"
+                                           "80:+0.3"), n_draws=n_draws, angle_offsets=off)
+    return b.to_arrays(), b.sources

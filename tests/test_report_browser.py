@@ -81,7 +81,7 @@ def report_html(tmp_path_factory) -> Path:
     given = os.environ.get("NORMBOX_REPORT_HTML")
     if given:
         return Path(given)
-    from report_fixtures import synthetic_report_data
+    from report_fixtures import synthetic_budget, synthetic_report_data
 
     from normbox_lab.analyze.report import ImageFigure, ImagePanel, write_report
     from normbox_lab.analyze.report_renderers import RendererRow
@@ -89,6 +89,7 @@ def report_html(tmp_path_factory) -> Path:
 
     data = synthetic_report_data(step_nm=20.0, seed=1)
     data.polar_materials = ["patch08"]
+    data.budget = synthetic_budget(data)
     # the store's patch names ("23 neutral 3.5 (1.05 D)"): the widest first column
     data.comparison.patch_names = [f"{k} {patch_name(k)}" for k in range(1, 25)]
     n_a = data.comparison.angle_deg.size
@@ -104,7 +105,31 @@ def report_html(tmp_path_factory) -> Path:
                                 ImagePanel("ΔE00", rng.uniform(0, 2, (60, 80)), 2.0, "ΔE00"),
                                 ImagePanel("noise floor", rng.uniform(0, 0.3, (60, 80)), 2.0,
                                            "ΔE00")])]
+    data.paper = _paper_rows(data, tmp_path_factory.mktemp("paper-store"))
+    data.runs = [{"id": 2, "protocol": "reference-sweep", "status": "done",
+                  "readings": "312/312", "date": "2026-11-25", "started": "2026-11-25 09:00 UTC",
+                  "finished": "2026-11-25 10:10 UTC", "seeds": "noise=2, world=1"}]
+    data.instruments = [{"role": "radiometer", "model": "CS-1000A (emulated)",
+                         "serial": "not reported by the device", "firmware": "—",
+                         "calibration": "none recorded in the store", "runs": "2"}]
+    data.methods = {"software: normbox-lab": "0.1", "prediction: render quality": "default"}
     return write_report(tmp_path_factory.mktemp("browser") / "report.html", data)
+
+
+def _paper_rows(data, tmp: Path) -> list[tuple[str, str, str]]:
+    """The paper-scenario rows of the synthetic campaign, as the store gives them."""
+    import dataclasses
+
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.analyze.budget_store import paper_observations
+
+    with Store(tmp / "s.sqlite") as store:
+        run = store.create_run("reference-sweep", status="done")
+        data.comparison.store(store, f"ref-run-{run.id}", run_ref=run.id)
+        for k in range(1, 25):
+            dataclasses.replace(data.fits[f"patch{k:02d}"], name=f"p{k:02d}").store(store)
+        dataclasses.replace(data.fits["wall"], name="wall").store(store)
+        return paper_observations(store, run.id)
 
 
 @pytest.mark.parametrize("width_px", WIDTHS_PX)
@@ -140,7 +165,8 @@ def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Pat
         page.write_text(text.replace(
             "</style>", f"section:not(#{sid}){{display:none}}{keep}</style>"), encoding="utf-8")
         height = int(min(max(sec["height"] + (420 if k == 0 else 80), 400), 6000))
-        shot = out / f"report-{width_px}-{k + 1:02d}-{sid}.png"
+        prefix = "report" if width_px == WIDTHS_PX[0] else f"report-{width_px}"
+        shot = out / f"{prefix}-{k + 1:02d}-{sid}.png"
         _run(browser, tmp_path / "profile", f"--window-size={width_px},{height}",
              f"--screenshot={shot}", page.as_uri())
         assert shot.exists() and shot.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", sid

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from report_fixtures import synthetic_report_data
+from report_fixtures import synthetic_budget, synthetic_report_data
 
 from normbox_lab.analyze.report_style import MIN_FONT_PT, REPORT_COLUMN_PX
 
@@ -123,6 +123,7 @@ def report_figures(tmp_path_factory):
 
     data = synthetic_report_data(step_nm=20.0, seed=1)
     data.polar_materials = ["patch08", "patch18", "wall"]
+    data.budget = synthetic_budget(data)
     rng = np.random.default_rng(0)
     data.images = [ImageFigure("fig-camera", "Virtual camera (synthetic panels)", "Random.",
                                [ImagePanel("truth", rng.uniform(size=(60, 80, 3))),

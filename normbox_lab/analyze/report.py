@@ -620,9 +620,12 @@ def _budget_section(doc: _Doc, arrays: dict[str, Any], sources: list[str]) -> No
                "Each source's share of the total NRMSE (stacked), propagated from its "
                "distribution (normbox-lab budget), against the observed NRMSE with its "
                "95 % interval.")
-    header, rows = rf.budget_rows(arrays, sources)
-    doc.table("tab-budget", "Error budget per angle: NRMSE contributions [%], estimated "
-              "sample-angle offset", header, rows, digits=3)
+    header, rows, header2, rows2 = rf.budget_rows(arrays, sources)
+    doc.table("tab-budget", "Error budget: each source's NRMSE contribution [%] per sample "
+              "angle (RMS over patches)", header, rows, digits=3)
+    doc.table("tab-budget-observed", "Error budget per angle: total, observed NRMSE, "
+              "significant configurations, estimated sample-angle offset", header2, rows2,
+              digits=3)
 
 
 def _nse_fit_section(doc: _Doc, c: ComparisonResult, d: ReportData) -> None:

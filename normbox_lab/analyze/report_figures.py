@@ -537,9 +537,14 @@ def fig_budget(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> Any:
     return fig
 
 
-def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> tuple[list, list]:
-    """(header, rows) per angle: each source's NRMSE contribution (%, RMS over patches), total,
-    observed with its interval, significant configurations, the angle offset."""
+def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]
+                ) -> tuple[list, list, list, list]:
+    """Two tables of the budget, each narrow enough for 800 px: (header, rows) of the sources'
+    NRMSE contributions (%, RMS over patches) and their total, one row per source, one column
+    per angle; and (header, rows) per angle of the total, the observed NRMSE with its
+    interval, the significant configurations and the estimated angle offset."""
+    from normbox_lab.analyze.paper_figures import signed
+
     ang = np.asarray(arrays["angle_deg"])
     by = 100 * np.sqrt(np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1))
     tot = 100 * np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
@@ -548,12 +553,14 @@ def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]) -> tuple[
     sig = np.sum(arrays["significant_nrmse"], axis=0)
     off = arrays.get("angle_offset_deg")
     off_ci = arrays.get("angle_offset_ci95_deg")
-    header = ["angle", *sources, "total", "observed", "95 % interval", "significant",
-              "angle offset [°]"]
-    rows = []
+    header = ["source", *[f"{a:g}°" for a in ang]]
+    rows = [[s, *map(float, by[k])] for k, s in enumerate(sources)]
+    rows.append(["total", *map(float, tot)])
+    header2 = ["angle", "total [%]", "observed [%]", "95 % interval [%]", "significant",
+               "angle offset [°]"]
+    rows2 = []
     for a in range(ang.size):
-        rows.append([f"{ang[a]:g}°", *[float(by[k, a]) for k in range(len(sources))],
-                     float(tot[a]), float(obs[a]), f"{ci[0, a]:.2f}–{ci[1, a]:.2f}",
-                     int(sig[a]),
-                     "" if off is None else f"{off[a]:+.2f} ± {off_ci[a]:.2f}"])
-    return header, rows
+        rows2.append([f"{ang[a]:g}°", float(tot[a]), float(obs[a]),
+                      f"{ci[0, a]:.2f}–{ci[1, a]:.2f}", int(sig[a]),
+                      "—" if off is None else f"{signed(off[a], 2)} ± {off_ci[a]:.2f}"])
+    return header, rows, header2, rows2
