@@ -61,7 +61,8 @@ def preload() -> None:
     from normbox_lab.sim.radiometer_common import RadiometerOptics
 
     core._load_builtin()
-    RadiometerOptics().prepare()              # colour-science and its tables
+    RadiometerOptics().prepare()              # the emulators' colorimetric tables
+    import colour  # noqa: F401  (not for the emulators: the drivers' colorimetry needs it)
     AnalyticWorld()                           # the reflectance table
     from normbox_lab.sim import sphere
 
