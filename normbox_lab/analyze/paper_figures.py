@@ -53,7 +53,7 @@ _ENTRIES = (
                 "nearly all within [2, 5] %",
                 "at sample angles 30–60° nearly all NRMSE lie in [0.02, 0.05], except patch 24 "
                 "and two points of patch 18"),
-    PaperFigure("nrmse_by_angle", "Sec. 6.1, Fig. 6(a)", "%", "magnitude", (65.0,),
+    PaperFigure("nrmse_by_angle", "Sec. 6.1, Sec. 6.3.4, Fig. 6(a)", "%", "magnitude", (65.0,),
                 "flat, then rising from 65°",
                 "the NRMSE of all patches (but 24) is nearly on one level at small sample "
                 "angles and rises at large ones; the indirect light grows from 65°"),
