@@ -253,20 +253,20 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
 #: radiance below minus this is outside the physical range (the wire's resolution: values
 #: below 1e-9 W·sr⁻¹·m⁻²·nm⁻¹ are sent as 0)
 RADIANCE_FLOOR_W_SR_M2_NM = 2e-9
-#: a spectrum with at least this many non-zero bands that equals an earlier reading's to
+#: a spectrum with at least this many distinct non-zero values that equals an earlier reading's to
 #: the last bit is a repeated data block (the radiometers' noise and ±0.3 nm / ±2 % draw
 #: make two measurements differ)
 IDENTICAL_MIN_BANDS = 10
 
 
 def spectrum_digest(arrays: Mapping[str, Any]) -> bytes | None:
-    """The bytes of a radiometer reading's radiance (None when it has too few non-zero bands
-    to call two readings the same measurement)."""
+    """A digest of a radiometer reading's radiance (None when it has too few distinct
+    non-zero values to call two readings the same measurement)."""
     import numpy as np
 
     rad = np.ascontiguousarray(np.asarray(arrays.get("radiance_W_sr_m2_nm", ()), dtype="<f8"))
-    if int(np.count_nonzero(rad)) < IDENTICAL_MIN_BANDS:
-        return None
+    if np.unique(rad[rad != 0]).size < IDENTICAL_MIN_BANDS:
+        return None                      # (a flat or empty spectrum: no measurement's shape)
     import hashlib
 
     return hashlib.sha256(rad.tobytes()).digest()
