@@ -42,7 +42,7 @@ class OpenRun:
 
     engine: Engine
     lab: Any
-    store: Any
+    store: store_api.Store
     plan: Plan
     resume: int | None                 # the run id to continue, None for a new run
     _close: list[Callable[[], None]] = field(default_factory=list)
@@ -83,7 +83,8 @@ def _check_resumed_protocol(run_uuid: str, stored: str, given: str | None) -> No
         raise PlanError(f"run {run_uuid} ran {stored!r}, not {given!r}")
 
 
-def open_run(protocol: str | None = None, *, store: Any, config: Any = None, lab: Any = None,
+def open_run(protocol: str | None = None, *, store: store_api.Store | str | Path,
+             config: Any = None, lab: Any = None,
              params: Mapping[str, Any] | None = None, lab_defaults: bool = True,
              resume: int | str | None = None, world: str | Any | None = None,
              operator: Operator | None = None,
@@ -237,7 +238,7 @@ def _lab_from_config(config: Any, world: str | Any | None,
                      fault_policy=fault_policy), world
 
 
-def _require_recent_check(protocol: str, config: Any, store: Any) -> None:
+def _require_recent_check(protocol: str, config: Any, store: store_api.Store) -> None:
     """A lab config with ``[lab] require_check_h`` lets a run (not the lab check itself, not a
     dry run) start only after a passing `lab check` that recent (`acquire.trust`)."""
     hours = getattr(config, "require_check_h", None)

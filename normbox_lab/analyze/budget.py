@@ -40,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.error_sources import (
     GEOMETRY_FIELDS,
     PAPER_FIGURES,
@@ -138,7 +139,7 @@ class BudgetResult:
             out.update(self.angle_offsets.to_arrays())
         return out
 
-    def store(self, store: Any, name: str, run_ref: Any = None) -> int:
+    def store(self, store: Store, name: str, run_ref: Any = None) -> int:
         return store.add_artifact(
             kind="error-budget", name=name, arrays=self.to_arrays(),
             metadata={"sources": list(self.sources), "spec": self.spec,
