@@ -244,3 +244,9 @@ def test_the_report_html_names_the_papers_figures_from_the_table(stored_campaign
                                           flags=re.DOTALL))
     assert re.findall(r"(?<![\w-])-\d[^ ]*", text) == []
     assert re.search(r"−\d", text)            # there are negative numbers to check
+    # and the figures' texts (matplotlib's own tick labels carry U+2212; titles ours)
+    svg_texts = [t for b64 in re.findall(r"data:image/svg\+xml;base64,([^\"']+)", html)
+                 for t in re.findall(r"<text[^>]*>([^<]*)</text>",
+                                     base64.b64decode(b64).decode("utf-8"))]
+    assert len(svg_texts) > 500
+    assert [t for t in svg_texts if re.search(r"(?<![\w-])-\d", t)] == []

@@ -20,7 +20,7 @@ from normbox_lab.analyze.compare import (
     rating_class_range,
 )
 from normbox_lab.analyze.fit import fit_error_at
-from normbox_lab.analyze.paper_figures import NSE_PAPER_SIGN, nse_paper_sign
+from normbox_lab.analyze.paper_figures import NSE_PAPER_SIGN, nse_paper_sign, signed
 from normbox_lab.analyze.report_style import (
     FONT_PT,
     RADIANCE_UNIT,
@@ -161,7 +161,8 @@ def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: s
     ax = fig.add_subplot(gs[0, :])
     values, label = scaled_for_axis(values, label)
     radiance, radiance_label = scaled_for_axis(c.radiance_mean,
-                                               f"mean reference radiance [{RADIANCE_UNIT}]")
+                                               f"mean reference radiance [{RADIANCE_UNIT}]",
+                                               force=True)
     n_p, n_a = values.shape
     cols = angle_colours(n_a)
     width = 0.84 / n_a
@@ -183,7 +184,8 @@ def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: s
         for j, a in enumerate(np.flatnonzero(sel)):
             axs.scatter(xs[:, j], ys[:, j], s=14, color=cols[a], edgecolor="none")
         r = c.correlations.get(key, float("nan"))
-        axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°: Pearson r = {r:.2f}")
+        axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°: Pearson r = "
+                      f"{signed(r, 2, plus=False)}")
         axs.set_xlabel(radiance_label)
         axs.set_ylabel(label)
         axs.xaxis.set_major_locator(MaxNLocator(nbins=5, min_n_ticks=3))
@@ -452,8 +454,6 @@ def fig_polar(data: Any, fit: Any, wavelength_nm: float) -> Any:
     text keeps its 9 pt; one legend below the panels."""
     from matplotlib.lines import Line2D
 
-    from normbox_lab.analyze.paper_figures import signed
-
     tis = (np.unique(data.theta_i_deg) if data is not None else np.arange(-80.0, 1.0, 10.0))
     tis = sorted(np.asarray(tis, dtype=float), key=abs)
     ncol = 3 if len(tis) > 4 else len(tis)
@@ -543,8 +543,6 @@ def budget_rows(arrays: dict[str, np.ndarray], sources: Sequence[str]
     NRMSE contributions (%, RMS over patches) and their total, one row per source, one column
     per angle; and (header, rows) per angle of the total, the observed NRMSE with its
     interval, the significant configurations and the estimated angle offset."""
-    from normbox_lab.analyze.paper_figures import signed
-
     ang = np.asarray(arrays["angle_deg"])
     by = 100 * np.sqrt(np.mean(np.asarray(arrays["nrmse"]) ** 2, axis=1))
     tot = 100 * np.sqrt(np.mean(np.asarray(arrays["total_nrmse"]) ** 2, axis=0))
