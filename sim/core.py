@@ -64,6 +64,9 @@ class FaultKind:
     #: it leaves): modelled and tested, but not drawn by the campaign, whose oracle would
     #: rightly call every reading it touches wrong
     campaign: bool = True
+    #: the parameter is a time (s) the lab legitimately waits out when the fault fires (a
+    #: lamp that takes this long to be stable again): the campaign's timing bound allows it
+    param_is_wait_s: bool = False
 
     def draw_value(self, rng: random.Random) -> float:
         lo, hi = self.value_range

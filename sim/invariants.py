@@ -19,8 +19,9 @@
     once a latched condition — a dimmed or drifting lamp, a warmer detector — changed the
     physics), plus, per fault the emulators injected since the previous reading began, the
     segment's costliest reading (every state established anew: a lamp that lost power warms
-    up again) + `DRIVER_TIMEOUT_S`, plus, per fault, warning, suspension and prompt the engine
-    recorded for it, a retry allowance (a wait that ran to its own timeout — a lamp never
+    up again) + `DRIVER_TIMEOUT_S` and the waits the scenario's faults declare (a lamp not
+    stable for P seconds: `FaultKind.param_is_wait_s`, at most the suspend timeout), plus,
+    per fault, warning, suspension and prompt the engine recorded for it, a retry allowance (a wait that ran to its own timeout — a lamp never
     stable — the run's stated suspend timeout); no segment outlives its wall-clock limit.
 (d) **Consistent state.**  Store, ``runs`` and ``qa`` agree on the run's status, readings and
     flags; a stored reading carries no skip flag; "running" means a live owner holds the run
@@ -328,6 +329,22 @@ def typed_failures(ex: Execution, complete: bool, missing_unflagged: list[str]) 
     return out
 
 
+def _fault_waits_s(ex: Execution, suspend_s: float) -> float:
+    """The waits the scenario's faults legitimately cost when they fire (a lamp not stable
+    for the fault's parameter in seconds, `FaultKind.param_is_wait_s`), each at most the
+    run's suspend timeout."""
+    from normbox_lab.sim import core
+
+    total = 0.0
+    for f in ex.scenario.faults:
+        device = ex.scenario.device_of(f.role)
+        kind = core.fault_table(device)[device].get(f.kind) if device in core.fault_table() \
+            else None
+        if kind is not None and kind.param_is_wait_s:
+            total += min(float(f.param) if f.param is not None else suspend_s, suspend_s)
+    return total
+
+
 def no_hang(ex: Execution) -> list[Violation]:
     out = []
     for i, seg in enumerate(ex.segments):
@@ -373,7 +390,8 @@ def no_hang(ex: Execution) -> list[Violation]:
                 if latched:
                     c["latched"] = 1
                 model = (LATCHED_FACTOR if latched else 1.0) * (est + DRIVER_TIMEOUT_S)
-                bound = (model + injected * (state_s + DRIVER_TIMEOUT_S)
+                waits = _fault_waits_s(ex, suspend_s) if injected else 0.0
+                bound = (model + injected * (state_s + DRIVER_TIMEOUT_S) + waits
                          + (c.get("fault", 0) + c.get("warning", 0)) * (est + FAULT_ALLOWANCE_S)
                          + (c.get("suspended", 0) + c.get("wait-timeout", 0))
                          * (est + suspend_s)

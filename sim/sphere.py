@@ -83,7 +83,8 @@ class SphereEmulator(core.LineEmulator):
     fault_kinds: tuple[core.FaultKind, ...] = (
         core.FaultKind("unstable", "@", (1, 12), (1.0, 3600.0), "log", unit="s",
                        means="a 2 % dip, then not stable for this long",
-                       detector="stability check → suspend, wait, retake; prompt"),
+                       detector="stability check → suspend, wait, retake; prompt",
+                       param_is_wait_s=True),
         core.FaultKind("lamp-fail", "@", (1, 12), means="the lamp goes out (ERROR state)",
                        detector="typed DeviceError(LAMP) → prompt"),
         core.FaultKind("lamp-drift", "@", (1, 12), (-100.0, 100.0), "linear", unit="%/h",
