@@ -52,23 +52,22 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             # the progress bar follows the engine
             bar = app.query_one("#bar")
             assert bar.total == 6 and bar.progress == 2
-            # pause while the third prompt waits: the third reading is taken, then it pauses
+            # pause while the third prompt waits: nothing is being measured, so it pauses
+            # there (issue 36: it used to ask for one more patch first)
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 3")
-            await pilot.press("p")                 # in the modal: pause after this reading
-            await answer_prompt(pilot, app, "patch 19")
-            await until(pilot, lambda: app.run_status == "paused", "the pause")
-            assert app.progress_done == 3
+            await pilot.press("p")                 # in the modal: pause here
+            await until(pilot, lambda: app.run_status == "paused" and not session.busy,
+                        "the pause")
+            assert app.progress_done == 2
             with Store(lab_env / "tui.sqlite") as s:
                 (run,) = s.runs()
-                assert run.status == "paused" and s.keys(run.id) == {"a30/p01", "a30/p09",
-                                                                     "a30/p19"}
-            await pilot.press("p")                 # resume in-process
-            await until(pilot, lambda: app.run_status == "running", "the resume")
-            for p in (1, 9, 19):
+                assert run.status == "paused" and s.keys(run.id) == {"a30/p01", "a30/p09"}
+            await pilot.press("r")                 # resume: the prompt for patch 19 again
+            for p in (19, 1, 9, 19):
                 await answer_prompt(pilot, app, f"patch {p} ")
             await until(pilot, lambda: app.run_status == "done", "the end of the run")
             assert app.progress_done == 6 and app.query_one("#bar").progress == 6
-            assert "paused" in app.events_seen and "resumed" in app.events_seen
+            assert app.events_seen.count("run-started") == 2
 
             # live state and spectrum come from the engine's events
             live = session.live
@@ -191,9 +190,9 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
             await pilot.press("s")
             await answer_prompt(pilot, app)
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 2")
-            await pilot.press("p")                 # pause requested during a prompt
-            await answer_prompt(pilot, app)
-            await until(pilot, lambda: app.run_status == "paused", "the pause")
+            await pilot.press("p")                 # pause at a prompt: here, before it
+            await until(pilot, lambda: app.run_status == "paused" and not session.busy,
+                        "the pause")
             await pilot.press("q")
             await until(pilot, lambda: not app.is_running, "the console to close")
     asyncio.run(first())
@@ -201,7 +200,7 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
     session.close()
     with Store(lab_env / "tui.sqlite") as s:
         (run,) = s.runs()
-        assert run.status == "paused" and run.done == 2
+        assert run.status == "paused" and run.done == 1
 
     session2 = new_session(lab_env)
     app2 = NormboxConsole(session2)
@@ -211,9 +210,9 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
             await until(pilot, lambda: isinstance(app2.screen, ResumeScreen), "the offer")
             assert "1 interrupted run" in str(app2.screen.query_one("Label").render())
             await pilot.press("enter")
-            # the first missing reading is a30/p19: a fresh process knows nothing of the
+            # the first missing reading is a30/p09: a fresh process knows nothing of the
             # physical state, so it asks for that patch again, and never for a committed one
-            for p in (19, 1, 9, 19):
+            for p in (9, 19, 1, 9, 19):
                 await answer_prompt(pilot, app2, f"patch {p} ")
             await until(pilot, lambda: app2.run_status == "done", "the end of the run")
     asyncio.run(second())
@@ -223,7 +222,7 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
         (run,) = s.runs()
         assert run.status == "done" and s.keys(run.id) == KEYS
         segments = [d for _, k, d in s.events(run.id) if k == "segment"]
-        assert len(segments) == 2 and segments[1]["committed"] == 2
+        assert len(segments) == 2 and segments[1]["committed"] == 1
 
 
 def test_command_line_builds_the_console_without_importing_textual_early(lab_env, monkeypatch):

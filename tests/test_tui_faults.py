@@ -31,9 +31,10 @@ async def enter_at_prompt(pilot, app) -> None:
     await until(pilot, lambda: app.screen is not screen, "the prompt to close")
 
 
-def test_p_while_pausing_cancels_the_pause(lab_env):
-    """p asks for a pause after the reading under way ("pausing…"); p again before the run
-    got there cancels it: the run goes on to the end without stopping."""
+def test_p_at_a_prompt_pauses_before_that_reading_and_r_asks_it_again(lab_env):
+    """Issue 36: p while a prompt waited still asked the operator to place one more patch
+    before pausing.  Nothing is being measured at a prompt: p pauses there (the prompt is
+    withdrawn, no reading is taken); r resumes and asks the same prompt again."""
     session = new_session(lab_env)
     app = NormboxConsole(session)
 
@@ -42,18 +43,20 @@ def test_p_while_pausing_cancels_the_pause(lab_env):
             await set_reduced_parameters(pilot, app)
             await pilot.press("s")
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 1")
+            first = app.screen.request.key
             await pilot.press("p")
-            await until(pilot, lambda: app.run_status == "pausing…", "pausing…")
-            await pilot.press("p")
-            await until(pilot, lambda: app.run_status == "running", "cancelled")
-            assert "pause cancelled" in " ".join(app.toasts_shown)
+            await until(pilot, lambda: not session.busy and app.run_status == "paused",
+                        "paused at the prompt")
+            assert not isinstance(app.screen, PromptScreen)
+            assert app.progress_done == 0 and "reading-stored" not in app.events_seen
+            assert f"paused before {first}: r resumes" in app.toasts_shown
+            await pilot.press("r")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt again")
+            assert app.screen.request.key == first
             for _ in range(6):
                 await enter_at_prompt(pilot, app)
-                # the answered prompt's focus goes nowhere: the Run tab stays (the first
-                # focusable widget was a hidden pane's table, and focusing it switched tabs)
                 assert app.query_one("#tabs").active == "run"
             await until(pilot, lambda: app.run_status == "done", "the end")
-            assert "paused" not in app.events_seen
     asyncio.run(scenario())
     session.wait(5.0)
     session.close()

@@ -37,8 +37,13 @@ from normbox_lab.tui.tabs.instruments import InstrumentsPane
 #: values an operator may type into a parameter field, the crashing ones of the report first
 VALUES = {
     "angles_deg": ["[30, Infinity]", "[1e400]", "[-30, 60]", "[30, 400]", "[30, 1e308]", "[]",
-                   "[30,", "abc", "[30, 60]", "[45]", "30,60", "[90, 30]"],
-    "patches": ["[]", "[25]", "[0]", "[7.5]", "[7]", "[7, 9]", "[19]", "x"],
+                   "[30,", "abc", "[30, 60]", "[45]", "30,60", "[90, 30]",
+                   # issue 36: crashed the console (OverflowError), or passed the form and
+                   # failed at planning, or were read two ways
+                   "[" + "9" * 309 + "]", "9" * 5000, "[30,,60]", "30,,60", "[٣٠]",
+                   "[30,30]"],
+    "patches": ["[]", "[25]", "[0]", "[7.5]", "[7]", "[7, 9]", "[19]", "x", "[7,7]",
+                "9" * 400, "[٧]"],
 }
 KEYS = ["1", "2", "3", "4", "5", "6", "d", "s", "p", "a", "r", "i", "x", "w", "enter",
         "escape", "tab", "h", "g", "j", "k", "o", "f", "v", "m", "down", "up", "n"]
@@ -142,7 +147,8 @@ def scenario(seed: int, steps: int, tmp_path: Any) -> dict[str, Any]:
                     done.append("g")
                     await pilot.press("g")
                     await pilot.pause(0.05)
-                    typed = rng.choice(["45", "-30", "400", "inf", "nan", "12.5", "x"])
+                    typed = rng.choice(["45", "-30", "400", "inf", "nan", "12.5", "x", "٤٥",
+                                        "9" * 45, "1e309"])
                     for ch in typed:
                         await pilot.press(ch)
                     await pilot.press("enter")
@@ -152,11 +158,15 @@ def scenario(seed: int, steps: int, tmp_path: Any) -> dict[str, Any]:
                     done.append(key)
                     t_lab = session.lab.clock.now_s() if session.lab is not None else 0.0
                     in_run = session.busy
+                    if key == "x" and isinstance(app.focused, Input):
+                        key = "ctrl+x"      # x typed into a field is text; Ctrl+X stops there
                     await pilot.press(key)
                     stats["keys"] += 1
-                    if key == "x" and app.lab_ready:
+                    if key in ("x", "ctrl+x") and app.lab_ready:
                         stats["estops"] += 1
-                        # halted once the key is handled (the run's engine: once it ended)
+                        # halted once the stop's worker is done (the run's engine: once it
+                        # ended)
+                        await until(pilot, lambda: not app._estop_running, "the stop", 10.0)
                         await until(pilot, lambda: not session.busy, "the stop", 10.0)
                         t_halted = session.lab.clock.now_s()
                         if not in_run and session.halted_at_s is not None:

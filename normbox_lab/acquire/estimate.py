@@ -161,6 +161,7 @@ class RemainingTime:
         """A segment starts (its preparation is a one-off wait until `active`)."""
         self.active = False                 # measuring (not in a one-off wait)
         self.active_since_s = now_s
+        self.inactive_since_s = now_s
         self.active_total_s = 0.0           # active time before `active_since_s`
         self.prompt_since_s: float | None = None
         self.answers_s: list[float] = []
@@ -182,7 +183,13 @@ class RemainingTime:
             self.active, self.active_since_s = True, now_s
         elif not on and self.active:
             self.active_total_s += now_s - self.active_since_s
-            self.active = False
+            self.active, self.inactive_since_s = False, now_s
+
+    def was_active(self) -> None:
+        """A reading came with no step event since the wait began: it was no wait (the time
+        since counts as measuring)."""
+        if not self.active:
+            self.active, self.active_since_s = True, self.inactive_since_s
 
     def prompt(self, now_s: float) -> None:
         if self.prompt_since_s is None:
@@ -197,16 +204,18 @@ class RemainingTime:
             self.prompt_since_s = None
 
     def reading(self, now_s: float, model_left_s: float | None,
-                prompts_left: int | None) -> None:
-        """A reading was stored; `model_left_s`: the model's instrument lab seconds of the
-        readings left; `prompts_left`: their prompts."""
+                prompts_left: int | None, count: int = 1) -> None:
+        """`count` readings were stored (one, unless events were missed); `model_left_s`: the
+        model's instrument lab seconds of the readings left; `prompts_left`: their prompts."""
+        count = max(1, int(count))
         active = self.active_s(now_s)
         took = active - self.last_reading_active_s
         self.last_reading_active_s = active
         model = None
         if model_left_s is not None and self.model_left_s is not None:
-            model = max(0.0, self.model_left_s - model_left_s)
-        self.readings.append((model, max(0.0, took - self.person_in_reading_s)))
+            model = max(0.0, self.model_left_s - model_left_s) / count
+        instruments = max(0.0, took - self.person_in_reading_s) / count
+        self.readings.extend([(model, instruments)] * count)
         self.person_in_reading_s, self.prompts_in_reading = 0.0, 0
         self.model_left_s, self.prompts_left = model_left_s, prompts_left
 

@@ -13,7 +13,7 @@ import json
 import time
 from typing import Any, ClassVar
 
-from textual import on, work
+from textual import events, on, work
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.css.query import NoMatches
@@ -73,7 +73,10 @@ class NormboxConsole(App):
     TabPane { padding: 0; }
     """
     BINDINGS: ClassVar = [
+        # x: the emergency stop everywhere but in a text field (keys typed there belong to
+        # the field: a pasted "xxxx…" is text, not 2000 stops); Ctrl+X also in a text field
         Binding("x", "emergency_stop", "E-STOP", priority=True),
+        Binding("ctrl+x", "emergency_stop", "E-STOP", show=False, priority=True),
         Binding("q", "quit_console", "quit"),
         # Ctrl+Q is Textual's "close now"; here it leaves the same safe way as q (the run
         # pauses after the reading under way, a waiting prompt is withdrawn), on every screen
@@ -124,6 +127,16 @@ class NormboxConsole(App):
         self._pending_resume: int | None = None   # a run to resume once the lab is ready
         self.first_paint_footer_keys = 0
         self.first_paint_cpu_s = 0.0
+        #: the emergency stop under way (a worker thread), and when the last press came: a
+        #: burst of presses while one stop is under way, or right after it, is that one stop
+        self._estop_running = False
+        self._estop_last_press_s = -1e9
+        #: keys (and clicks) other than the stop's since the start: a burst of x presses is
+        #: one stop only while nothing else came between them (x, g 45 Enter, x: two stops)
+        self._other_input = 0
+        self._other_input_at_stop = -1
+        self.estops_started = 0               # stops commanded (tests: a burst is one)
+        self.estops_coalesced = 0             # presses that joined a stop already under way
 
     # --- layout ------------------------------------------------------------------------------
     def compose(self) -> ComposeResult:
@@ -214,6 +227,13 @@ class NormboxConsole(App):
         self._set_status(f"store {s.store_path.name} · {kind} lab · {clock} · "
                          f"world {s.world_kind} · {s.config.name}")
         self._refresh_results()
+
+    async def on_event(self, event: Any) -> None:
+        """Counts the operator's input other than the stop's keys (see `_other_input`)."""
+        if (isinstance(event, events.Key) and event.key not in ("x", "ctrl+x")) \
+                or isinstance(event, events.MouseDown):
+            self._other_input += 1
+        await super().on_event(event)
 
     # --- helpers -----------------------------------------------------------------------------
     #: toasts on screen at once: at 80×24 each covers half the width, a burst of them (a few
@@ -348,6 +368,10 @@ class NormboxConsole(App):
         if self.session.busy:
             self.notify("a run is active", severity="warning")
             return False
+        if self.session.manual_action:
+            self.notify(f"a manual action is under way ({self.session.manual_action}): start "
+                        "when it has finished", severity="warning", markup=False)
+            return False
         return True
 
     def action_start(self) -> None:
@@ -409,13 +433,23 @@ class NormboxConsole(App):
             self._set_run_status("running")
             self._log("pause cancelled: the run goes on")
             self.notify("pause cancelled: the run goes on", markup=False)
+        elif self.waiting_prompt is not None:
+            # nothing is being measured: pause here, before the reading the prompt prepares
+            # (no one more patch to place first); a resume asks the prompt again
+            req = self.waiting_prompt
+            self.waiting_prompt = None
+            self.session.pause_at_prompt()
+            if self.prompt_screen is not None:
+                self.prompt_screen.dismiss("")
+            self._set_run_status("pausing…")
+            self._log("pause at the prompt: ", f"the run pauses before {req.key} (r resumes "
+                      "and asks it again)")
+            self.notify(f"paused before {req.key}: r resumes", markup=False)
         else:
             self.session.pause()
             self._log("pause requested: after the current reading")
             self._set_run_status("pausing…")
-            self.notify("pause: the run stops after the current reading"
-                        + (" — answer the prompt first" if self.waiting_prompt is not None
-                           else ""), markup=False)
+            self.notify("pause: the run stops after the current reading", markup=False)
 
     #: seconds within which a second `a` confirms the abort
     ABORT_CONFIRM_S = 5.0
@@ -458,20 +492,53 @@ class NormboxConsole(App):
         if self.quitting and self.is_running:
             self.exit()
 
+    #: presses of x within this many seconds of the previous one join its stop
+    ESTOP_BURST_S = 0.5
+
     def action_emergency_stop(self) -> None:
-        """x: every axis stops and every lamp goes off now; a run ends paused (resumable)."""
+        """x: every axis stops and every lamp goes off now; a run ends paused (resumable).
+        The stop is commanded from a worker thread (the screen never waits for a port); a
+        press while it is under way, or within `ESTOP_BURST_S` of the previous press with no
+        other key between them, is the same stop (a held or repeated key used to queue one
+        stop per press and freeze the screen for 65 s)."""
         if not self.lab_ready:
             return
-        failed = self.session.emergency_stop()
-        self._live_dirty = True
+        now = self.clock.now_s()
+        repeated = self._other_input == self._other_input_at_stop and (
+            self._estop_running or now - self._estop_last_press_s <= self.ESTOP_BURST_S)
+        self._estop_last_press_s = now
+        self._other_input_at_stop = self._other_input
+        if repeated:
+            self.estops_coalesced += 1
+            return
+        self._estop_running = True
+        self.estops_started += 1
         if self.prompt_screen is not None:
             self.prompt_screen.dismiss("")
+        busy = self.session.busy
+        self.notify("EMERGENCY STOP: axes halted, lamps off"
+                    + (" — run paused, r resumes" if busy else ""),
+                    severity="error", markup=False)
+        self._emergency_stop(busy)
+
+    @work(thread=True, group="estop")
+    def _emergency_stop(self, busy: bool) -> None:
+        try:
+            failed = self.session.emergency_stop()
+        except Exception as exc:  # noqa: BLE001 - shown; the operator may press x again
+            failed = [f"{type(exc).__name__}: {exc}"]
+        self.call_from_thread(self._emergency_stopped, failed, busy)
+
+    def _emergency_stopped(self, failed: list[str], busy: bool) -> None:
+        self._estop_running = False
+        self._estop_last_press_s = self.clock.now_s()
+        self._live_dirty = True
         self._log("[b red]EMERGENCY STOP[/] ", "axes halted, lamps off"
                   + (f"; not reached: {'; '.join(failed)}" if failed else ""))
-        self.notify("EMERGENCY STOP: axes halted, lamps off"
-                    + (" — run paused, r resumes" if self.session.busy else ""),
-                    severity="error", markup=False)
-        if not self.session.busy:
+        if failed:
+            self.notify("EMERGENCY STOP: not reached: " + "; ".join(failed),
+                        severity="error", markup=False)
+        if not busy and not self.session.busy:
             self._poll(announce=False)        # the table: the real angle where it halted
 
     def action_poll(self) -> None:
@@ -515,7 +582,7 @@ class NormboxConsole(App):
         k = ev.kind
         d = ev.data
         self.progress.on_event(k, d)           # one-off waits (warm-up, pauses) for the rate
-        if k in ("run-started", "step-finished", "suspended", "unsuspended"):
+        if k in ("run-started", "step-finished", "suspended", "unsuspended", "fault"):
             self._live_dirty = True            # the Instruments tab follows the run
         if k == "run-started":
             self.progress.started(d["done"], d["planned"], float(d["eta_s"]), d)
@@ -547,6 +614,9 @@ class NormboxConsole(App):
             self._runs_dirty = True
             self._live_dirty = True
         elif k == "prompt":
+            if self.panes_built and self._live_dirty:   # what the run did before it asks
+                self._live_dirty = False
+                self._show_live()
             self._show_prompt(d["prompt"])
         elif k == "answer":
             self.waiting_prompt = None
@@ -684,6 +754,8 @@ class NormboxConsole(App):
     def _refresh_dirty(self) -> None:
         if not self.panes_built:
             return
+        if self.session.manual_action:
+            self._live_dirty = True            # a manual move: "moving to 30°", the angle
         self.pane(SpectrumPane).redraw_if_dirty()
         if self._live_dirty:
             self._live_dirty = False

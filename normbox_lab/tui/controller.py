@@ -87,6 +87,15 @@ class ConsoleOperator:
             act_on_world(self.world, req)
         return choice
 
+    def pause_at_prompt(self) -> None:
+        """`p` while an operator prompt waits: pause now, before the reading the prompt
+        prepares (no one more patch to place first).  The prompt is withdrawn; the segment ends
+        `paused` and a resume asks it again."""
+        if self.engine is not None:
+            self.engine.stop()
+        if self.operator is not None:
+            self.operator.cancel("quit")
+
     def answer(self, choice: str) -> None:
         req = self.pending
         if req is None:
@@ -125,6 +134,8 @@ class LiveState:
     run_state: dict[str, str] = field(default_factory=dict)
     #: the roles the current run's plan uses (the others are not "in use by the run")
     roles_used: tuple[str, ...] = ()
+    #: a manual action under way ("rotator moving to 30°"), "" when none
+    manual_state: str = ""
 
 
 class Session:
@@ -155,6 +166,8 @@ class Session:
         self._step_index: tuple[Any, dict[str, Any]] | None = None
         self._prompt: Any = None                       # the latest operator prompt asked
         self._lock = threading.Lock()
+        #: the manual action under way (a worker thread): a run does not start meanwhile
+        self.manual_action = ""
 
     # --- setup (call from a worker thread: the world may take seconds) -------------------------
     def open_store(self) -> Any:
@@ -394,7 +407,6 @@ class Session:
             Homeable,
             LampLevel,
             Movable,
-            Settling,
             SpectrumReadable,
             Switchable,
         )
@@ -419,7 +431,22 @@ class Session:
             raise NotReady(f"{name}: the {role} cannot do that ({type(inst).__name__})",
                            instrument=role)
         live = self.live
+        self.manual_action = name
+        try:
+            return self._manual(action, name, role, inst, value)
+        finally:
+            self.manual_action = ""
+            live.manual_state = ""
+
+    def _manual(self, action: str, name: str, role: str, inst: Any,
+                value: float | None) -> tuple[str, Any]:
+        from normbox_lab.core.capabilities import Homeable, Movable, Settling
+        from normbox_lab.core.errors import NotReady
+
+        lab = self.lab
+        live = self.live
         if action == "home":
+            live.manual_state = f"{role} homing"
             inst.home(wait=True)
             live.angle_deg = float(inst.position_deg()) if isinstance(inst, Movable) else 0.0
             return f"{role} homed at {live.angle_deg:.2f}°", None
@@ -430,6 +457,7 @@ class Session:
             if action == "jog":
                 target += float(inst.position_deg())
             self.stopped.clear()
+            live.manual_state = f"{role} moving to {target:g}°"
             inst.move_to(target, wait=False)
             deadline = lab.clock.now_s() + 1.5 * float(inst.estimate_move_time_s(
                 float(inst.position_deg()), target)) + 5.0
@@ -455,6 +483,7 @@ class Session:
         if lamp is not None and isinstance(lab.instrument(lamp), Settling) \
                 and not lab.instrument(lamp).is_stable():
             unstable = f" — the {lamp} is not stable: the reading is not representative"
+        live.manual_state = f"{role} measuring (single reading)"
         reading = inst.measure()
         live.last_key = "manual"
         self._take_colorimetry(reading)
@@ -463,6 +492,15 @@ class Session:
     def quit(self) -> None:
         """Leave safely: the current reading finishes and is committed, the segment ends
         `paused` (resumable from the console or `normbox-lab run --resume`)."""
+        if self.engine is not None:
+            self.engine.stop()
+        if self.operator is not None:
+            self.operator.cancel("quit")
+
+    def pause_at_prompt(self) -> None:
+        """`p` while an operator prompt waits: pause now, before the reading the prompt
+        prepares (no one more patch to place first).  The prompt is withdrawn; the segment ends
+        `paused` and a resume asks it again."""
         if self.engine is not None:
             self.engine.stop()
         if self.operator is not None:
@@ -533,12 +571,29 @@ class Session:
             step = self._step(ev.key)
             if step is not None:
                 live.run_state[step.role] = f"measured {ev.key}"
+                self._recovered(step)
             self._take_colorimetry(r)
             if isinstance(r, BrdfReading):
                 temp = r.metadata.get("tec_temperature_c")          # QE Pro TEC
                 if temp is not None:
                     live.temperature_c = float(temp)
         self.post(ev)
+
+    def _recovered(self, step: Any) -> None:
+        """A reading was stored: every instrument it required was as it required (a fault on
+        one of them, retried, is over — its row no longer says ERROR)."""
+        live = self.live
+        for role, value in step.requires.items():
+            if not str(live.run_state.get(role, "")).startswith("ERROR"):
+                continue
+            if value == "stable":
+                live.run_state[role] = "on, stable"
+                if role == self.lamp_role():
+                    live.lamp, live.lamp_stable = "stable", True
+            elif isinstance(value, (int, float)) and not isinstance(value, bool):
+                live.run_state[role] = f"{float(value):.2f}°"
+            else:
+                live.run_state[role] = "ok (recovered after a retry)"
 
     def _take_colorimetry(self, reading: Any) -> None:
         from normbox_lab.core.types import SpectralReading
@@ -590,7 +645,9 @@ class Session:
                 row["ok"] = True
                 row["last_seen"] = self.last_seen[role] = time.time()
             except (NormboxError, OSError) as exc:
-                row["state"] = f"{poll_failure(exc)}: {str(exc).removeprefix(role + ': ')}"
+                what, detail = poll_failure(exc), str(exc).removeprefix(role + ": ")
+                # "device error 201: Lamp failure", not "device error: device error 201: …"
+                row["state"] = detail if detail.startswith(what) else f"{what}: {detail}"
                 row["ok"] = False
             rows.append(row)
         self.last_rows = rows

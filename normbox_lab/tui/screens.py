@@ -31,7 +31,9 @@ class PromptScreen(ModalScreen[str]):
                           # (2 or w brings it back)
                           *[Binding(str(k), f"look('{t}')", t, show=False) for k, t in
                             ((1, "instruments"), (3, "spectrum"), (4, "runs"), (5, "results"),
-                             (6, "images"))]]
+                             (6, "images"))],
+                          # 2 / w over another tab: the Run tab under the prompt (it stays)
+                          Binding("2,w", "run_tab", "run", show=False)]
     #: bottom of the screen, above the footer: the Run tab's progress line stays in view
     DEFAULT_CSS = """
     PromptScreen { align: center bottom; }
@@ -73,6 +75,14 @@ class PromptScreen(ModalScreen[str]):
         the focus given back to a table of the old tab would switch the tabs back)."""
         self.look_tab = tab
         self.dismiss(HIDDEN)
+
+    def action_run_tab(self) -> None:
+        """2 or w while the prompt is shown over another tab: the Run tab (its progress and
+        log) comes under the prompt, which keeps waiting in front."""
+        from textual.widgets import TabbedContent
+
+        base = self.app.screen_stack[0]
+        base.query_one(TabbedContent).active = "run"
 
     def action_choose(self, index: int) -> None:
         self.dismiss(self.request.choices[int(index)])

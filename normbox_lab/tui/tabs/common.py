@@ -18,11 +18,9 @@ def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
 
 
 class StopSafeInput(Input):
-    """A text field that leaves `x` to the emergency stop: Textual skips even a priority
-    binding for a key the focused widget would consume (a printable one in an Input)."""
-
-    def check_consume_key(self, key: str, character: str | None) -> bool:
-        return key != "x" and super().check_consume_key(key, character)
+    """A text field whose keys are its own: `x` typed (or pasted) here is text, never the
+    emergency stop (2000 pasted x's queued 2000 stops); Ctrl+X stops from a field (a priority
+    binding: Textual checks it before the field), Esc leaves the field and x stops."""
 
     def on_mount(self) -> None:
         self.cursor_position = 0          # a long value shows its beginning, not its end

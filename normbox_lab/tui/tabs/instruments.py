@@ -125,8 +125,10 @@ class InstrumentsPane(TabPane):
             xy = "" if live.last_xy is None else "  " + xy_text(*live.last_xy)
             last = f"{live.last_key}: Lv {lv}{xy}"
         patch = "-" if live.patch is None else str(live.patch)
+        manual = getattr(live, "manual_state", "")
         self.query_one("#live", Static).update(
-            f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
+            (f"[b]{manual}…[/b]\n" if manual else "")
+            + f"sample angle {angle} · patch on holder {patch} · lamp {lamp}\n"
             f"spectrometer temperature {temp}\nlast reading {last}")
 
     def show_manual_keys(self, run_owns: bool) -> None:
@@ -151,6 +153,12 @@ class InstrumentsPane(TabPane):
             app.notify(f"{name} refused: the run owns the instruments until it ends (a, a "
                        "aborts it; r resumes it later)", severity="warning", markup=False)
             return
+        if app.session.manual_action:
+            app.notify(f"{app.session.MANUAL[action][1]}: wait — "
+                       f"{app.session.manual_action} is under way", severity="warning",
+                       markup=False)
+            return
+        app.session.manual_action = app.session.MANUAL[action][1]   # s waits from now on
         self._manual(action, value)
 
     @work(thread=True, exclusive=True, group="manual")
@@ -164,6 +172,8 @@ class InstrumentsPane(TabPane):
             app.call_from_thread(app.notify, str(exc), severity="error", markup=False)
             app.call_from_thread(app._log, "[red]manual:[/] ", str(exc))
             return
+        finally:
+            app.session.manual_action = ""
         app.call_from_thread(self._manual_done, text, reading)
 
     def _manual_done(self, text: str, reading: Any) -> None:

@@ -69,15 +69,16 @@ class RunProgress:
     def progressed(self, done: int, lab_remaining_s: float,
                    model_remaining_s: float | None = None, data: Any = None) -> None:
         """A reading was stored (`data`: the progress event's, with the time model)."""
+        count = done - self.done
         self.done, self.lab_remaining_s = done, lab_remaining_s
         now = self.clock.now_s()
-        if not self.estimator.active and not self.warming and not self.paused:
-            self.estimator.set_active(now, True)   # measured without a step event: no wait
+        if not self.warming and not self.paused:
+            self.estimator.was_active()          # measured without a step event: no wait
         model, prompts = self._model(data)
         if model is None and model_remaining_s is not None:
             m = float(model_remaining_s)
             model = m if math.isfinite(m) else None
-        self.estimator.reading(now, model, prompts)
+        self.estimator.reading(now, model, prompts, count)
 
     def on_event(self, kind: str, data: Any) -> None:
         """An engine event's effect on the estimate (the app calls it for every event)."""
