@@ -31,6 +31,17 @@ read-only (``mode=ro``: the WAL's pages are read, nothing is recovered or checkp
 only a file that passes all three is opened for writing.  Pages SQLite cannot read (a
 ``PRAGMA quick_check`` that is not "ok") are a `StoreError` at open, not empty tables.
 
+A command that fails leaves the store as it was, side files included: every store is opened
+for reading first (`store_file.ReadView`: ``immutable=1``, or — when a ``-wal`` or
+``-journal`` lies beside the file — a private copy of the file and its side files, read
+there; a copy per open while another process writes, which costs the store's size in I/O),
+and the file is opened for writing only at the first write.  So a command that refuses (no
+such run, no such artifact, a damaged file) before it writes neither recovers, checkpoints
+nor re-indexes anything, and a missing or zero-byte store is neither created nor given a
+schema.  A store opened for writing is first checked for write access — the file, its side
+files and its folder (`store_file.read_only_problem`) — and a read-only one is named
+read-only at once, before a run's start-up.
+
 ``Store(path, read_only=True)`` (``runs``, ``qa``, ``export``) never writes: the file is
 opened ``mode=ro``, a missing or empty file is an empty store in memory, and an older schema
 is migrated in memory.
