@@ -36,7 +36,7 @@ FLOORS: tuple[tuple[tuple[str, ...], str], ...] = (
     (("analyze",), "fit, prediction runs, comparison, budget, QA, report"),
     (("campaign",), "the simulation campaign: scenarios, harness, invariants (the oracle)"),
     (("tui",), "the operator console"),
-    (("demo", "demo_bench"), "the end-to-end demo and its bench"),
+    (("demo", "demo_bench", "demo_prewarm"), "the end-to-end demo, its bench and its kernel prewarm"),
     (("commands",), "the command line's subcommands"),
     (("cli",), "the console script's entry"),
     (("__main__",), "python -m normbox_lab"),

@@ -35,6 +35,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", default="demo-out", metavar="DIR",
                    help="where the lab config, the store and the report go (default demo-out)")
     p.add_argument("--store", metavar="FILE", help="default: DIR/normbox-demo.sqlite")
+    p.add_argument("--no-prewarm", action="store_true",
+                   help="do not compile the renderer's kernels ahead in a low-priority child "
+                        "process while the first stages run (they are then compiled when "
+                        "needed)")
     p.add_argument("--timings-json", metavar="FILE",
                    help="also write each stage's wall and compile time and kernel counts, and "
                         "the machine, as JSON (what `bench demo` reads)")
@@ -60,7 +64,8 @@ def _demo(args: argparse.Namespace) -> int:
         parse_error_spec(args.errors)       # a bad spec fails before anything runs
     opts = DemoOptions(quick=args.quick, truth=args.truth, noise=args.noise == "on",
                        errors=args.errors,
-                       store=args.store, out_dir=args.out, renderer=args.renderer)
+                       store=args.store, out_dir=args.out, renderer=args.renderer,
+                       prewarm=not args.no_prewarm)
     tasks: dict[str, int] = {}
     with Progress(TextColumn("[bold]{task.description:<16}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console) as progress:

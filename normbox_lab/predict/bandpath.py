@@ -179,6 +179,9 @@ class BandPathTracer:
     #: rectangles every vertex also samples by area (`guide.GuideRects`; `FastNormbox`: the
     #: aperture's side faces), or None
     guide: Any = None
+    #: compile the backscatter lobe and the λ-dependent η in whatever the materials are (one
+    #: kernel for every material family), instead of only where a material has them
+    general_materials: bool = False
 
     def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]],
                  radiometer: Radiometer | None, emitter: RectEmitter, *, variant: str,
@@ -295,8 +298,8 @@ class BandPathTracer:
 
         tab.update(kdks=jit_table(m.Float, np.concatenate([pair(kd), pair(ks)], axis=-1)),
                    kb=jit_table(m.Float, pair(kb)), le=jit_table(m.Float, pair(le)),
-                   n_fine=int(fine.size), has_kb=bool(np.any(kb)),
-                   dispersive=bool(np.any(par["deta"])))
+                   n_fine=int(fine.size), has_kb=self.general_materials or bool(np.any(kb)),
+                   dispersive=self.general_materials or bool(np.any(par["deta"])))
         return tab
 
     # ---- run-time constants (opaque: changing them never recompiles) ----------------------
@@ -352,12 +355,15 @@ class BandPathTracer:
         """A ray uniform over the radiometer's square field of view."""
         dr, m = self.dr, self.m
         f, left, up = self.radiometer.frame()
-        th = float(np.tan(np.deg2rad(self.radiometer.fov_deg) / 2.0))
+
+        def vec(v: Any) -> Any:       # opaque: another placement never recompiles
+            return m.Vector3f(*(dr.opaque(m.Float, float(x)) for x in v))
+
+        th = dr.opaque(m.Float, float(np.tan(np.deg2rad(self.radiometer.fov_deg) / 2.0)))
         u1 = (2.0 * rng.next_float32() - 1.0) * th
         u2 = (2.0 * rng.next_float32() - 1.0) * th
-        d = dr.normalize(m.Vector3f(*map(float, f)) + m.Vector3f(*map(float, left)) * u1
-                         + m.Vector3f(*map(float, up)) * u2)
-        return m.Ray3f(m.Point3f(*map(float, self.radiometer.origin_m)), d)
+        d = dr.normalize(vec(f) + vec(left) * u1 + vec(up) * u2)
+        return m.Ray3f(m.Point3f(vec(self.radiometer.origin_m)), d)
 
     def _em_factor(self, c: SimpleNamespace, x: Any, y: Any, active: Any) -> Any:
         """The emitter's spatial factor at a point of its plane (0 where not `active`; a

@@ -1,0 +1,79 @@
+"""Compile the campaign's kernels ahead, on the core the campaign leaves idle.
+
+`python -m normbox_lab.demo_prewarm [--truth default|model|paper]`
+
+A first run on a new machine compiles every Dr.Jit kernel of the fast renderer and the camera
+(10-25 s each on a 2-core AVX2 CPU), one after another, when the stage that needs it starts.
+The campaign's first stages (the BRDF runs, the fits, the light map) run no kernel and keep one
+core busy, so `normbox-lab demo` starts this module in a low-priority child process at once: it
+renders each kernel path of the later stages at a token size (a few thousand paths, an 8×6
+image), which compiles the kernels into Dr.Jit's on-disk cache, where the stages then find
+them.  The kernels are the stages' own, because the renders go through the same calls with
+materials of the same families:
+
+- the truth's radiometer view (`FastNormbox.render_view` with the truth materials: the sweep
+  and the white reference);
+- the prediction's (the fit model's family: all patches per path with one patch);
+- the camera with and without layers (one set for truth and prediction: `CameraTracer`'s
+  general materials).
+
+It changes nothing but the cache; a kernel the stage needs before the child compiled it is
+compiled by the stage itself, as without it.  With a warm cache it finishes in seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+#: the angle and the patch the token renders use (any: angles and materials are data)
+ANGLE_DEG = 45.0
+PATCH = 7
+
+
+def prewarm_kernels(truth: str = "default", *, camera: bool = True) -> list[tuple[str, float]]:
+    """Render every kernel path of the campaign at a token size; (path, seconds) each."""
+    from normbox_lab.images.normbox_view import normbox_camera_renderer
+    from normbox_lab.predict import materials as mats
+
+    box = normbox_camera_renderer().box
+    done: list[tuple[str, float]] = []
+
+    def step(name: str, fn) -> None:
+        t0 = time.perf_counter()
+        fn()
+        done.append((name, time.perf_counter() - t0))
+
+    truth_patch, truth_wall = mats.truth_patch(PATCH, truth), mats.truth_wall(truth)
+    fit_patch, fit_wall = mats.truth_patch(PATCH, "model"), mats.truth_wall("model")
+    step("truth radiometer view", lambda: box.render_view(
+        patch=truth_patch, wall=truth_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=1))
+    step("prediction radiometer view", lambda: box.render_view(
+        patch=fit_patch, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=2))
+    if camera:
+        nc = normbox_camera_renderer()
+        for layers in (True, False):
+            step(f"camera ({'layers' if layers else 'radiance only'})", lambda layers=layers:
+                 nc.render(patch=truth_patch, wall=truth_wall, angle_deg=ANGLE_DEG, width=8,
+                           height=6, spp=2, seed=3, layers=layers))
+    return done
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(prog="python -m normbox_lab.demo_prewarm",
+                                description=__doc__.split("\n\n")[0])
+    p.add_argument("--truth", choices=("default", "model", "paper"), default="default")
+    p.add_argument("--no-camera", action="store_true", help="the radiometer views only")
+    p.add_argument("--nice", action="store_true", help="run at the lowest CPU priority")
+    args = p.parse_args(argv)
+    if args.nice and hasattr(os, "nice"):
+        os.nice(19)
+    for name, seconds in prewarm_kernels(args.truth, camera=not args.no_camera):
+        print(f"prewarm: {name} {seconds:.1f} s", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
