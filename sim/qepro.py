@@ -118,8 +118,10 @@ AMBIENT_C = 25.0
 WHITE_TARGET_COUNTS = 150_000.0
 #: condition faults and their default parameters
 CONDITION_FAULTS = {"saturation": 0.97, "tec-drift": 2.0, "dark-drift": 1000.0,
-                    "lamp-dim": 1e-4, "dead-pixel": 600.0, "overflow": 2.0 ** 20}
+                    "lamp-dim": 1e-4, "dead-pixel": 600.0, "overflow": 2.0 ** 20,
+                    "hot-pixel": 1e5}
 OVERFLOW_PIXEL = 700
+HOT_PIXEL = 650
 #: the QE Pro's faults (USB: none of the serial transport kinds) and their ranges
 FAULT_KINDS: tuple[core.FaultKind, ...] = (
     core.FaultKind("disconnect", "@", (1, 12), (0.05, 1e5), "log", unit="s",
@@ -147,6 +149,12 @@ FAULT_KINDS: tuple[core.FaultKind, ...] = (
                          "electrical offset)",
                    detector="driver: a pixel at the offset between two lit neighbours → "
                             "typed DeviceError(PIXEL)"),
+    core.FaultKind("hot-pixel", "@", (1, 12), (1e3, 1e8), "log", unit="counts/s",
+                   means="from the n-th acquisition on, pixel 650 has this much more dark "
+                         "current",
+                   detector="subtracted with the dark taken with every reading (the value "
+                            "stays right); one that fills the pixel is saturation: ranged "
+                            "down, else typed DeviceError(SATURATED)"),
     core.FaultKind("overflow", "@", (1, 12), (262144.0, 4294967295.0), "log",
                    unit="counts", means="from the n-th acquisition on, pixel 700 reads this "
                                         "value, beyond the 18-bit full scale",
@@ -298,6 +306,12 @@ class SimulatedQEProDevice:
                                    for c in temps]))
                     + self.conditions.get("dark-drift", 0.0))
         optical = signal + dark
+        if "hot-pixel" in self.conditions:
+            optical = optical.copy()
+            optical[HOT_PIXEL] += float(self.conditions["hot-pixel"]) * t
+        # the pixel's full well: beyond twice full scale nothing more is collected (so the
+        # nonlinearity below never turns a flooded pixel's counts negative)
+        optical = np.minimum(optical, 2.0 * MAX_COUNTS)
         measured = optical * (1.0 - NONLINEARITY * optical / MAX_COUNTS)
         noise = self.rng.normal(0.0, 1.0, PIXELS) * np.sqrt(
             SHOT_VAR_PER_COUNT * np.maximum(measured, 0.0) + READ_NOISE_COUNTS ** 2)

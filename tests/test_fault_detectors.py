@@ -210,6 +210,22 @@ def test_qepro_count_beyond_18_bits_is_a_protocol_error():
         q.acquire()
 
 
+def test_qepro_hot_pixel_is_subtracted_with_the_dark_or_saturates():
+    q = _qepro("hot-pixel@1:2e5")                                # 2e4 counts in 100 ms
+    lit = q.acquire()
+    q.set_lamp_enabled(False)
+    dark = q.acquire()
+    assert dark.raw_counts[650] - dark.raw_counts[649] > 15000    # hot in the dark too
+    signal = lit.counts - dark.counts
+    assert abs(signal[650] - 0.5 * (signal[649] + signal[651])) < 0.02 * signal[650]
+    q2 = _qepro("hot-pixel@1:1e8")                               # fills the pixel
+    acq = q2.acquire()
+    assert acq.saturated and acq.raw_counts[650] == 262143
+    with pytest.raises(DeviceError) as err:
+        q2.intensities_counts()
+    assert err.value.code == "SATURATED"
+
+
 @pytest.mark.parametrize("level", [0.02, 0.05, 0.5, 0.9])
 def test_qepro_plateau_below_full_scale_is_a_typed_error(level):
     """A light leak holding pixels 500-519 at `level` × full scale: seen in every frame where
