@@ -13,7 +13,8 @@ materials of the same families:
 
 - the truth's radiometer view (`FastNormbox.render_view` with the truth materials: the sweep
   and the white reference);
-- the prediction's (the fit model's family: all patches per path with one patch);
+- the prediction's (the fit model's family: all patches per path with one patch), and its
+  direct light alone (the light shares);
 - the camera with and without layers (one set for truth and prediction: `CameraTracer`'s
   general materials).
 
@@ -52,6 +53,9 @@ def prewarm_kernels(truth: str = "default", *, camera: bool = True) -> list[tupl
         patch=truth_patch, wall=truth_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=1))
     step("prediction radiometer view", lambda: box.render_view(
         patch=fit_patch, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=2))
+    step("prediction, direct light only", lambda: box.render_view(
+        patch=fit_patch, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=3,
+        direct_only=True))
     if camera:
         nc = normbox_camera_renderer()
         for layers in (True, False):
