@@ -57,6 +57,13 @@ class OneLineParser(argparse.ArgumentParser):
     usage first; scripts and the operator want the line that says what is wrong).  Subcommand
     parsers are made of the same class."""
 
+    def _get_values(self, action: argparse.Action, arg_strings: list[str]) -> typing.Any:
+        # `--time-scale=--`: argparse (3.11) drops the "--" and hands the option an empty
+        # list, unchecked by its type (a traceback later); the text goes to the type instead
+        if arg_strings == ["--"] and action.nargs is None and action.option_strings:
+            return self._get_value(action, "--")
+        return super()._get_values(action, arg_strings)
+
     def error(self, message: str) -> typing.NoReturn:
         flat = " ".join(str(message).split())
         self.exit(2, f"normbox-lab: error: {self.prog.removeprefix('normbox-lab ')}: {flat}\n"

@@ -36,7 +36,7 @@ def test_module_entry_point():
 def test_init_runs_export_import(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert main(["init", "lab.toml", "--sim"]) == 0
-    assert main(["init", "lab.toml", "--sim"]) == 1          # refuses to overwrite
+    assert main(["init", "lab.toml", "--sim"]) == 2          # refuses to overwrite
     assert "exists already" in capsys.readouterr().err
     assert main(["runs"]) == 0
     assert "no store" in capsys.readouterr().out

@@ -255,5 +255,5 @@ def test_cli_rejects_a_bad_spec_before_running(tmp_path, capsys):
     from normbox_lab.cli import main
 
     rc = main(["demo", "--quick", "--errors", "cs1000=two", "--out", str(tmp_path / "o")])
-    assert rc == 1 and "errors.cs1000" in capsys.readouterr().err
+    assert rc == 2 and "errors.cs1000" in capsys.readouterr().err
     assert not (tmp_path / "o").exists()

@@ -284,4 +284,4 @@ def test_cli_discover_prints_the_table_and_writes_a_config_that_loads(tmp_path, 
         # a second --write without --force refuses to overwrite the lab's config
         rc = cli.main(["lab", "discover", rad.url, rot.url, sph.url, "--no-scan", "--no-usb",
                        "--timeout-s", "0.5", "--write", str(path)])
-        assert rc == 1 and "exists already" in capsys.readouterr().err
+        assert rc == 2 and "exists already" in capsys.readouterr().err

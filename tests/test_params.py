@@ -256,3 +256,31 @@ def test_zz_report_inputs_tried(capsys):
     with capsys.disabled():
         print(f"\nrandom inputs tried: {TRIED['n']}")
     assert TRIED["n"] > 0
+
+
+@pytest.mark.parametrize("line, expect", [
+    ("angles_deg = [30, 30]", "protocols.reference-sweep.angles_deg: 30 is given twice"),
+    ("patches = [7, 7]", "protocols.reference-sweep.patches: 7 is given twice"),
+    ("angles_deg = [30, nan]", "protocols.reference-sweep.angles_deg: must be a finite number"),
+    ("lamp_timeout_s = -1.0", "protocols.reference-sweep.lamp_timeout_s: -1 s must be > 0"),
+])
+def test_the_lab_configs_protocol_defaults_go_through_the_same_kinds(tmp_path, capsys, line,
+                                                                     expect):
+    """The lab config's [protocols.NAME] defaults: the same kinds and limits as --param, one
+    line naming file:line:field, exit 2 (a config is what a person wrote)."""
+    import re
+
+    from normbox_lab.cli import main
+
+    assert main(["init", str(tmp_path / "lab.toml"), "--sim"]) == 0
+    text = (tmp_path / "lab.toml").read_text()
+    key = line.split(" = ")[0]
+    text = re.sub(rf"^{key} = [^\n]*\n", "", text, flags=re.MULTILINE)   # (only this table)
+    text = text.replace("[protocols.reference-sweep]\n", f"[protocols.reference-sweep]\n{line}\n")
+    (tmp_path / "bad.toml").write_text(text)
+    capsys.readouterr()
+    assert main(["run", "reference-sweep", "--dry-run", "--world", "analytic", "--lab",
+                 str(tmp_path / "bad.toml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("normbox-lab: error: ") and expect in err, err
+    assert err.count("\n") == 1

@@ -233,6 +233,27 @@ def _parameter_problem(shipped: dict[str, Any] | None, key: str, value: Any) -> 
     return ""
 
 
+def _check_protocol_limits(name: str, shipped: dict[str, Any] | None,
+                           values: dict[str, Any], err: Any) -> None:
+    """The defaults of a shipped protocol through its declared kinds and limits (`LIMITS`,
+    `normbox_lab.acquire.params`: the one validator of --param, the console and the
+    protocols; angle ranges are checked when the plan is built, with the lab)."""
+    import importlib
+
+    from normbox_lab.acquire.params import ParameterError, check_parameters
+
+    if shipped is None:
+        return
+    module = importlib.import_module("normbox_lab.protocols." + name.replace("-", "_"))
+    limits = getattr(module, "LIMITS", None) or {}
+    merged = {**shipped, **values}
+    for key in values:
+        try:
+            check_parameters(limits, merged, None, only=key)
+        except ParameterError as exc:
+            raise err(f"protocols.{name}", key, str(exc).removeprefix(f"{key}: ")) from None
+
+
 def load_config(path: str | Path) -> LabConfig:
     path = Path(path)
     try:
@@ -424,6 +445,7 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
             problem = _parameter_problem(shipped, key, value)
             if problem:
                 raise err(f"protocols.{pname}", key, problem)
+        _check_protocol_limits(pname, shipped, pvals, err)
         protocols[pname] = dict(pvals)
 
     render = dict(table(data.get("render"), "render"))

@@ -238,14 +238,13 @@ def material_key(m: Any) -> str:
 
 
 def _lab_config(lab: Any) -> Any:
-    """The `LabConfig` of a lab (or the config itself); None for a lab without one."""
-    from normbox_lab.acquire.config import LabConfig
-    from normbox_lab.acquire.lab import Lab
-
-    if isinstance(lab, LabConfig):
-        return lab
-    if isinstance(lab, Lab):
-        return lab.config
+    """The `LabConfig` of a lab (or the config itself); None for a lab without one.  By
+    shape, not by class: the lab config checks its protocol defaults with these kinds, so
+    this module imports neither `acquire.config` nor `acquire.lab`."""
+    for candidate in (lab, getattr(lab, "config", None)):
+        if isinstance(getattr(candidate, "instruments", None), dict) \
+                and hasattr(candidate, "protocols"):
+            return candidate
     return None
 
 
@@ -255,7 +254,7 @@ def angle_limits_deg(lab: Any, role: str) -> tuple[float, float, str] | None:
     its config) is not known or has no such instrument."""
     import inspect
 
-    from normbox_lab.acquire.lab import driver_class
+    from normbox_lab.acquire.registry import driver_class
 
     config = _lab_config(lab)
     inst = None if config is None else config.instruments.get(role)

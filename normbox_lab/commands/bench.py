@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.acquire.params import Number, option
+from normbox_lab.acquire.params import SEED, Number, option
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -37,20 +37,23 @@ def register(sub: argparse._SubParsersAction) -> None:
     f.set_defaults(handler=_fit)
     pr = bsub.add_parser("predict", help="fast spectral prediction vs stock Mitsuba "
                          "(normbox_lab.predict.bench)")
-    pr.add_argument("--target", type=float, default=None,
+    pr.add_argument("--target", type=option(Number(0, 1, above=True), "--target"), default=None,
                     help="band-RMS relative noise per band to reach (default 0.002)")
-    pr.add_argument("--target-luminance", type=float, default=None,
+    pr.add_argument("--target-luminance",
+                    type=option(Number(0, 1, above=True), "--target-luminance"), default=None,
                     help="relative noise of the luminance to reach (default 0.002)")
-    pr.add_argument("--target-de00", type=float, default=None,
+    pr.add_argument("--target-de00", type=option(Number(0, 100, above=True), "--target-de00"),
+                    default=None,
                     help="RMS ΔE00 noise to reach (default 0.04)")
-    pr.add_argument("--seeds", type=int, default=None,
+    pr.add_argument("--seeds", type=option(Number(2, 1000, whole=True), "--seeds"), default=None,
                     help="independent fast renders per path count (default 12)")
     pr.add_argument("--no-amortised", action="store_true",
                     help="only the configuration rendered alone (not all patches per path)")
     pr.add_argument("--quick", action="store_true", help="a smoke run (2 configurations, "
                     "loose targets, one repeat)")
-    pr.add_argument("--repeats", type=int, default=None, help="repeats (default 3)")
-    pr.add_argument("--seed", type=int, default=None)
+    pr.add_argument("--repeats", type=option(Number(1, 1000, whole=True), "--repeats"),
+                    default=None, help="repeats (default 3)")
+    pr.add_argument("--seed", type=option(SEED, "--seed"), default=None)
     pr.set_defaults(handler=_predict)
     d = bsub.add_parser("demo", help="the virtual campaign from a cold, then a warm kernel "
                         "cache: compile and work time per stage (normbox_lab.demo_bench)",

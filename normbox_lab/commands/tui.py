@@ -65,9 +65,9 @@ def _tui(args: argparse.Namespace) -> int:
     for item in args.param:
         key, sep, value = item.partition("=")
         if not sep or not key.strip():
-            from normbox_lab.acquire.engine import PlanError
+            from normbox_lab.acquire.params import ParameterError, show
 
-            raise PlanError(f"--param expects K=V, got {item!r}")
+            raise ParameterError(f"--param expects K=V, got {show(item)}")
         prefill[key.strip()] = value
     app = NormboxConsole(session, exit_after_paint=args.exit_after_first_paint,
                          offer_resume=not args.no_resume_offer, protocol=args.protocol,

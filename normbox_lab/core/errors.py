@@ -64,7 +64,10 @@ class NotReady(InstrumentError):
 
 
 class ConfigError(NormboxError):
-    """A lab config error; always names the file, the line (0 when unknown) and the field."""
+    """A lab config error; always names the file, the line (0 when unknown) and the field.
+    A refusal of what a person wrote: the command line exits 2."""
+
+    exit_code = 2
 
     def __init__(self, file: str, line: int, field: str, message: str) -> None:
         self.file = str(file)
