@@ -29,8 +29,6 @@ class RunProgress:
     ACTIVE = ("running", "suspended", "pausing…")
 
     def __init__(self, clock: Clock) -> None:
-        from normbox_lab.acquire.estimate import RemainingTime
-
         self.clock = clock
         self.status = "idle"
         self.done = 0
@@ -41,7 +39,9 @@ class RunProgress:
         self.ended = False
         self.warming = False                   # a lamp warm-up (or suspension) under way
         self.paused = False
-        self.estimator = RemainingTime()
+        #: made at the first start (its module imports the engine's plan: not before the
+        #: console's first paint)
+        self.estimator: Any = None
 
     @staticmethod
     def _model(data: Any) -> tuple[float | None, int | None]:
@@ -64,6 +64,10 @@ class RunProgress:
         self.lab_remaining_s = lab_remaining_s
         self.warming = self.paused = False
         model, prompts = self._model(data)
+        if self.estimator is None:
+            from normbox_lab.acquire.estimate import RemainingTime
+
+            self.estimator = RemainingTime()
         self.estimator.start(self.clock.now_s(), model, prompts)
 
     def progressed(self, done: int, lab_remaining_s: float,
@@ -71,6 +75,8 @@ class RunProgress:
         """A reading was stored (`data`: the progress event's, with the time model)."""
         count = done - self.done
         self.done, self.lab_remaining_s = done, lab_remaining_s
+        if self.estimator is None:
+            return
         now = self.clock.now_s()
         if not self.warming and not self.paused:
             self.estimator.was_active()          # measured without a step event: no wait
@@ -84,6 +90,8 @@ class RunProgress:
         """An engine event's effect on the estimate (the app calls it for every event)."""
         now = self.clock.now_s()
         est = self.estimator
+        if est is None:
+            return
         if kind == "step-started":
             self.warming = data.get("kind") == "wait-stable"
             est.set_active(now, not self.warming and not self.paused)
@@ -113,6 +121,8 @@ class RunProgress:
             return None
         if lab_time_scale is None:
             return self.lab_remaining_s
+        if self.estimator is None:
+            return None
         return self.estimator.remaining_s(self.clock.now_s(), lab_time_scale,
                                           max(0, self.planned - self.done))
 
