@@ -85,7 +85,9 @@ def test_a_nan_in_a_lanes_radiance_is_a_typed_error(estimator):
             box.render_view(patch=patch, wall=wall, angle_deg=45.0, n_paths=2048)
 
 
+@pytest.mark.filterwarnings("ignore:invalid value encountered:RuntimeWarning")
 def test_a_nan_in_the_camera_is_a_typed_error():
+    """An infinite lamp value (its slope to the next 1 nm sample is inf − inf = NaN)."""
     from normbox_lab.images import cornell
 
     cs = cornell.cornell_scene(8, 6)
