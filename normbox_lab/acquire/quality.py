@@ -306,10 +306,16 @@ def spectral_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, A
 def position_flags(key: str, metadata: Mapping[str, Any]) -> list[FlagSpec]:
     """`position`: every stored location whose readback is beyond its stated tolerance of
     the setpoint (a reading without a readback — an older store — is never flagged)."""
-    from normbox_lab.core.types import ReadingGeometry
+    from normbox_lab.core.types import LOCATIONS, Location
 
     out = []
-    for name, loc in ReadingGeometry.of(metadata).out_of_tolerance().items():
+    for name, d in (metadata.get(LOCATIONS) or {}).items():
+        if d.get("tolerance") is None or d.get("setpoint") is None \
+                or d.get("readback") is None:
+            continue                                 # nothing stated to check against
+        loc = Location.from_dict(d)
+        if not loc.out_of_tolerance():
+            continue
         dev = float(loc.deviation or 0.0)
         out.append(FlagSpec(key, "position", "error", dev, loc.tolerance,
                             f"{name}: readback {loc.readback:.4f} {loc.unit} differs from the "

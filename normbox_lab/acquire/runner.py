@@ -662,8 +662,8 @@ class Engine:
         for role, value in step.requires.items():
             if isinstance(value, (int, float)) and not isinstance(value, bool) \
                     and self.has(role, Movable):
-                stage = self.instrument(role)
-                out[role] = self.with_retry(step.key, role, stage.locate).to_dict()
+                # the stage kept its readback when the step's move ended: no exchange
+                out[role] = self.instrument(role).locate().to_dict()
         for after in monitors.values():
             out[LAMP_MONITOR] = Location(None, after[0], "cd/m2").to_dict()
         if typed:
