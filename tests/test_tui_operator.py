@@ -347,7 +347,7 @@ def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: app.lab_ready, "the lab")
             app.set_parameter("angles_deg", "[30,")
-            await pilot.pause(0.1)
+            await pilot.pause(0.4)                  # checked 0.15 s after the last key
             error = str(app.query_one("#param-error", Static).render())
             assert error.startswith("angles_deg: '[30,' has an unbalanced bracket"), error
             assert app.query_one("#param-angles_deg", Input).has_class("-invalid")
@@ -357,7 +357,7 @@ def test_parameter_form_names_the_bad_field_and_shows_whole_labels(lab_env):
             log = " ".join(str(line) for line in app.query_one("#events").lines)
             assert "angles_deg" in log
             app.set_parameter("angles_deg", "[30, 60]")
-            await pilot.pause(0.1)
+            await pilot.pause(0.4)
             assert not app.query_one("#param-error", Static).display
             # a long name is not cut: repeatability's threshold_percent
             app.query_one("#protocol", Select).value = "repeatability"
