@@ -462,10 +462,12 @@ def test_run_command_with_a_lamp_that_never_answers_identify(tmp_path, monkeypat
     assert "fault: prepare/sphere sphere no reply to *IDN? within 5 s (InstrumentTimeout)" in err
     status = [ln for ln in out.splitlines() if "readings" in ln]
     assert len(status) == 1 and ": aborted, 0/1 readings (0 taken now)" in status[0]
-    assert out.splitlines()[-1].startswith("resume with: normbox-lab run --resume ")
     with Store(tmp_path / "s.sqlite") as s:
         (run,) = s.runs()
         assert run.status == "aborted" and s.keys(run.id) == set()
+    # the complete command: protocol, store and the world the run was measured in
+    assert out.splitlines()[-1] == (f"resume with: normbox-lab run reference-sweep --resume "
+                                    f"{run.uuid} --store s.sqlite --world analytic")
 
 
 def test_after_a_skip_the_next_reading_is_estimated_with_the_state_it_must_establish(store):
