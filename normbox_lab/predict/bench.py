@@ -30,10 +30,11 @@ the time divided by 24).
 
 **Stock, to the target.**  `render.render_view` (`llvm_ad_spectral`, specfilm with the same 81
 hats, the project's `normbox` BSDF, 10×10 px, uncached) in independent batches: a pilot (64 spp
-× 16 batches) gives each quantity's noise per batch; the batch count (≥ 16) at the largest
-spp of 16/64/256/1024 whose count stays ≥ 16 follows, and that render is timed (its kernel
-compiled beforehand, untimed); its noise is the spread over its batches / √batches.  Missed by
-more than 10 %: more batches, again.
+× 16 batches) gives each quantity's noise per batch; the batch count at the largest spp of
+16/64/256/1024 that still needs ≥ 16 batches follows (fewest calls), and that render is timed
+(its kernel compiled beforehand, untimed); its noise is the spread over its batches /
+√batches (independent batches: this scaling is exact).  Missed by more than 10 %: more
+batches; beaten by more than 20 %: fewer (not under 16); rendered and timed again.
 
 Every time is taken as wall clock and as this process's CPU time (all its threads; the steadier
 figure on a shared machine).  Repeats (`--repeats`, default 3) use their own seeds; each ratio
@@ -66,6 +67,8 @@ STOCK_SPP = (16, 64, 256, 1024)
 STOCK_MIN_BATCHES = 16
 #: a render within this factor of the target counts as at the target
 TOLERANCE = 1.10
+#: stock's batches are cut when a render beats its target by more than this
+LOW_TOLERANCE = 0.80
 CLOCKS = ("wall", "CPU")
 
 
@@ -185,8 +188,9 @@ def fast_to_target(render: Callable[[int, int], np.ndarray], colour: Colour,
         count = _round_paths(count)
         for _ in range(4):
             worst, med = measure(count, fresh)
-            if lower or worst[q] <= TOLERANCE * targets[q]:
+            if worst[q] <= TOLERANCE * targets[q]:
                 break
+            lower = False
             count = _round_paths(count * (worst[q] / targets[q]) ** 2)
         out[q] = AtTarget(q, targets[q], worst[q], f"{count} paths", med, lower, lad)
     return out
@@ -201,21 +205,23 @@ def stock_to_target(render: Callable[[int, int, int], Any], colour: Colour,
                  noise(pilot.batches, colour, of_mean=True).items()}
     out = {}
     for qi, q in enumerate(QUANTITIES):
-        # the fewest samples in all (≥ 16 batches; a tie goes to the larger spp: fewer calls)
-        options = []
+        # the largest spp that still needs ≥ 16 batches (fewest calls; the stratified sampler
+        # gains with spp), else 16 spp × 16 batches
+        spp, batches = STOCK_SPP[0], STOCK_MIN_BATCHES
         for s in STOCK_SPP:
             need = (per_batch[q] * math.sqrt(pilot_spp / s) / targets[q]) ** 2
-            b = max(STOCK_MIN_BATCHES, math.ceil(need))
-            options.append((b * s, -s, s, b))
-        _, _, spp, batches = min(options)
+            if need >= STOCK_MIN_BATCHES:
+                spp, batches = s, math.ceil(need)
         render(spp, 1, seed)                      # the kernel for this spp (not timed)
         for attempt in range(4):
             res, t = _timed(lambda spp=spp, b=batches, s=seed + 100 * qi + 10 * attempt + 1:
                             render(spp, b, s))
             got = float(noise(res.batches, colour, of_mean=True)[q][()])
-            if got <= TOLERANCE * targets[q]:
+            low = got < LOW_TOLERANCE * targets[q] and batches > STOCK_MIN_BATCHES
+            if got <= TOLERANCE * targets[q] and not low:
                 break
-            batches = math.ceil(batches * (got / targets[q]) ** 2 * 1.05)
+            batches = max(STOCK_MIN_BATCHES,
+                          math.ceil(batches * (got / targets[q]) ** 2 * 1.05))
         out[q] = AtTarget(q, targets[q], got, f"{spp} spp × {batches} batches", t)
     return out
 
