@@ -517,6 +517,7 @@ class Gonioreflectometer:
                       "dark_new": self.darks_taken > darks_before,
                       "dark_drift_counts_s": dark.drift_counts_s,
                       "dark_drift_sigma_counts_s": dark.drift_sigma_counts_s,
+                      "dark_rate_counts_s": dark.rate_counts_s,
                       "peak_signal_counts": float(np.max(acq.counts - dark.counts)),
                       "peak_counts": float(np.max(acq.raw_counts)),
                       "full_scale_counts": float(full)}), ratio

@@ -293,3 +293,14 @@ def test_sim_faults_lists_the_registry_and_serve_refuses_outside_it(capsys):
     assert main(["sim", "serve", "cs1000a", "--pty", "--faults", "melt=0.1"]) == 2
     err = capsys.readouterr().err
     assert "stale-data" in err and "lost-digit" in err          # the known kinds, listed
+
+
+def test_a_dark_current_far_above_the_detectors_own_is_an_error_flag():
+    """dark-drift@n:1e5 (s3700-903): the readings stay unbiased, but a dark 500× the QE Pro's
+    own makes the blue's noise ±50 %, not the stated SNR: an error flag, not a quiet value."""
+    from normbox_lab.acquire.quality import QualityLimits, brdf_flags
+
+    arrays = {"brdf_per_sr": np.full(401, 0.1)}
+    hot = brdf_flags("k", {"dark_rate_counts_s": 1.0e5}, arrays, QualityLimits())
+    assert [(f.gate, f.severity, f.limit) for f in hot] == [("dark-current", "error", 2000.0)]
+    assert brdf_flags("k", {"dark_rate_counts_s": 210.0}, arrays, QualityLimits()) == []

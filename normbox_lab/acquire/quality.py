@@ -18,6 +18,8 @@ brdf-negative          error     min BRDF < −`brdf_negative_per_sr` (unblocked
 saturation             error     peak raw counts > `saturation_fraction` × full scale
                                  (nonlinear beyond the stored correction: may be wrong)
 noise-floor            warning   peak dark-corrected counts < `noise_floor_counts`
+dark-current           error     a gonio reading's dark current above
+                                 `dark_current_max_counts_s` (10× the detector's own)
 dark-drift             warning   |dark current change| between consecutive darks >
                                  `dark_drift_counts_s` + 3σ of the change (frame noise)
 tec-off-setpoint       error     |TEC − set point| > `tec_tolerance_c` during a reading
@@ -73,6 +75,9 @@ LIMIT_SOURCES: dict[str, str] = {
                           "counts gives ~1.5 % per-pixel noise",
     "dark_drift_counts_s": "dark current ~200 counts/s at −10 °C doubling every ~6 °C: 100 "
                            "counts/s is a ~3.5 °C change of the detector",
+    "dark_current_max_counts_s": "10× the QE Pro's dark current at its −10 °C set point (~200 "
+                                 "counts/s): beyond it the detector is not what its stated "
+                                 "noise (SNR 1000:1) describes: its shot noise swamps weak bands",
     "tec_tolerance_c": "cseabreeze QE Pro TEC set point −10 °C; ±0.5 °C (the calibration "
                        "wait's tolerance)",
     "lamp_drift_percent": "Image Engineering LE7: regulated output; 0.5 % is a quarter of the "
@@ -105,6 +110,7 @@ class QualityLimits:
     saturation_fraction: float = 0.95
     noise_floor_counts: float = 2000.0
     dark_drift_counts_s: float = 100.0
+    dark_current_max_counts_s: float = 2000.0
     tec_tolerance_c: float = 0.5
     lamp_drift_percent: float = 0.5
     lamp_flicker_percent: float = 0.25
@@ -232,6 +238,14 @@ def brdf_flags(key: str, metadata: Mapping[str, Any], arrays: Mapping[str, Any],
                             f"dark current changed by {float(drift):+.0f} counts/s since the "
                             f"previous dark (limit ±{limits.dark_drift_counts_s:g} + 3σ of the "
                             f"estimate = ±{limit:.0f})"))
+    rate = metadata.get("dark_rate_counts_s")
+    if rate is not None and math.isfinite(float(rate)) and \
+            float(rate) > limits.dark_current_max_counts_s:
+        out.append(FlagSpec(key, "dark-current", "error", float(rate),
+                            limits.dark_current_max_counts_s,
+                            f"dark current {float(rate):.0f} counts/s (limit "
+                            f"{limits.dark_current_max_counts_s:g}): its shot noise swamps the "
+                            "weak bands; the detector is not in its stated state"))
     tec, sp = metadata.get("tec_temperature_c"), metadata.get("tec_setpoint_c")
     if tec is not None and sp is not None and math.isfinite(float(tec)) and \
             math.isfinite(float(sp)) and abs(float(tec) - float(sp)) > limits.tec_tolerance_c:
