@@ -1,6 +1,6 @@
 """A command that fails leaves the store and its side files as they were (issue 37 §3).
 
-The matrix: store states (damaged pages, a hot WAL, a hot rollback journal, a zero-byte file,
+The matrix: store states (damaged pages, a hot WAL, a -wal of garbage, a hot rollback journal, a zero-byte file,
 no file, a read-only file, a read-only folder) × every command that takes ``--store``, each made
 to fail for a reason of its own (a run that does not exist, an artifact that is missing).  For
 each: the exit status, one typed line (never a traceback), and the sha256 of the store, its
@@ -29,8 +29,8 @@ import pytest
 from normbox_lab.acquire.store import Store
 from normbox_lab.cli import main
 
-STATES = ("damaged", "hot-wal", "journal", "zero-byte", "missing", "read-only-file",
-          "read-only-dir")
+STATES = ("damaged", "hot-wal", "garbage-wal", "journal", "zero-byte", "missing",
+          "read-only-file", "read-only-dir")
 
 #: every command that takes --store, with arguments that make it fail on a sound store for a
 #: reason of its own (run 2 does not exist; run 1 has no fit, prediction or comparison)
@@ -97,6 +97,9 @@ def make_state(tmp: Path, state: str) -> Path:
     elif state == "hot-wal":
         _hot(path, "wal")
         assert Path(str(path) + "-wal").exists()
+    elif state == "garbage-wal":                         # a -wal that is no WAL at all
+        _sound_store(path)
+        Path(str(path) + "-wal").write_bytes(bytes(range(256)) * 64)
     elif state == "journal":
         _hot(path, "journal")
         assert Path(str(path) + "-journal").exists()
