@@ -1,5 +1,5 @@
-"""Faults real instruments show, each modelled in its emulator and caught by its detector
-(issue 37 §2), and the fault registry every emulator declares (issue 35 §4).
+"""Faults real instruments show, each modelled in its emulator and caught by its detector,
+and the fault registry every emulator declares.
 
 Radiometers (CS-1000A, CS-2000A, specbos 1211 through `RadiometerOptics.observe(faults)`):
 ``stale-data`` (a data block repeating the previous measurement) → quality gate
@@ -257,7 +257,7 @@ def test_a_stuck_monitor_hides_a_drifting_lamp():
 @pytest.mark.parametrize("slip_deg", [2.0, 0.3])
 def test_a_stage_that_loses_steps_is_seen_by_its_readback(model, slip_deg):
     """2° short: the move fails (POSITION); 0.3° short: the reading keeps setpoint and
-    readback, and the position gate flags it (issue 35's readback)."""
+    readback, and the position gate flags it."""
     from normbox_lab.drivers.rotator_apt import AptRotationStage
     from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
 

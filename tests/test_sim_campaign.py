@@ -279,7 +279,7 @@ def test_keep_leaves_every_scenario_on_disk(tmp_path):
     assert Path(kept / "seg0.stdout").read_text().count("\n") >= 5
 
 
-# --- issue 37: faults the campaign never drew, and the oracle band by band -----------------------
+# --- faults the campaign never drew, and the oracle band by band ---------------------------------
 def _gonio_case(fault: Fault) -> Scenario:
     return Scenario(seed=1, index=0, protocol="brdf-inplane",
                     params={"materials": [3], "theta_i_deg": [-40], "theta_o_deg": [-20, 30]},

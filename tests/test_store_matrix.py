@@ -1,4 +1,4 @@
-"""A command that fails leaves the store and its side files as they were (issue 37 §3).
+"""A command that fails leaves the store and its side files as they were.
 
 The matrix: store states (damaged pages, a hot WAL, a -wal of garbage, a hot rollback journal, a zero-byte file,
 no file, a read-only file, a read-only folder) × every command that takes ``--store``, each made
