@@ -25,17 +25,23 @@ compiled by the stage itself, as without it.  With a warm cache it finishes in s
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
+from collections.abc import Callable
+from pathlib import Path
 
 #: the angle and the patch the token renders use (any: angles and materials are data)
 ANGLE_DEG = 45.0
 PATCH = 7
 
 
-def prewarm_kernels(truth: str = "default", *, camera: bool = True) -> list[tuple[str, float]]:
-    """Render every kernel path of the campaign at a token size; (path, seconds) each."""
+def prewarm_kernels(truth: str = "default", *, camera: bool = True,
+                    on_step: Callable[[str, float], None] | None = None
+                    ) -> list[tuple[str, float]]:
+    """Render every kernel path of the campaign at a token size; (path, seconds) each
+    (`on_step` is told after each one: the demo may end this process at any time)."""
     from normbox_lab.images.normbox_view import normbox_camera_renderer
     from normbox_lab.predict import materials as mats
 
@@ -46,6 +52,8 @@ def prewarm_kernels(truth: str = "default", *, camera: bool = True) -> list[tupl
         t0 = time.perf_counter()
         fn()
         done.append((name, time.perf_counter() - t0))
+        if on_step is not None:
+            on_step(*done[-1])
 
     truth_patch, truth_wall = mats.truth_patch(PATCH, truth), mats.truth_wall(truth)
     fit_patch, fit_wall = mats.truth_patch(PATCH, "model"), mats.truth_wall("model")
@@ -71,11 +79,30 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--truth", choices=("default", "model", "paper"), default="default")
     p.add_argument("--no-camera", action="store_true", help="the radiometer views only")
     p.add_argument("--nice", action="store_true", help="run at the lowest CPU priority")
+    p.add_argument("--stats-json", metavar="FILE",
+                   help="write the kernels compiled and their compile time as JSON")
     args = p.parse_args(argv)
     if args.nice and hasattr(os, "nice"):
         os.nice(19)
-    for name, seconds in prewarm_kernels(args.truth, camera=not args.no_camera):
-        print(f"prewarm: {name} {seconds:.1f} s", flush=True)
+    from normbox_lab.core.jit_stats import KernelLog
+
+    log = KernelLog()
+    log.start()
+    t0 = time.perf_counter()
+
+    def report(name: str, seconds: float) -> None:
+        stats = log.snapshot()
+        print(f"prewarm: {name} {seconds:.1f} s; {stats.line()}", flush=True)
+        if args.stats_json:
+            tmp = Path(args.stats_json + ".tmp")
+            tmp.write_text(json.dumps({
+                "wall_s": time.perf_counter() - t0, "compile_s": stats.compile_s,
+                "compiled": stats.compiled, "from_disk": stats.from_disk,
+                "launches": stats.launches, "ir_ops_max": stats.ir_ops_max}))
+            tmp.replace(args.stats_json)          # whole, even if the demo ends us now
+
+    prewarm_kernels(args.truth, camera=not args.no_camera, on_step=report)
+    log.stop()
     return 0
 
 
