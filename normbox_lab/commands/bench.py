@@ -210,7 +210,9 @@ def _engine(args: argparse.Namespace) -> int:
     import tempfile
 
     from normbox_lab.acquire.engine import format_duration
+    from normbox_lab.core.machine import machine_header
 
+    print(machine_header())             # every bench names its machine first
     reps = max(1, args.repeat)
     warm = _sim_lab()                 # first measurement imports colour-science: not timed
     try:
@@ -254,6 +256,9 @@ def _forward(args: argparse.Namespace, names: tuple[str, ...]) -> list[str]:
 
 
 def _fit(args: argparse.Namespace) -> int:
+    from normbox_lab.core.machine import machine_header
+
+    print(machine_header())             # every bench names its machine first
     try:
         from normbox_lab.analyze.bench import run_bench_fit
     except ModuleNotFoundError as exc:
