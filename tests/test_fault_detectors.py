@@ -80,7 +80,7 @@ def test_draws_cover_the_whole_range_both_ends_and_decades():
 
 
 def test_the_campaign_draws_every_declared_kind_from_the_registry():
-    from normbox_lab.sim.scenario import draw, fault_kinds
+    from normbox_lab.campaign.scenario import draw, fault_kinds
 
     drawn = {(f.role, f.kind) for i in range(1500) for f in draw(9, i).faults}
     kinds = {k for _, k in drawn}

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from normbox_lab.sim import campaign, harness, invariants
-from normbox_lab.sim.scenario import Action, Fault, Scenario, draw, lab_toml
+from normbox_lab.campaign import campaign, harness, invariants
+from normbox_lab.campaign.scenario import Action, Fault, Scenario, draw, lab_toml
 
 FAST_SEED, FAST_SCENARIOS = 2026, 80
 
@@ -40,7 +40,7 @@ def test_scenarios_are_drawn_deterministically_and_round_trip_as_json():
     # every kind the campaign draws from the fault registry (every emulator's declared kinds
     # but the undetectable ones) comes up: no hand-kept list
     from normbox_lab.sim import core
-    from normbox_lab.sim.scenario import fault_kinds
+    from normbox_lab.campaign.scenario import fault_kinds
 
     declared = set().union(*(fault_kinds(d) for d in core.fault_table()))
     assert declared == kinds, declared ^ kinds

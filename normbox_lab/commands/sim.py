@@ -193,14 +193,14 @@ def _faults(args: argparse.Namespace) -> int:
 
 
 def _campaign(args: argparse.Namespace) -> int:
-    from normbox_lab.sim.campaign import run_campaign
+    from normbox_lab.campaign.campaign import run_campaign
 
     if args.scenarios < 1 or args.jobs < 1 or args.max_faults < 0:
         return _fail("--scenarios and --jobs must be at least 1, --max-faults at least 0")
     if not 0.0 <= args.normbox_share <= 1.0:
         return _fail("--normbox-share must be within [0, 1]")
     if args.replay is not None:
-        from normbox_lab.sim.scenario import Scenario
+        from normbox_lab.campaign.scenario import Scenario
 
         try:
             Scenario.from_json(args.replay)

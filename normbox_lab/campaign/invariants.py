@@ -41,7 +41,7 @@ from typing import Any
 
 import numpy as np
 
-from normbox_lab.sim.harness import Execution, qa_listing, runs_listing
+from normbox_lab.campaign.harness import Execution, qa_listing, runs_listing
 
 RADIOMETRIC = 0.02
 WAVELENGTH_NM = 0.3

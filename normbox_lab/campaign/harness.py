@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from normbox_lab.sim.scenario import Action, Scenario, lab_toml
+from normbox_lab.campaign.scenario import Action, Scenario, lab_toml
 
 #: wall-clock limit of one segment (a virtual-clock run of a small protocol takes < 2 s)
 SEGMENT_LIMIT_S = {"analytic": 90.0, "normbox": 600.0}

@@ -23,9 +23,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from normbox_lab.sim.harness import execute, preload
-from normbox_lab.sim.invariants import Violation, check
-from normbox_lab.sim.scenario import Scenario, draw
+from normbox_lab.campaign.harness import execute, preload
+from normbox_lab.campaign.invariants import Violation, check
+from normbox_lab.campaign.scenario import Scenario, draw
 
 #: shrinking stops after this many candidate runs per failing scenario
 SHRINK_BUDGET = 40
