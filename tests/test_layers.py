@@ -46,8 +46,8 @@ FLOORS: tuple[tuple[tuple[str, ...], str], ...] = (
 #: itself and everything below it (``normbox_lab``: any module).
 EXCEPTIONS: tuple[tuple[str, str, str], ...] = (
     ("normbox_lab.campaign.harness", "normbox_lab.cli",
-     "the campaign's harness runs the product's own command line (cli.main) in its forked "
-     "segments, as an operator would; the command line starts the campaign (sim campaign)"),
+     ("the campaign's harness runs the product's own command line (cli.main) in its forked "
+     "segments, as an operator would; the command line starts the campaign (sim campaign)")),
 )
 
 FLOOR_OF: dict[str, int] = {room: i for i, (rooms, _) in enumerate(FLOORS) for room in rooms}
