@@ -39,8 +39,8 @@ def test_scenarios_are_drawn_deterministically_and_round_trip_as_json():
     kinds = {f.kind for i in range(400) for f in draw(3, i).faults}
     # every kind the campaign draws from the fault registry (every emulator's declared kinds
     # but the undetectable ones) comes up: no hand-kept list
-    from normbox_lab.sim import core
     from normbox_lab.campaign.scenario import fault_kinds
+    from normbox_lab.sim import core
 
     declared = set().union(*(fault_kinds(d) for d in core.fault_table()))
     assert declared == kinds, declared ^ kinds
