@@ -54,21 +54,30 @@ def _scripted_ports_are_used_up():
         port.assert_done()
 
 
-def pytest_report_header(config):
-    """The machine the run is on (your machine is not the user's): CPU, vector ISA, cores,
-    load, and the LLVM target Dr.Jit compiles for (``NORMBOX_LLVM_TARGET=haswell`` compiles
-    every kernel for an AVX2 machine, as a user's 2-core AVX2 CPU would)."""
+def pytest_sessionstart(session):
+    """``NORMBOX_LLVM_TARGET=haswell`` compiles every Dr.Jit kernel of the run for an AVX2 CPU
+    (the user's 2-core machine), whatever this host's ISA: set before any test renders."""
+    import os
+
+    if os.environ.get("NORMBOX_LLVM_TARGET"):
+        import mitsuba as mi
+
+        from normbox_lab.predict.mitsuba_setup import apply_llvm_target
+
+        mi.set_variant("llvm_ad_mono")
+        apply_llvm_target()
+
+
+def pytest_terminal_summary(terminalreporter):
+    """The machine the run was on (your machine is not the user's): CPU, vector ISA, cores,
+    load, and the LLVM target Dr.Jit compiled for; printed even under ``-q``."""
     import os
 
     from normbox_lab.core.machine import machine_header
 
-    lines = [machine_header()]
+    terminalreporter.write_line(machine_header().replace("machine:", "machine (end of run):", 1))
     if os.environ.get("NORMBOX_LLVM_TARGET"):
-        import mitsuba as mi
+        from normbox_lab.predict.mitsuba_setup import llvm_target
 
-        from normbox_lab.predict.mitsuba_setup import apply_llvm_target, llvm_target
-
-        mi.set_variant("llvm_ad_mono")
-        apply_llvm_target()
-        lines.append(f"Dr.Jit LLVM target: {llvm_target()} (NORMBOX_LLVM_TARGET)")
-    return lines
+        terminalreporter.write_line(f"Dr.Jit LLVM target: {llvm_target()} "
+                                    "(NORMBOX_LLVM_TARGET)")
