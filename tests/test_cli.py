@@ -67,7 +67,7 @@ def test_bad_import_reports_place(tmp_path, capsys, monkeypatch):
 @pytest.mark.parametrize("params, expect", [
     (["angles_deg=[30,Infinity]", "patches=[7]"], "angles_deg: Infinity is not a finite number"),
     (["angles_deg=[1e400]"], "angles_deg: 1e400 is not a finite number"),
-    # issue 36: each of these crashed, exited 1, or failed only at planning
+    # reported: each of these crashed, exited 1, or failed only at planning
     (["angles_deg=[" + "9" * 309 + "]"], "angles_deg: a 309-character number is too long"),
     (["patches=" + "9" * 5000], "patches: 5000 characters is too long"),
     (["lamp_timeout_s=" + "9" * 400], "lamp_timeout_s: a 400-character number is too long"),
@@ -145,7 +145,7 @@ def test_repeatability_bad_values_are_exit_2(tmp_path, capsys, monkeypatch, para
         "400-character number is too long")),
 ])
 def test_every_numeric_option_goes_through_the_one_parser(capsys, argv, expect):
-    """Issue 37 §4: options that bypassed the checks (traceback, OverflowError, accepted NaN,
+    """Reported: options that bypassed the checks (traceback, OverflowError, accepted NaN,
     accepted 1e20 fault rules) are one line and exit 2, before anything runs."""
     with pytest.raises(SystemExit) as info:
         main(argv)

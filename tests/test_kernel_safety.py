@@ -42,7 +42,7 @@ def test_every_kernel_path_is_in_bounds_under_drjits_checks():
     done = [line.split()[1] for line in res.stdout.splitlines()
             if line.startswith("path ") and line.split()[2] == "ok"]
     assert done == list(PATHS), report
-    # the paths the issue names, each rendered
+    # the paths the bug report names, each rendered
     assert {"radiometer_view", "all_patches", "dispersive_truth", "camera_cornell",
             "camera_box", "triplets", "stock_mitsuba"} <= set(done)
 

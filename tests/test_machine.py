@@ -22,7 +22,7 @@ def test_vector_isa_is_the_widest_the_flags_offer() -> None:
 
 def test_header_names_model_isa_cores_load_and_cache(tmp_path) -> None:
     cold = machine.machine_header(cpuinfo=XEON, machine="x86_64", load=(3.5, 2.25, 1.0),
-                                  cache_dir=tmp_path / "none")
+                                  cache_dir=tmp_path / "none", llvm_target="")
     assert cold.startswith("machine: Intel(R) Xeon(R) Gold 6338 CPU @ 2.00GHz; x86_64 AVX-512; ")
     assert "load 3.50 / 2.25 / 1.00 (1 / 5 / 15 min)" in cold
     assert "cores (" in cold and cold.endswith("kernel cache cold (empty "
@@ -30,9 +30,15 @@ def test_header_names_model_isa_cores_load_and_cache(tmp_path) -> None:
     (tmp_path / "a.llvm.bin").write_bytes(b"x")
     (tmp_path / "b.llvm.bin").write_bytes(b"x")
     warm = machine.machine_header(cpuinfo=LAPTOP, machine="x86_64", load=(0.0, 0.0, 0.0),
-                                  cache_dir=tmp_path)
+                                  cache_dir=tmp_path, llvm_target="")
     assert "AMD Ryzen 7 5800U; x86_64 AVX2" in warm
     assert warm.endswith(f"kernel cache warm (2 kernels in {tmp_path})")
+
+
+def test_header_names_the_llvm_target_the_kernels_are_compiled_for(tmp_path) -> None:
+    line = machine.machine_header(cpuinfo=XEON, machine="x86_64", load=(0.0, 0.0, 0.0),
+                                  cache_dir=tmp_path, llvm_target="haswell")
+    assert "x86_64 AVX-512, kernels compiled for haswell (NORMBOX_LLVM_TARGET);" in line
 
 
 def test_header_on_this_machine_is_one_line() -> None:

@@ -1,4 +1,4 @@
-"""One word for precision (issue 35 §3): the target relative standard error per band, one
+"""One word for precision: the target relative standard error per band, one
 statistic (the worst band), the quality names as its presets, the renderer chosen by name.
 
 `normbox-lab predict --target-se 0.5%` under ``--renderer fast`` and ``--renderer mitsuba``:

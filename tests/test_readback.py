@@ -1,4 +1,4 @@
-"""Setpoint and readback (issue 35 §1): every stage's `locate()`, stored with each reading, read
+"""Setpoint and readback: every stage's `locate()`, stored with each reading, read
 back as one typed geometry (`ReadingGeometry`), and the `position` gate on a stage that
 stopped short.  The short stop is the APT emulator's own ``stall`` fault, timed so that the
 rotor stops 0.3° before the target (the fraction of the move's duration is computed from the
@@ -133,7 +133,7 @@ def test_the_store_protocol_is_what_the_sqlite_store_offers(tmp_path):
 
 def test_an_old_reading_without_readback_reads_as_not_recorded():
     old = {"angle_deg": 45.0, "patch": 7, "lamp_monitor_cd_m2": 3000.0,
-           "integration_time_s": 0.5}                   # a reading stored before issue 35
+           "integration_time_s": 0.5}                   # a reading stored before readbacks were recorded
     g = ReadingGeometry.of(old)
     assert g.angle_deg == 45.0 and g.patch == 7
     assert g.sample_angle == Location(45.0, None, "deg")

@@ -1,6 +1,6 @@
 """A run resumes in the world and lab it was measured in, with a complete printed command.
 
-Issue 36 §3: a run quit in `tui --world analytic` and resumed with the printed
+Reported: a run quit in `tui --world analytic` and resumed with the printed
 `run --resume <uuid> --store …` ran on the Mitsuba world (the console never recorded its
 world), and the printed line lacked `--lab`.  Now every segment records its world, lab
 config, time scale and seed; a resume under another world or lab config is one line and

@@ -53,7 +53,7 @@ def test_sweep_prompts_pause_resume_progress_and_heat_map(lab_env):
             bar = app.query_one("#bar")
             assert bar.total == 6 and bar.progress == 2
             # pause while the third prompt waits: nothing is being measured, so it pauses
-            # there (issue 36: it used to ask for one more patch first)
+            # there (reported: it used to ask for one more patch first)
             await until(pilot, lambda: isinstance(app.screen, PromptScreen), "prompt 3")
             await pilot.press("p")                 # in the modal: pause here
             await until(pilot, lambda: app.run_status == "paused" and not session.busy,

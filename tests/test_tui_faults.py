@@ -32,7 +32,7 @@ async def enter_at_prompt(pilot, app) -> None:
 
 
 def test_p_at_a_prompt_pauses_before_that_reading_and_r_asks_it_again(lab_env):
-    """Issue 36: p while a prompt waited still asked the operator to place one more patch
+    """Reported: p while a prompt waited still asked the operator to place one more patch
     before pausing.  Nothing is being measured at a prompt: p pauses there (the prompt is
     withdrawn, no reading is taken); r resumes and asks the same prompt again."""
     session = new_session(lab_env)

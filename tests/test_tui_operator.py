@@ -810,7 +810,7 @@ def test_e_exports_the_selected_run_as_csv(lab_env):
 
 
 def test_keys_typed_into_a_field_belong_to_the_field_and_ctrl_x_stops_from_it(lab_env):
-    """Issue 36: pasting 2000 x into a field queued 2000 emergency stops and froze the screen
+    """Reported: pasting 2000 x into a field queued 2000 emergency stops and froze the screen
     for 65 s.  Keys typed into a text field are the field's (x too); Ctrl+X stops from a
     field, and a burst of stops is one stop."""
     from textual.widgets import Input

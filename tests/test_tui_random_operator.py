@@ -38,7 +38,7 @@ from normbox_lab.tui.tabs.instruments import InstrumentsPane
 VALUES = {
     "angles_deg": ["[30, Infinity]", "[1e400]", "[-30, 60]", "[30, 400]", "[30, 1e308]", "[]",
                    "[30,", "abc", "[30, 60]", "[45]", "30,60", "[90, 30]",
-                   # issue 36: crashed the console (OverflowError), or passed the form and
+                   # reported: crashed the console (OverflowError), or passed the form and
                    # failed at planning, or were read two ways
                    "[" + "9" * 309 + "]", "9" * 5000, "[30,,60]", "30,,60", "[٣٠]",
                    "[30,30]"],

@@ -128,7 +128,7 @@ def test_remaining_time_within_25_percent_after_the_first_reading(tmp_path, time
 
 @pytest.mark.parametrize("person_s", [1.8, 6.5])
 def test_remaining_time_within_15_percent_from_the_first_reading(tmp_path, person_s):
-    """Issue 36: at ×0.2 the first reading took 10–16 s against about 3.6 s for every later
+    """Reported: at ×0.2 the first reading took 10–16 s against about 3.6 s for every later
     one (the first measurement's set-up, which no model knows), and the operator's answer time
     was not modelled: the estimate after reading 1 was +207 % (answers in 1.8 s) and +74 %
     (6.5 s).  Here the first measurement costs 7 s more, every measurement 0.3 s beyond the
@@ -166,14 +166,14 @@ def _recorded(first_s: float, later_s: float, answer_s: float, model_s: float,
 
 
 @pytest.mark.parametrize("run, first_s, later_s, answer_s", [
-    ("A (answers in 1.8 s)", 11.05, 3.6, 1.8),      # the issue's run A: +207 % after reading 1
+    ("A (answers in 1.8 s)", 11.05, 3.6, 1.8),      # the reported run A: +207 % after reading 1
     ("B (answers in 6.5 s)", 14.4, 8.3, 6.5),       # run B: +74 %
     ("answers in 0.5 s", 9.0, 2.3, 0.5),
     ("answers in 20 s", 28.0, 21.8, 20.0),
 ])
 def test_the_issues_recorded_runs_are_within_15_percent_from_reading_1(run, first_s, later_s,
                                                                         answer_s):
-    """The two runs of the issue (first reading 11–14 s, later ones 3.6 s and 8.3 s; 1.8 s of
+    """The two reported runs (first reading 11–14 s, later ones 3.6 s and 8.3 s; 1.8 s of
     instruments a reading, the model 8 lab s × 0.2 = 1.6 s of it), and two other answer
     times: every estimate from reading 1 on within ±15 %."""
     for shown, truth in _recorded(first_s, later_s, answer_s, model_s=8.0):
@@ -227,7 +227,7 @@ def _table() -> None:
 
 
 def _issue_table() -> None:
-    """The issue's table again: ×0.2, 3 angles × 3 patches, answers in 1.8 s and 6.5 s, the
+    """The reported table again: ×0.2, 3 angles × 3 patches, answers in 1.8 s and 6.5 s, the
     first measurement 7 s dearer, 0.3 s a measurement beyond the model."""
     import tempfile
 

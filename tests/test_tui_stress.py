@@ -1,4 +1,4 @@
-"""The console under stress (issue 36 §4): a paste of 2000 `x`, a held E-STOP key, random
+"""The console under stress: a paste of 2000 `x`, a held E-STOP key, random
 text into every field and dialog, stale states, the keys during a prompt.
 
     python -m pytest -q tests/test_tui_stress.py -s     # prints the paste timings
@@ -92,7 +92,7 @@ def test_a_stop_after_the_burst_is_a_new_stop(lab_env):
     app.session.close()
 
 
-#: random text for the fields: the cases of the issue first, then random characters
+#: random text for the fields: the reported cases first, then random characters
 TEXTS = ["9" * 309, "9" * 5000, "[30,,60]", "30,,60", "[٣]", "٤٥", "[30,30]", "[7,7]", "NaN",
          "1e309", "-Infinity", "[", "]", "[[30]]", "  ", "", "x" * 2000, "\x00", "30\n60"]
 

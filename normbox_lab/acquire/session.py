@@ -241,8 +241,11 @@ def _lab_from_config(config: Any, world: str | Any | None,
 def _require_recent_check(protocol: str, config: Any, store: store_api.Store) -> None:
     """A lab config with ``[lab] require_check_h`` lets a run (not the lab check itself, not a
     dry run) start only after a passing `lab check` that recent (`acquire.trust`)."""
-    hours = getattr(config, "require_check_h", None)
-    if hours is None or protocol == "lab-check" or getattr(store, "read_only", False):
+    from normbox_lab.acquire.store import Store
+
+    hours = config.require_check_h if config is not None else None
+    if hours is None or protocol == "lab-check" or (isinstance(store, Store)
+                                                    and store.read_only):
         return
     import time
 
@@ -280,8 +283,9 @@ def _check_same_lab(run_uuid: str, recorded_text: str, current: Any, force: bool
         recorded = parse_config(recorded_text, "<the run's recorded lab config>")
     except NormboxError:
         return                               # an older record we cannot read: no check
-    differs = [f.name for f in dataclasses.fields(recorded) if f.name not in
-               _RESUME_MAY_CHANGE and getattr(recorded, f.name) != getattr(current, f.name)]
+    was, now = dataclasses.asdict(recorded), dataclasses.asdict(current)
+    differs = [name for name in was if name not in _RESUME_MAY_CHANGE
+               and was[name] != now.get(name)]
     if not differs:
         return
     from normbox_lab.acquire.params import ParameterError

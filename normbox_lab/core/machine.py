@@ -80,10 +80,12 @@ def kernel_cache_state(directory: Path | None = None) -> str:
 
 def machine_header(*, cpuinfo: str | None = None, machine: str | None = None,
                    load: tuple[float, float, float] | None = None,
-                   cache_dir: Path | None = None) -> str:
+                   cache_dir: Path | None = None, llvm_target: str | None = None) -> str:
     """One line: CPU model, vector ISA, cores (logical / usable by this process), the load
     average, and whether Dr.Jit's kernel cache was cold or warm.  Call it before the first
-    render: afterwards the cache is warm by construction."""
+    render: afterwards the cache is warm by construction.  `llvm_target` (default:
+    ``NORMBOX_LLVM_TARGET``, "" for none): the CPU the kernels are compiled for, when not the
+    host's."""
     text = cpuinfo if cpuinfo is not None else _read("/proc/cpuinfo")
     arch = machine or platform.machine()
     if load is None:
@@ -91,7 +93,8 @@ def machine_header(*, cpuinfo: str | None = None, machine: str | None = None,
             load = os.getloadavg()
         except OSError:
             load = (float("nan"),) * 3
-    target = os.environ.get("NORMBOX_LLVM_TARGET", "").strip()
+    target = (os.environ.get("NORMBOX_LLVM_TARGET", "") if llvm_target is None
+              else llvm_target).strip()
     isa = vector_isa(text, arch)
     if target:
         isa += f", kernels compiled for {target.partition(':')[0]} (NORMBOX_LLVM_TARGET)"
