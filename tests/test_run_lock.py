@@ -26,6 +26,31 @@ def test_second_lock_is_refused_at_once_with_the_owner(tmp_path):
         assert not lock.path.exists()
 
 
+def test_a_status_probe_at_the_moment_of_locking_is_not_an_owner(tmp_path, monkeypatch):
+    """`RunLock.held` probes with a momentary shared lock; an engine that locks its run at
+    that moment (the console polls run status from another thread) tries again instead of
+    reporting another process.  The probe here lets go at the acquirer's first retry."""
+    import fcntl
+
+    from normbox_lab.acquire import store_file
+
+    with Store(tmp_path / "s.sqlite") as store:
+        run = store.create_run("x")
+        path = tmp_path / f"s.sqlite.{run.uuid}.lock"
+        probe = open(path, "a+", encoding="utf-8")  # noqa: SIM115 - closed at the retry
+        fcntl.flock(probe.fileno(), fcntl.LOCK_SH | fcntl.LOCK_NB)
+        retries = []
+
+        def retry(_s: float) -> None:               # the probe closes instead of time passing
+            retries.append(_s)
+            probe.close()
+
+        monkeypatch.setattr(store_file.time, "sleep", retry)
+        lock = store.lock_run(run.id)
+        assert len(retries) == 1 and lock.path.exists()
+        lock.release()
+
+
 def test_resume_while_another_process_executes_the_run_is_refused(tmp_path):
     from engine_fakes import FakeLab
 

@@ -18,6 +18,7 @@ import os
 import shutil
 import sqlite3
 import tempfile
+import time
 from pathlib import Path
 from typing import Any, Self
 
@@ -35,6 +36,9 @@ class RunLock:
     lock when its process dies, so `kill -9` cannot leave it stuck; the file is removed on
     release.  Without `fcntl` (Windows) locking is skipped."""
 
+    #: how long a refused lock is tried again before it counts as another owner's
+    PROBE_GRACE_S = 0.5
+
     def __init__(self, store_path: Path, run_uuid: str) -> None:
         self.path = store_path.with_name(f"{store_path.name}.{run_uuid}.lock")
         self.run_uuid = run_uuid
@@ -47,6 +51,10 @@ class RunLock:
             import fcntl
         except ImportError:                      # pragma: no cover - not on POSIX
             return self
+        # `held` probes with a momentary shared lock (another thread's status poll, or
+        # another process's `runs`): a refusal that lasts less than PROBE_GRACE_S is a probe,
+        # not an owner, so it is tried again before being reported
+        deadline = time.monotonic() + self.PROBE_GRACE_S
         while True:
             fh = open(self.path, "a+", encoding="utf-8")  # noqa: SIM115 - held until release
             try:
@@ -55,6 +63,9 @@ class RunLock:
                 fh.seek(0)
                 holder = fh.read().strip()
                 fh.close()
+                if time.monotonic() < deadline:
+                    time.sleep(0.005)
+                    continue
                 raise StoreError(
                     f"run {self.run_uuid} is being executed by another normbox-lab process"
                     f"{f' (pid {holder})' if holder else ''}; wait for it to finish or pause "
