@@ -382,6 +382,17 @@ def data_from_store_run(store: Store, run_ref: int | str) -> dict[str, BrdfData]
     return {name: BrdfData.from_readings(name, rs) for name, rs in groups.items()}
 
 
+def half_polar_axes(fig: Any, nrow: int, ncol: int, k: int) -> Any:
+    """Panel k of an nrow × ncol grid: a polar half-plane for in-plane BRDFs (0° up, angles
+    clockwise, −90…90°)."""
+    ax = fig.add_subplot(nrow, ncol, k + 1, projection="polar")
+    ax.set_theta_zero_location("N")
+    ax.set_theta_direction(-1)
+    ax.set_thetamin(-90)
+    ax.set_thetamax(90)
+    return ax
+
+
 def polar_plot(data: BrdfData | None, fits: MaterialFit | dict[str, MaterialFit],
                wavelength_nm: float, theta_i_deg: Sequence[float] | None = None,
                title: str | None = None):
@@ -404,11 +415,7 @@ def polar_plot(data: BrdfData | None, fits: MaterialFit | dict[str, MaterialFit]
     fig = Figure(figsize=(3.2 * ncol, 2.6 * nrow + 0.6))
     th_fine = np.linspace(-89.0, 89.0, 357)
     for k, ti in enumerate(tis):
-        ax = fig.add_subplot(nrow, ncol, k + 1, projection="polar")
-        ax.set_theta_zero_location("N")
-        ax.set_theta_direction(-1)
-        ax.set_thetamin(-90)
-        ax.set_thetamax(90)
+        ax = half_polar_axes(fig, nrow, ncol, k)
         rmax = 0.0
         if data is not None:
             li = int(np.argmin(np.abs(data.wavelength_nm - wavelength_nm)))

@@ -19,7 +19,7 @@ from normbox_lab.analyze.compare import (
     ErrorModelResult,
     rating_class_range,
 )
-from normbox_lab.analyze.fit import fit_error_at
+from normbox_lab.analyze.fit import fit_error_at, half_polar_axes
 from normbox_lab.analyze.paper_figures import NSE_PAPER_SIGN, nse_paper_sign, signed
 from normbox_lab.analyze.report_style import (
     FONT_PT,
@@ -461,11 +461,7 @@ def fig_polar(data: Any, fit: Any, wavelength_nm: float) -> Any:
     fig = new_figure(7.5, 1.95 * nrow + 0.5)
     th_fine = np.linspace(-89.0, 89.0, 357)
     for k, ti in enumerate(tis):
-        ax = fig.add_subplot(nrow, ncol, k + 1, projection="polar")
-        ax.set_theta_zero_location("N")
-        ax.set_theta_direction(-1)
-        ax.set_thetamin(-90)
-        ax.set_thetamax(90)
+        ax = half_polar_axes(fig, nrow, ncol, k)
         rmax = 0.0
         if data is not None:
             li = int(np.argmin(np.abs(data.wavelength_nm - wavelength_nm)))

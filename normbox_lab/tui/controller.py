@@ -87,15 +87,6 @@ class ConsoleOperator:
             act_on_world(self.world, req)
         return choice
 
-    def pause_at_prompt(self) -> None:
-        """`p` while an operator prompt waits: pause now, before the reading the prompt
-        prepares (no one more patch to place first).  The prompt is withdrawn; the segment ends
-        `paused` and a resume asks it again."""
-        if self.engine is not None:
-            self.engine.stop()
-        if self.operator is not None:
-            self.operator.cancel("quit")
-
     def answer(self, choice: str) -> None:
         req = self.pending
         if req is None:
