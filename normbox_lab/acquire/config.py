@@ -267,8 +267,28 @@ def load_config(path: str | Path) -> LabConfig:
 
 
 def parse_config(text: str, path: str = "<config>") -> LabConfig:
+    data = _load_toml(text, path)
+    r = _Reader(text, path)
+    known_top = {"lab", "instruments", "geometry", "protocols", "render", "quality"}
+    for k in data:
+        if k not in known_top:
+            raise r.err(k, None, f"unknown table; expected one of {', '.join(sorted(known_top))}")
+    name, simulated, time_scale, seed, require_check_h = _parse_lab(r, data.get("lab"))
+    instruments = _parse_instruments(r, data.get("instruments"))
+    geometry = _parse_geometry(r, data.get("geometry"))
+    protocols = _parse_protocols(r, data.get("protocols"))
+    render = dict(r.table(data.get("render"), "render"))
+    if "quality" in render and render["quality"] not in ("quick", "default", "high"):
+        raise r.err("render", "quality", "must be quick, default or high")
+    quality = parse_limits(data.get("quality"), r.err)
+    return LabConfig(path, name, simulated, time_scale, seed, instruments, geometry, protocols,
+                     render, text, quality, require_check_h)
+
+
+def _load_toml(text: str, path: str) -> dict[str, Any]:
+    """The TOML document, or a ConfigError with the line of the syntax error."""
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         line = getattr(exc, "lineno", None)
         if line is None:
@@ -280,181 +300,205 @@ def parse_config(text: str, path: str = "<config>") -> LabConfig:
     except ValueError as exc:          # tomllib: an integer beyond Python's digit limit
         line = next((i for i, raw in enumerate(text.splitlines(), 1) if len(raw) > 4000), 1)
         raise ConfigError(path, line, "(value)", str(exc)) from None
-    loc = _Locator(text)
 
-    def err(table: str, key: str | None, message: str) -> ConfigError:
+
+class _Reader:
+    """The checks every table of the config shares; each error names file, line and field."""
+
+    def __init__(self, text: str, path: str) -> None:
+        self.path = path
+        self.loc = _Locator(text)
+
+    def err(self, table: str, key: str | None, message: str) -> ConfigError:
         where = f"{table}.{key}" if key else table
-        return ConfigError(path, loc.line_of(table, key), where, message)
+        return ConfigError(self.path, self.loc.line_of(table, key), where, message)
 
-    def table(obj: Any, name: str) -> dict[str, Any]:
+    def table(self, obj: Any, name: str) -> dict[str, Any]:
         if obj is None:
             return {}
         if not isinstance(obj, dict):
-            raise err(name.rsplit(".", 1)[0] if "." in name else "", name.rsplit(".", 1)[-1],
-                      "must be a table")
+            raise self.err(name.rsplit(".", 1)[0] if "." in name else "",
+                           name.rsplit(".", 1)[-1], "must be a table")
         return obj
 
-    def number(tab: str, d: dict[str, Any], key: str, default: float, *, minimum: float | None = None,
-               maximum: float | None = None, allow_none: bool = False) -> float | None:
+    def number(self, tab: str, d: dict[str, Any], key: str, default: float | None, *,
+               minimum: float | None = None, maximum: float | None = None,
+               allow_none: bool = False) -> float | None:
         v = d.get(key, default)
         if v is None and allow_none:
             return None
         if isinstance(v, bool) or not isinstance(v, (int, float)):
-            raise err(tab, key, f"must be a number, got {type(v).__name__} {v!r}")
+            raise self.err(tab, key, f"must be a number, got {type(v).__name__} {v!r}")
         if not (abs(v) < 1e300 and math.isfinite(v)):      # (an int beyond float range too)
-            raise err(tab, key, "must be finite")
+            raise self.err(tab, key, "must be finite")
         if minimum is not None and v < minimum:
-            raise err(tab, key, f"must be ≥ {minimum}, got {v}")
+            raise self.err(tab, key, f"must be ≥ {minimum}, got {v}")
         if maximum is not None and v > maximum:
-            raise err(tab, key, f"must be ≤ {maximum}, got {v}")
+            raise self.err(tab, key, f"must be ≤ {maximum}, got {v}")
         return float(v)
 
-    known_top = {"lab", "instruments", "geometry", "protocols", "render", "quality"}
-    for k in data:
-        if k not in known_top:
-            raise err(k, None, f"unknown table; expected one of {', '.join(sorted(known_top))}")
 
-    lab = table(data.get("lab"), "lab")
+def _parse_lab(r: _Reader, obj: Any) -> tuple[str, bool, float | None, int, float | None]:
+    """[lab]: name, simulated, time_scale, seed, require_check_h."""
+    lab = r.table(obj, "lab")
     for k in lab:
         if k not in ("name", "simulated", "time_scale", "seed", "require_check_h"):
-            raise err("lab", k, "unknown field")
+            raise r.err("lab", k, "unknown field")
     name = lab.get("name", "Normbox")
     if not isinstance(name, str):
-        raise err("lab", "name", "must be a string")
+        raise r.err("lab", "name", "must be a string")
     simulated = lab.get("simulated", False)
     if not isinstance(simulated, bool):
-        raise err("lab", "simulated", "must be true or false")
-    time_scale = number("lab", lab, "time_scale", 0.0 if simulated else None, minimum=0.0,
-                        allow_none=not simulated) if ("time_scale" in lab or simulated) else None
+        raise r.err("lab", "simulated", "must be true or false")
+    time_scale = r.number("lab", lab, "time_scale", 0.0 if simulated else None, minimum=0.0,
+                          allow_none=not simulated) if ("time_scale" in lab or simulated) else None
     seed = lab.get("seed", 0)
     if isinstance(seed, bool) or not isinstance(seed, int):
-        raise err("lab", "seed", "must be an integer")
-    require_check_h = number("lab", lab, "require_check_h", None, minimum=0.0,
-                             allow_none=True) if "require_check_h" in lab else None
+        raise r.err("lab", "seed", "must be an integer")
+    require_check_h = r.number("lab", lab, "require_check_h", None, minimum=0.0,
+                               allow_none=True) if "require_check_h" in lab else None
+    return name, simulated, time_scale, seed, require_check_h
 
-    def calibration(tab: str, spec: Any) -> Calibration | None:
-        if spec is None:
-            return None
-        if not isinstance(spec, dict):
-            raise err(tab.rsplit(".", 1)[0], "calibration", "must be a table")
-        for k in spec:
-            if k not in CALIBRATION_FIELDS:
-                raise err(tab, k, f"unknown field; known: {', '.join(CALIBRATION_FIELDS)}")
-        for k, (required, want) in CALIBRATION_FIELDS.items():
-            if k not in spec:
-                if required:
-                    raise err(tab, None, f"{k} missing (a calibration names certificate, "
-                                         "date, due, laboratory and uncertainty_percent)")
-                continue
-            v = spec[k]
-            if isinstance(v, bool) or not isinstance(v, want) or (
-                    want is datetime.date and isinstance(v, datetime.datetime)):
-                kind = "a date (2026-03-02)" if want is datetime.date else \
-                    "a string" if want is str else "a number"
-                raise err(tab, k, f"must be {kind}, got {v!r}")
-            if want is str and not v.strip():
-                raise err(tab, k, "must not be empty")
-        if spec["due"] <= spec["date"]:
-            raise err(tab, "due", f"must be after the calibration date {spec['date']}")
-        u = number(tab, spec, "uncertainty_percent", 0.0, minimum=0.0, maximum=100.0)
-        k_cov = number(tab, spec, "coverage_k", 2.0, minimum=1.0, maximum=10.0)
-        digest = ""
-        rfile = spec.get("responsivity_file", "")
-        if rfile:
-            where = Path(path).parent / rfile
-            try:
-                digest = hashlib.sha256(where.read_bytes()).hexdigest()
-            except OSError as exc:
-                raise err(tab, "responsivity_file", f"cannot read {where}: "
-                          f"{exc.strerror or exc}") from None
-        return Calibration(spec["certificate"].strip(), spec["date"], spec["due"],
-                           spec["laboratory"].strip(), float(u or 0.0), float(k_cov or 2.0),
-                           rfile, digest)
 
+def _parse_calibration(r: _Reader, tab: str, spec: Any) -> Calibration | None:
+    """[instruments.ROLE.calibration]: the certificate in force (None: none stated)."""
+    if spec is None:
+        return None
+    if not isinstance(spec, dict):
+        raise r.err(tab.rsplit(".", 1)[0], "calibration", "must be a table")
+    for k in spec:
+        if k not in CALIBRATION_FIELDS:
+            raise r.err(tab, k, f"unknown field; known: {', '.join(CALIBRATION_FIELDS)}")
+    for k, (required, want) in CALIBRATION_FIELDS.items():
+        if k not in spec:
+            if required:
+                raise r.err(tab, None, f"{k} missing (a calibration names certificate, "
+                                       "date, due, laboratory and uncertainty_percent)")
+            continue
+        v = spec[k]
+        if isinstance(v, bool) or not isinstance(v, want) or (
+                want is datetime.date and isinstance(v, datetime.datetime)):
+            kind = "a date (2026-03-02)" if want is datetime.date else \
+                "a string" if want is str else "a number"
+            raise r.err(tab, k, f"must be {kind}, got {v!r}")
+        if want is str and not v.strip():
+            raise r.err(tab, k, "must not be empty")
+    if spec["due"] <= spec["date"]:
+        raise r.err(tab, "due", f"must be after the calibration date {spec['date']}")
+    u = r.number(tab, spec, "uncertainty_percent", 0.0, minimum=0.0, maximum=100.0)
+    k_cov = r.number(tab, spec, "coverage_k", 2.0, minimum=1.0, maximum=10.0)
+    digest = ""
+    rfile = spec.get("responsivity_file", "")
+    if rfile:
+        where = Path(r.path).parent / rfile
+        try:
+            digest = hashlib.sha256(where.read_bytes()).hexdigest()
+        except OSError as exc:
+            raise r.err(tab, "responsivity_file", f"cannot read {where}: "
+                        f"{exc.strerror or exc}") from None
+    return Calibration(spec["certificate"].strip(), spec["date"], spec["due"],
+                       spec["laboratory"].strip(), float(u or 0.0), float(k_cov or 2.0),
+                       rfile, digest)
+
+
+def _parse_instruments(r: _Reader, obj: Any) -> dict[str, InstrumentConfig]:
+    """[instruments.ROLE] for every role; the required roles must all be there."""
     instruments: dict[str, InstrumentConfig] = {}
-    inst_tab = table(data.get("instruments"), "instruments")
-    for role, spec in inst_tab.items():
-        tab = f"instruments.{role}"
-        if role not in ROLES:
-            raise err(tab, None, f"unknown instrument role; known: {', '.join(ROLES)}")
-        if not isinstance(spec, dict):
-            raise err("instruments", role, "must be a table")
-        driver = spec.get("driver")
-        choices = drivers_for(role)
-        if not isinstance(driver, str) or driver not in choices:
-            raise err(tab, "driver", f"must be one of {', '.join(choices)}, got {driver!r}")
-        port = spec.get("port")
-        if not isinstance(port, str) or not port:
-            raise err(tab, "port", "must be a non-empty string (device path, socket:// or "
-                      "sim:// URL)")
-        serial_number = spec.get("serial_number", "")
-        if not isinstance(serial_number, str):
-            raise err(tab, "serial_number", f"must be a string, got {serial_number!r}")
-        cal = calibration(f"{tab}.calibration", spec.get("calibration"))
-        options = {k: v for k, v in spec.items() if k not in INSTRUMENT_KEYS}
-        allowed = driver_options(driver)
-        for k, v in options.items():
-            if k not in allowed:
-                raise err(tab, k, f"unknown option for driver {driver!r}; known: "
-                          f"{', '.join(sorted(allowed))}")
-            want = allowed[k]
-            ok = (isinstance(v, bool) if want is bool else isinstance(v, str) if want is str
-                  else isinstance(v, int) and not isinstance(v, bool) if want is int
-                  else isinstance(v, (int, float)) and not isinstance(v, bool))
-            if not ok:
-                raise err(tab, k, f"must be {want.__name__}, got {type(v).__name__} {v!r}")
-            if want in (int, float) and not (abs(v) < 1e12 and math.isfinite(v)):
-                raise err(tab, k, f"must be a finite number of sensible size, got {v!r}")
-            if want is float:
-                options[k] = float(v)
-        if "baud" in options:
-            b = options["baud"]
-            rates = entry(driver).baud_rates or BAUD_RATES     # the driver's, from the registry
-            if len(rates) == 1 and b != rates[0]:
-                raise err(tab, "baud", f"{driver} runs at {rates[0]} baud only; remove the line")
-            if isinstance(b, bool) or not isinstance(b, int) or b not in rates:
-                raise err(tab, "baud", f"must be one of {rates}, got {b!r}")
-        if "min_angle_deg" in options and "max_angle_deg" in options \
-                and options["min_angle_deg"] >= options["max_angle_deg"]:
-            raise err(tab, "max_angle_deg", "must be greater than min_angle_deg")
-        instruments[role] = InstrumentConfig(role, driver, port, options, serial_number, cal)
+    for role, spec in r.table(obj, "instruments").items():
+        instruments[role] = _parse_instrument(r, role, spec)
     for role in REQUIRED_ROLES:
         if role not in instruments:
-            raise ConfigError(path, loc.line_of("instruments") or 1, f"instruments.{role}",
+            raise ConfigError(r.path, r.loc.line_of("instruments") or 1, f"instruments.{role}",
                               "missing; every lab needs a radiometer, a rotator and a sphere")
+    return instruments
 
-    geo_tab = table(data.get("geometry"), "geometry")
+
+def _parse_instrument(r: _Reader, role: str, spec: Any) -> InstrumentConfig:
+    tab = f"instruments.{role}"
+    if role not in ROLES:
+        raise r.err(tab, None, f"unknown instrument role; known: {', '.join(ROLES)}")
+    if not isinstance(spec, dict):
+        raise r.err("instruments", role, "must be a table")
+    driver = spec.get("driver")
+    choices = drivers_for(role)
+    if not isinstance(driver, str) or driver not in choices:
+        raise r.err(tab, "driver", f"must be one of {', '.join(choices)}, got {driver!r}")
+    port = spec.get("port")
+    if not isinstance(port, str) or not port:
+        raise r.err(tab, "port", "must be a non-empty string (device path, socket:// or "
+                    "sim:// URL)")
+    serial_number = spec.get("serial_number", "")
+    if not isinstance(serial_number, str):
+        raise r.err(tab, "serial_number", f"must be a string, got {serial_number!r}")
+    cal = _parse_calibration(r, f"{tab}.calibration", spec.get("calibration"))
+    options = _driver_options(r, tab, driver,
+                              {k: v for k, v in spec.items() if k not in INSTRUMENT_KEYS})
+    return InstrumentConfig(role, driver, port, options, serial_number, cal)
+
+
+def _driver_options(r: _Reader, tab: str, driver: str,
+                    options: dict[str, Any]) -> dict[str, Any]:
+    """The driver's own options of an instrument table, checked against the registry's kinds
+    (floats made float)."""
+    allowed = driver_options(driver)
+    for k, v in options.items():
+        if k not in allowed:
+            raise r.err(tab, k, f"unknown option for driver {driver!r}; known: "
+                        f"{', '.join(sorted(allowed))}")
+        want = allowed[k]
+        ok = (isinstance(v, bool) if want is bool else isinstance(v, str) if want is str
+              else isinstance(v, int) and not isinstance(v, bool) if want is int
+              else isinstance(v, (int, float)) and not isinstance(v, bool))
+        if not ok:
+            raise r.err(tab, k, f"must be {want.__name__}, got {type(v).__name__} {v!r}")
+        if want in (int, float) and not (abs(v) < 1e12 and math.isfinite(v)):
+            raise r.err(tab, k, f"must be a finite number of sensible size, got {v!r}")
+        if want is float:
+            options[k] = float(v)
+    if "baud" in options:
+        b = options["baud"]
+        rates = entry(driver).baud_rates or BAUD_RATES     # the driver's, from the registry
+        if len(rates) == 1 and b != rates[0]:
+            raise r.err(tab, "baud", f"{driver} runs at {rates[0]} baud only; remove the line")
+        if isinstance(b, bool) or not isinstance(b, int) or b not in rates:
+            raise r.err(tab, "baud", f"must be one of {rates}, got {b!r}")
+    if "min_angle_deg" in options and "max_angle_deg" in options \
+            and options["min_angle_deg"] >= options["max_angle_deg"]:
+        raise r.err(tab, "max_angle_deg", "must be greater than min_angle_deg")
+    return options
+
+
+def _parse_geometry(r: _Reader, obj: Any) -> NormboxGeometry:
+    """[geometry]: every field has the Normbox default."""
+    geo_tab = r.table(obj, "geometry")
     geo_fields = {f.name: f.default for f in fields(NormboxGeometry)}
     for k in geo_tab:
         if k not in geo_fields:
-            raise err("geometry", k, f"unknown field; known: {', '.join(geo_fields)}")
-    geometry = NormboxGeometry(**{k: number("geometry", geo_tab, k, d, minimum=0.0)
+            raise r.err("geometry", k, f"unknown field; known: {', '.join(geo_fields)}")
+    geometry = NormboxGeometry(**{k: r.number("geometry", geo_tab, k, d, minimum=0.0)
                                  for k, d in geo_fields.items()})
     if geometry.aperture_x_mm >= geometry.box_inner_mm or \
             geometry.aperture_y_mm >= geometry.box_inner_mm:
-        raise err("geometry", "aperture_x_mm", "the aperture must be smaller than the box")
+        raise r.err("geometry", "aperture_x_mm", "the aperture must be smaller than the box")
     if not 0 < geometry.radiometer_view_deg <= 10:
-        raise err("geometry", "radiometer_view_deg", "must be in (0, 10] degrees")
+        raise r.err("geometry", "radiometer_view_deg", "must be in (0, 10] degrees")
+    return geometry
 
+
+def _parse_protocols(r: _Reader, obj: Any) -> dict[str, dict[str, Any]]:
+    """[protocols.NAME]: parameter defaults, checked against a shipped protocol's own."""
     protocols: dict[str, dict[str, Any]] = {}
-    for pname, pvals in table(data.get("protocols"), "protocols").items():
+    for pname, pvals in r.table(obj, "protocols").items():
         if not isinstance(pvals, dict):
-            raise err("protocols", pname, "must be a table of parameter defaults")
+            raise r.err("protocols", pname, "must be a table of parameter defaults")
         shipped = _shipped_parameters(pname)
         for key, value in pvals.items():
             problem = _parameter_problem(shipped, key, value)
             if problem:
-                raise err(f"protocols.{pname}", key, problem)
-        _check_protocol_limits(pname, shipped, pvals, err)
+                raise r.err(f"protocols.{pname}", key, problem)
+        _check_protocol_limits(pname, shipped, pvals, r.err)
         protocols[pname] = dict(pvals)
-
-    render = dict(table(data.get("render"), "render"))
-    if "quality" in render and render["quality"] not in ("quick", "default", "high"):
-        raise err("render", "quality", "must be quick, default or high")
-
-    quality = parse_limits(data.get("quality"), err)
-    return LabConfig(path, name, simulated, time_scale, seed, instruments, geometry, protocols,
-                     render, text, quality, require_check_h)
+    return protocols
 
 
 SIM_CONFIG_TEMPLATE = """\
