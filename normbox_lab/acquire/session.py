@@ -127,15 +127,8 @@ def open_run(protocol: str | None = None, *, store: store_api.Store | str | Path
         store = Store(store)
         closers.append(store.close)
     try:
-        if resume is not None:
-            what = _resumed_protocol(store, resume, protocol, params)
-            if world is None:
-                world = what.recorded_world
-            elif isinstance(world, str):
-                _check_same_world(what.record.uuid, what.recorded_world, world, force)
-        else:
-            what = _new_protocol(protocol, params, config if config is not None
-                                 else _config_of(lab), lab_defaults)
+        what, world = _what_to_run(store, protocol, params, config if config is not None
+                                   else _config_of(lab), lab_defaults, resume, world, force)
         _require_recent_check(what.protocol, config if config is not None else _config_of(lab),
                               store)
         info: dict[str, Any] = {}
@@ -144,14 +137,8 @@ def open_run(protocol: str | None = None, *, store: store_api.Store | str | Path
                                           fault_policy)
             closers.append(lab.close)
             info = {"world": world, "lab": config.path}
-        extra = dict(engine_options.get("segment_info") or {})
-        if what.record is not None:
-            if "world" in extra and not info:
-                _check_same_world(what.record.uuid, what.recorded_world, str(extra["world"]),
-                                  force)
-            _check_same_lab(what.record.uuid, what.record.lab_config,
-                            config if config is not None else _config_of(lab), force)
         current = config if config is not None else _config_of(lab)
+        _check_resumed_lab(what, current, info, engine_options.get("segment_info"), force)
         if current is not None:
             info.setdefault("lab", current.path)
             info.update(time_scale=current.time_scale, seed=current.seed)
@@ -167,6 +154,34 @@ def open_run(protocol: str | None = None, *, store: store_api.Store | str | Path
         raise
     return OpenRun(engine, lab, store, plan,
                    what.record.id if what.record is not None else None, closers)
+
+
+def _what_to_run(store: store_api.Store, protocol: str | None,
+                 params: Mapping[str, Any] | None, config: Any, lab_defaults: bool,
+                 resume: int | str | None, world: str | Any | None,
+                 force: bool) -> tuple[_ProtocolRun, str | Any | None]:
+    """The protocol and parameters to run (a new run's, or the resumed run's), and the world:
+    a resume defaults to its recorded world and refuses another by name (unless `force`)."""
+    if resume is None:
+        return _new_protocol(protocol, params, config, lab_defaults), world
+    what = _resumed_protocol(store, resume, protocol, params)
+    if world is None:
+        world = what.recorded_world
+    elif isinstance(world, str):
+        _check_same_world(what.record.uuid, what.recorded_world, world, force)
+    return what, world
+
+
+def _check_resumed_lab(what: _ProtocolRun, current: Any, info: Mapping[str, Any],
+                       segment_info: Mapping[str, Any] | None, force: bool) -> None:
+    """A resume runs under the world and the lab config its run recorded (unless `force`):
+    a built lab names its world in `segment_info`; a lab built here was checked already."""
+    if what.record is None:
+        return
+    if "world" in (segment_info or {}) and not info:
+        _check_same_world(what.record.uuid, what.recorded_world,
+                          str(dict(segment_info or {})["world"]), force)
+    _check_same_lab(what.record.uuid, what.record.lab_config, current, force)
 
 
 @dataclass
