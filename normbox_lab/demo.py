@@ -75,9 +75,19 @@ def error_spec(opts: DemoOptions) -> str | None:
     )
 
     if opts.truth != "paper":
-        return None if opts.errors is None else parse_error_spec(opts.errors).spec()
-    base = type("Cfg", (), {"render": {"errors": PAPER_SPEC}, "seed": opts.seed})()
-    return error_sources_from_config(base, opts.errors).spec()
+        if opts.errors is None:
+            return None
+        errors = parse_error_spec(opts.errors, seed=opts.seed)
+    else:
+        base = type("Cfg", (), {"render": {"errors": PAPER_SPEC}, "seed": opts.seed})()
+        errors = error_sources_from_config(base, opts.errors)
+    text = errors.spec()
+    # `spec()` names the sources only: a `seed=N` of --errors other than the lab's seed (the
+    # world's draws' seed when the spec names none) is written with them, so the lab config,
+    # the stored run and a re-run draw the same errors
+    if errors.seed != opts.seed and text != "off":
+        text += f",seed={errors.seed}"
+    return text
 
 
 def _with_query(port: str, **params: str) -> str:
