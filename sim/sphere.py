@@ -198,18 +198,7 @@ class SphereEmulator(core.LineEmulator):
         if not text:
             return
         now = self.clock.now_s()
-        if self.on and not self.failed and self.faults.fires("lamp-fail"):
-            self.failed = True
-            self.errors.append(201)
-        if self.on and not self.failed and self.faults.fires("unstable"):
-            self.settle_until_s = now + self.faults.parameter("unstable", 60.0)
-            self.dip, self.dip_since_s = 0.02, now
-        if self.drift_since_s is None and self.faults.fires("lamp-drift"):
-            self.drift_since_s = now
-        if not self.flicker_rms and self.faults.fires("flicker"):
-            self.flicker_rms = self.faults.parameter("flicker", 2.0) / 100.0
-        if self.stuck is None and self.on and self.faults.fires("monitor-stuck"):
-            self.stuck = (now, NOMINAL_LUMINANCE_CD_M2 * self.relative_output())
+        self._fire_faults(now)
         head, _, arg = text.partition(" ")
         head = head.upper()
         arg = arg.strip()
@@ -225,42 +214,15 @@ class SphereEmulator(core.LineEmulator):
             code = self.errors.pop(0) if self.errors else 0
             self._ok(f'{code},"{ERRORS.get(code, "No error")}"')
         elif head == "OUTP":
-            if arg.upper() not in ("ON", "OFF", "1", "0"):
-                self._error(-224)
-                return
-            want = arg.upper() in ("ON", "1")
-            if want and not self.on:
-                self.on_since_s = now
-                self.dip = 0.0
-            if not want:
-                self.failed = False
-            self.on = want
-            self._ok()
+            self._output(arg, now)
         elif head == "OUTP?":
             self._ok("1" if self.on else "0")
         elif head == "INT":
-            try:
-                level = float(arg)
-            except ValueError:
-                self._error(-224)
-                return
-            if not 0.0 <= level <= 100.0:
-                self._error(-222)
-                return
-            if level != self.level_percent and self.on:
-                self.settle_until_s = now + LEVEL_SETTLE_S
-            self.level_percent = level
-            self._ok()
+            self._intensity(arg, now)
         elif head == "INT?":
             self._ok(f"{self.level_percent:.2f}")
         elif head == "SPEC:PRES":
-            if arg.upper() not in self.presets:
-                self._error(-224)
-                return
-            self.preset = arg.upper()
-            if self.on:
-                self.settle_until_s = now + LEVEL_SETTLE_S
-            self._ok()
+            self._preset(arg, now)
         elif head == "SPEC:PRES?":
             self._ok(self.preset)
         elif head == "STAT?":
@@ -278,18 +240,7 @@ class SphereEmulator(core.LineEmulator):
             lum = NOMINAL_LUMINANCE_CD_M2 * self.relative_output()
             self._ok(f"{lum if self.stuck is None else self.stuck[1]:.2f}")
         elif head == "PANEL:MAP?":
-            if not arg:
-                self._ok(",".join(f"{v:.5f}" for v in self.map.ravel()))
-                return
-            try:
-                r, c = (int(x) for x in arg.split(","))
-            except ValueError:
-                self._error(-224)
-                return
-            if not (0 <= r < 5 and 0 <= c < 5):
-                self._error(-222)
-                return
-            self._ok(f"{self.map[r, c]:.5f}")
+            self._panel_map(arg)
         elif head == "TEMP?":
             warm = 0.0 if not self.on else 1.0 - math.exp(-(now - self.on_since_s) / 300.0)
             self._ok(f"{25.0 + 10.0 * warm:.1f}")
@@ -299,6 +250,75 @@ class SphereEmulator(core.LineEmulator):
             self._ok()
         else:
             self._error(-100)
+
+    def _fire_faults(self, now: float) -> None:
+        """The seeded faults that may start at this command (each draws in this order)."""
+        if self.on and not self.failed and self.faults.fires("lamp-fail"):
+            self.failed = True
+            self.errors.append(201)
+        if self.on and not self.failed and self.faults.fires("unstable"):
+            self.settle_until_s = now + self.faults.parameter("unstable", 60.0)
+            self.dip, self.dip_since_s = 0.02, now
+        if self.drift_since_s is None and self.faults.fires("lamp-drift"):
+            self.drift_since_s = now
+        if not self.flicker_rms and self.faults.fires("flicker"):
+            self.flicker_rms = self.faults.parameter("flicker", 2.0) / 100.0
+        if self.stuck is None and self.on and self.faults.fires("monitor-stuck"):
+            self.stuck = (now, NOMINAL_LUMINANCE_CD_M2 * self.relative_output())
+
+    def _output(self, arg: str, now: float) -> None:
+        """OUTP ON|OFF|1|0: the lamp on (warm-up starts) or off (a failure clears)."""
+        if arg.upper() not in ("ON", "OFF", "1", "0"):
+            self._error(-224)
+            return
+        want = arg.upper() in ("ON", "1")
+        if want and not self.on:
+            self.on_since_s = now
+            self.dip = 0.0
+        if not want:
+            self.failed = False
+        self.on = want
+        self._ok()
+
+    def _intensity(self, arg: str, now: float) -> None:
+        """INT <0–100>: the level in percent; a change while on settles again."""
+        try:
+            level = float(arg)
+        except ValueError:
+            self._error(-224)
+            return
+        if not 0.0 <= level <= 100.0:
+            self._error(-222)
+            return
+        if level != self.level_percent and self.on:
+            self.settle_until_s = now + LEVEL_SETTLE_S
+        self.level_percent = level
+        self._ok()
+
+    def _preset(self, arg: str, now: float) -> None:
+        """SPEC:PRES <name>: a spectral preset; a change while on settles again."""
+        if arg.upper() not in self.presets:
+            self._error(-224)
+            return
+        self.preset = arg.upper()
+        if self.on:
+            self.settle_until_s = now + LEVEL_SETTLE_S
+        self._ok()
+
+    def _panel_map(self, arg: str) -> None:
+        """PANEL:MAP? [row,col]: the whole 5 × 5 map, or one point of it."""
+        if not arg:
+            self._ok(",".join(f"{v:.5f}" for v in self.map.ravel()))
+            return
+        try:
+            r, c = (int(x) for x in arg.split(","))
+        except ValueError:
+            self._error(-224)
+            return
+        if not (0 <= r < 5 and 0 <= c < 5):
+            self._error(-222)
+            return
+        self._ok(f"{self.map[r, c]:.5f}")
 
     def next_state_s(self) -> float | None:
         """When the state changes next by itself (the end of settling)."""
