@@ -41,6 +41,48 @@ def _scalar(value: Any) -> float:
         return float(value[0])
 
 
+def _ggx_fresnel_lobes(dr: Any, mi: Any, alpha: Any, wi: Any, wo: Any, active: Any,
+                       eta: Any) -> tuple[Any, Any, Any]:
+    """(valid, F, D·G1·G1 / (4 cosθi cosθo)) for local directions, wi.z > 0: GGX D, Smith's
+    separable G1, Cook-Torrance's unpolarised Fresnel with η."""
+    cos_i = mi.Frame3f.cos_theta(wi)
+    cos_o = mi.Frame3f.cos_theta(wo)
+    valid = active & (cos_i > 0) & (cos_o > 0)
+    h = dr.normalize(wi + wo)
+    cos_h = mi.Frame3f.cos_theta(h)
+    a2 = alpha * alpha
+    c2 = cos_h * cos_h
+    d = a2 / (dr.pi * dr.square(c2 * (a2 - 1.0) + 1.0))
+    d = dr.select(cos_h > 0, d, 0.0)
+
+    def g1(cos_t: Any) -> Any:
+        cc = dr.clip(cos_t * cos_t, 1e-30, 1.0)
+        return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cc) / cc))
+
+    geo = d * g1(cos_i) * g1(cos_o) / (4.0 * dr.select(valid, cos_i * cos_o, 1.0))
+    geo = dr.select(valid, geo, 0.0)
+    b = dr.clip(dr.dot(wi, h), 0.0, 1.0)
+    g = dr.sqrt(dr.fmax(eta * eta - 1.0 + b * b, 0.0))
+    fa = (g - b) / (g + b)
+    fb = (b * (g + b) - 1.0) / (b * (g - b) + 1.0)
+    return valid, 0.5 * fa * fa * (1.0 + fb * fb), geo
+
+
+def _mixture_pdf(dr: Any, mi: Any, alpha: Any, p_diffuse: Any, wi: Any, wo: Any,
+                 active: Any) -> Any:
+    """The pdf of the two-lobe sampling: cosine hemisphere with probability `p_diffuse`, GGX
+    visible normals otherwise."""
+    cos_o = mi.Frame3f.cos_theta(wo)
+    pdf_d = mi.warp.square_to_cosine_hemisphere_pdf(wo)
+    distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, alpha, True)
+    m = dr.normalize(wi + wo)
+    dwh = dr.dot(wo, m)
+    pdf_s = distr.pdf(wi, m) / (4.0 * dr.abs(dwh))
+    pdf_s = dr.select(dwh > 0, pdf_s, 0.0)
+    pdf = p_diffuse * pdf_d + (1.0 - p_diffuse) * pdf_s
+    return dr.select(active & (cos_o > 0), pdf, 0.0)
+
+
 def two_lobe_base() -> type:
     """What every BSDF of the model shares, however it stores kd and ks: the GGX geometry and
     Cook-Torrance Fresnel (`_lobes`), the two-lobe sampling (cosine hemisphere with probability
@@ -68,38 +110,10 @@ def two_lobe_base() -> type:
 
         def _lobes(self, wi: Any, wo: Any, active: Any, eta: Any) -> tuple[Any, Any, Any]:
             """(valid, F, D·G1·G1 / (4 cosθi cosθo)) for local directions, wi.z > 0."""
-            cos_i = mi.Frame3f.cos_theta(wi)
-            cos_o = mi.Frame3f.cos_theta(wo)
-            valid = active & (cos_i > 0) & (cos_o > 0)
-            h = dr.normalize(wi + wo)
-            cos_h = mi.Frame3f.cos_theta(h)
-            a2 = self.alpha * self.alpha
-            c2 = cos_h * cos_h
-            d = a2 / (dr.pi * dr.square(c2 * (a2 - 1.0) + 1.0))
-            d = dr.select(cos_h > 0, d, 0.0)
-
-            def g1(cos_t: Any) -> Any:
-                cc = dr.clip(cos_t * cos_t, 1e-30, 1.0)
-                return 2.0 / (1.0 + dr.sqrt(1.0 + a2 * (1.0 - cc) / cc))
-
-            geo = d * g1(cos_i) * g1(cos_o) / (4.0 * dr.select(valid, cos_i * cos_o, 1.0))
-            geo = dr.select(valid, geo, 0.0)
-            b = dr.clip(dr.dot(wi, h), 0.0, 1.0)
-            g = dr.sqrt(dr.fmax(eta * eta - 1.0 + b * b, 0.0))
-            fa = (g - b) / (g + b)
-            fb = (b * (g + b) - 1.0) / (b * (g - b) + 1.0)
-            return valid, 0.5 * fa * fa * (1.0 + fb * fb), geo
+            return _ggx_fresnel_lobes(dr, mi, self.alpha, wi, wo, active, eta)
 
         def _pdf(self, wi: Any, wo: Any, active: Any) -> Any:
-            cos_o = mi.Frame3f.cos_theta(wo)
-            pdf_d = mi.warp.square_to_cosine_hemisphere_pdf(wo)
-            distr = mi.MicrofacetDistribution(mi.MicrofacetType.GGX, self.alpha, True)
-            m = dr.normalize(wi + wo)
-            dwh = dr.dot(wo, m)
-            pdf_s = distr.pdf(wi, m) / (4.0 * dr.abs(dwh))
-            pdf_s = dr.select(dwh > 0, pdf_s, 0.0)
-            pdf = self.p_diffuse * pdf_d + (1.0 - self.p_diffuse) * pdf_s
-            return dr.select(active & (cos_o > 0), pdf, 0.0)
+            return _mixture_pdf(dr, mi, self.alpha, self.p_diffuse, wi, wo, active)
 
         @staticmethod
         def _to_front(si: Any) -> tuple[Any, Any]:
