@@ -29,6 +29,33 @@ GRID_NM = np.arange(GRID_MIN_NM, 830.0 + 0.5, GRID_STEP_NM)
 _CLASSES: dict[str, Any] = {}
 
 
+def glossy_share(kd: np.ndarray, ks: np.ndarray, alpha: float) -> float:
+    """The lobe choice: the share of glossy samples, more for smooth materials with real ks
+    (0 without ks, else 0.15–0.5)."""
+    ks_mean = float(np.mean(ks))
+    kd_mean = float(np.mean(kd))
+    return 0.0 if ks_mean <= 0 else min(0.5, max(0.15, 0.25 / max(alpha, 0.1)
+                                                 * ks_mean / (ks_mean + kd_mean)))
+
+
+def _gather_spectrum(dr: Any, mi: Any, jit: bool, values: Any, wavelengths: Any,
+                     active: Any) -> Any:
+    """The spectrum on `GRID_NM` interpolated linearly at the path's wavelengths."""
+    if not jit:          # scalar variants: one path at a time, plain numpy
+        return mi.UnpolarizedSpectrum(*[float(np.interp(float(w), GRID_NM, values))
+                                        for w in wavelengths])
+    n = len(GRID_NM)
+    out = []
+    for k in range(len(wavelengths)):
+        t = dr.clip((wavelengths[k] - GRID_MIN_NM) / GRID_STEP_NM, 0.0, n - 1.0)
+        i0 = cell_index(dr, mi, t, n - 1.0, active)
+        w = dr.select(dr.isfinite(t), t - mi.Float(i0), 0.0)
+        v0 = dr.gather(mi.Float, values, i0, active)
+        v1 = dr.gather(mi.Float, values, i0 + 1, active)
+        out.append(dr.fma(w, v1 - v0, v0))
+    return mi.UnpolarizedSpectrum(*out)
+
+
 def bsdf_class() -> Any:
     """The `NormboxBSDF` class for the current Mitsuba variant (registered as "normbox")."""
     import drjit as dr
@@ -48,19 +75,7 @@ def bsdf_class() -> Any:
         return dr.opaque(mi.Float, float(value)) if jit else float(value)
 
     def gather_spectrum(values: Any, wavelengths: Any, active: Any) -> Any:
-        if not jit:          # scalar variants: one path at a time, plain numpy
-            return mi.UnpolarizedSpectrum(*[float(np.interp(float(w), GRID_NM, values))
-                                            for w in wavelengths])
-        n = len(GRID_NM)
-        out = []
-        for k in range(len(wavelengths)):
-            t = dr.clip((wavelengths[k] - GRID_MIN_NM) / GRID_STEP_NM, 0.0, n - 1.0)
-            i0 = cell_index(dr, mi, t, n - 1.0, active)
-            w = dr.select(dr.isfinite(t), t - mi.Float(i0), 0.0)
-            v0 = dr.gather(mi.Float, values, i0, active)
-            v1 = dr.gather(mi.Float, values, i0 + 1, active)
-            out.append(dr.fma(w, v1 - v0, v0))
-        return mi.UnpolarizedSpectrum(*out)
+        return _gather_spectrum(dr, mi, jit, values, wavelengths, active)
 
     from normbox_lab.predict.standalone_bsdf import two_lobe_base
 
@@ -84,12 +99,7 @@ def bsdf_class() -> Any:
             self.c = opaque(c)
             self.deta = opaque(float(deta_per_100nm) / 100.0)
             self.inv_sigma2 = opaque(1.0 / float(sigma) ** 2)
-            # the lobe choice: more glossy sampling for smooth materials with real ks
-            ks_mean = float(np.mean(ks))
-            kd_mean = float(np.mean(kd))
-            p_glossy = 0.0 if ks_mean <= 0 else min(0.5, max(0.15, 0.25 / max(alpha, 0.1)
-                                                             * ks_mean / (ks_mean + kd_mean)))
-            self.p_diffuse = opaque(1.0 - p_glossy)
+            self.p_diffuse = opaque(1.0 - glossy_share(kd, ks, alpha))
 
         def set_material(self, material: Any) -> None:
             """From a `normbox_lab.predict.materials.Material`."""
