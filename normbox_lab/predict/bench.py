@@ -260,6 +260,23 @@ def _parser() -> argparse.ArgumentParser:
     return p
 
 
+@dataclass
+class _Sweep:
+    """What every configuration of a bench run shares: the output, the renderers, the scene."""
+
+    emit: Callable[[str], None]
+    box: Any                              # FastNormbox
+    stock_view: Callable[..., Any]        # predict.render.render_view
+    quality: Callable[..., Any]           # predict.render.Quality
+    sweep: list[Any]                      # the 24 patch materials
+    wall: Any
+    lamp: Any
+    colour: Colour
+    targets: dict[str, float]
+    amortised: bool
+    warm_up_from_s: float                 # perf_counter at the fast warm-up's start
+
+
 def run_bench_predict(out: TextIO = sys.stdout, *, argv: Sequence[str] | None = None,
                       baseline: Sequence[tuple[int, float]] | None = None) -> int:
     """Run the benchmark (options as on the command line); print to `out`."""
@@ -274,31 +291,17 @@ def run_bench_predict(out: TextIO = sys.stdout, *, argv: Sequence[str] | None = 
         targets = {"band": 0.01, "Y": 0.01, "ΔE00": 0.2}
         n_rep, n_seeds = 1, 6
         configs = list(baseline or ((19, 30.0), (24, 90.0)))
-    amortised = not a.no_amortised
-
-    from normbox_lab.predict import materials as mats
-    from normbox_lab.predict.fastrender import FastNormbox
-    from normbox_lab.predict.mitsuba_setup import jit_variant
-    from normbox_lab.predict.render import BAND_CENTRES_NM, Lamp, Quality, ensure_variant
-    from normbox_lab.predict.render import render_view as stock_view
 
     def emit(line: str = "") -> None:
         print(line, file=out, flush=True)
 
     emit(header)
-    wall = mats.truth_wall("model")
-    lamp = Lamp()
-    sweep = [mats.truth_patch(p, "model") for p in PATCHES]
-    box = FastNormbox()
-    t0 = time.perf_counter()
-    white = box.render_view(patch=sweep[18], wall=wall, angle_deg=30.0, lamp=lamp,
-                            n_paths=1 << 17, seed=99).radiance
-    colour = Colour(BAND_CENTRES_NM, white)
+    b = _set_up(emit, targets, amortised=not a.no_amortised)
     emit(f"bench predict: {len(configs)} configurations, {n_rep} repeat(s), fit-family "
          f"materials, 81 bands; targets band {100 * targets['band']:.2f} %, Y "
-         f"{100 * targets['Y']:.2f} %, ΔE00 {targets['ΔE00']:.3f}; fast {jit_variant('mono')}"
-         f" ({n_seeds} seeds a path count), stock {ensure_variant()}; set-up and fast warm-up "
-         f"{time.perf_counter() - t0:.1f} s")
+         f"{100 * targets['Y']:.2f} %, ΔE00 {targets['ΔE00']:.3f}; fast {_fast_variant()}"
+         f" ({n_seeds} seeds a path count), stock {_stock_variant()}; set-up and fast warm-up "
+         f"{time.perf_counter() - b.warm_up_from_s:.1f} s")
     emit("  each row: the noise reached (target), the size that reached it, the time of one "
          "configuration wall / CPU, the ratio stock / fast wall / CPU")
     ratios: dict[tuple[str, str, str], list[float]] = {}   # (way, quantity, clock) → repeats
@@ -306,64 +309,112 @@ def run_bench_predict(out: TextIO = sys.stdout, *, argv: Sequence[str] | None = 
     for r in range(n_rep):
         sums: dict[tuple[str, str, str], list[float]] = {}
         for p, ang in configs:
-            mat = sweep[p - 1]
             seeds = [1000 * (a.seed + r) + k for k in range(n_seeds)]
-
-            def alone(n: int, s: int, mat: Any = mat, ang: float = ang) -> np.ndarray:
-                return box.render_view(patch=mat, wall=wall, angle_deg=ang, lamp=lamp,
-                                       n_paths=n, seed=s).radiance[None]
-
-            def together(n: int, s: int, ang: float = ang) -> np.ndarray:
-                return np.array([x.radiance for x in box.render_patches(
-                    patches=sweep, wall=wall, angle_deg=ang, lamp=lamp, n_paths=n, seed=s)])
-
-            box.render_patches(patches=sweep, wall=wall, angle_deg=ang, lamp=lamp,
-                               n_paths=FAST_MIN_PATHS)          # this angle's scene, untimed
-            fast = {"alone": fast_to_target(alone, colour, targets, seeds=seeds, per_config=1)}
-            if amortised:
-                fast["amortised"] = fast_to_target(together, colour, targets, seeds=seeds,
-                                                   per_config=len(sweep))
-
-            def stock(spp: int, b: int, s: int, mat: Any = mat, ang: float = ang) -> Any:
-                return stock_view(patch=mat, wall=wall, angle_deg=ang, lamp=lamp,
-                                  quality=Quality("bench", spp=spp, batches=b), cache=False,
-                                  seed=s)
-
-            st = stock_to_target(stock, colour, targets, seed=100000 * (a.seed + r + 1))
-            for q in QUANTITIES:
-                s_at = st[q]
-                emit(f"  repeat {r + 1} {mat.name}@{ang:g} {q}: stock "
-                     f"{_fmt_noise(q, s_at.achieved)} ({_fmt_noise(q, s_at.target)}) at "
-                     f"{s_at.size}, {s_at.time_s['wall']:.2f} / {s_at.time_s['CPU']:.2f} s")
-                for way, res in fast.items():
-                    f_at = res[q]
-                    rat = {c: s_at.time_s[c] / max(f_at.time_s[c], 1e-9) for c in CLOCKS}
-                    ge = "≥" if f_at.lower_bound else ""
-                    emit(f"      fast {way:9s} {_fmt_noise(q, f_at.achieved)} at {f_at.size}"
-                         f", {1e3 * f_at.time_s['wall']:.2f} / {1e3 * f_at.time_s['CPU']:.2f}"
-                         f" ms → {ge}{rat['wall']:.0f}× / {ge}{rat['CPU']:.0f}×")
-                    for c in CLOCKS:
-                        acc = sums.setdefault((way, q, c), [0.0, 0.0])
-                        acc[0] += s_at.time_s[c]
-                        acc[1] += f_at.time_s[c]
-                        per_config.setdefault((p, ang, way, q + " " + c), []).append(rat[c])
+            _bench_config(b, r, p, ang, seeds, 100000 * (a.seed + r + 1), sums, per_config)
         for key, (s_sum, f_sum) in sums.items():
             ratios.setdefault(key, []).append(s_sum / max(f_sum, 1e-12))
-    emit("ratio stock / fast at equal noise, median (range) ±half-range over the repeats; "
-         "per configuration, then the sum of the stock times over the sum of the fast ones")
-    ways = ["alone"] + (["amortised"] if amortised else [])
-    for way in ways:
-        for q in QUANTITIES:
-            cells = [f"{sweep[p - 1].name}@{ang:g} CPU "
-                     f"{spread(per_config[(p, ang, way, q + ' CPU')])}"
-                     for p, ang in configs]
-            emit(f"  {way:9s} {q:4s}: " + "; ".join(cells))
-            emit(f"  {way:9s} {q:4s}: all, wall {spread(ratios[(way, q, 'wall')])}, CPU "
-                 f"{spread(ratios[(way, q, 'CPU')])}")
+    _emit_ratios(b, configs, ratios, per_config)
     emit(machine_header().replace("machine:", "machine at the end:", 1))
-    head = "amortised" if amortised else "alone"
+    head = "amortised" if b.amortised else "alone"
     emit(f"ratio: {np.median(ratios[(head, 'band', 'CPU')]):.1f}")
     return 0
+
+
+def _fast_variant() -> str:
+    from normbox_lab.predict.mitsuba_setup import jit_variant
+
+    return jit_variant("mono")
+
+
+def _stock_variant() -> str:
+    from normbox_lab.predict.render import ensure_variant
+
+    return ensure_variant()
+
+
+def _set_up(emit: Callable[[str], None], targets: dict[str, float], *,
+            amortised: bool) -> _Sweep:
+    """The fit-family materials, the fast renderer warmed up, and the colour reference (the
+    white patch at 30°)."""
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.fastrender import FastNormbox
+    from normbox_lab.predict.render import BAND_CENTRES_NM, Lamp, Quality
+    from normbox_lab.predict.render import render_view as stock_view
+
+    wall = mats.truth_wall("model")
+    lamp = Lamp()
+    sweep = [mats.truth_patch(p, "model") for p in PATCHES]
+    box = FastNormbox()
+    t0 = time.perf_counter()
+    white = box.render_view(patch=sweep[18], wall=wall, angle_deg=30.0, lamp=lamp,
+                            n_paths=1 << 17, seed=99).radiance
+    return _Sweep(emit, box, stock_view, Quality, sweep, wall, lamp,
+                  Colour(BAND_CENTRES_NM, white), targets, amortised, t0)
+
+
+def _bench_config(b: _Sweep, r: int, p: int, ang: float, seeds: list[int], stock_seed: int,
+                  sums: dict[tuple[str, str, str], list[float]],
+                  per_config: dict[tuple[int, float, str, str], list[float]]) -> None:
+    """One configuration (patch p at `ang`) in repeat r: fast alone (and amortised over the 24
+    patches) and stock to the targets; print its rows, add its times to `sums` and its
+    ratios to `per_config`."""
+    mat = b.sweep[p - 1]
+
+    def alone(n: int, s: int) -> np.ndarray:
+        return b.box.render_view(patch=mat, wall=b.wall, angle_deg=ang, lamp=b.lamp,
+                                 n_paths=n, seed=s).radiance[None]
+
+    def together(n: int, s: int) -> np.ndarray:
+        return np.array([x.radiance for x in b.box.render_patches(
+            patches=b.sweep, wall=b.wall, angle_deg=ang, lamp=b.lamp, n_paths=n, seed=s)])
+
+    b.box.render_patches(patches=b.sweep, wall=b.wall, angle_deg=ang, lamp=b.lamp,
+                         n_paths=FAST_MIN_PATHS)          # this angle's scene, untimed
+    fast = {"alone": fast_to_target(alone, b.colour, b.targets, seeds=seeds, per_config=1)}
+    if b.amortised:
+        fast["amortised"] = fast_to_target(together, b.colour, b.targets, seeds=seeds,
+                                           per_config=len(b.sweep))
+
+    def stock(spp: int, batches: int, s: int) -> Any:
+        return b.stock_view(patch=mat, wall=b.wall, angle_deg=ang, lamp=b.lamp,
+                            quality=b.quality("bench", spp=spp, batches=batches), cache=False,
+                            seed=s)
+
+    st = stock_to_target(stock, b.colour, b.targets, seed=stock_seed)
+    for q in QUANTITIES:
+        s_at = st[q]
+        b.emit(f"  repeat {r + 1} {mat.name}@{ang:g} {q}: stock "
+               f"{_fmt_noise(q, s_at.achieved)} ({_fmt_noise(q, s_at.target)}) at "
+               f"{s_at.size}, {s_at.time_s['wall']:.2f} / {s_at.time_s['CPU']:.2f} s")
+        for way, res in fast.items():
+            f_at = res[q]
+            rat = {c: s_at.time_s[c] / max(f_at.time_s[c], 1e-9) for c in CLOCKS}
+            ge = "≥" if f_at.lower_bound else ""
+            b.emit(f"      fast {way:9s} {_fmt_noise(q, f_at.achieved)} at {f_at.size}"
+                   f", {1e3 * f_at.time_s['wall']:.2f} / {1e3 * f_at.time_s['CPU']:.2f}"
+                   f" ms → {ge}{rat['wall']:.0f}× / {ge}{rat['CPU']:.0f}×")
+            for c in CLOCKS:
+                acc = sums.setdefault((way, q, c), [0.0, 0.0])
+                acc[0] += s_at.time_s[c]
+                acc[1] += f_at.time_s[c]
+                per_config.setdefault((p, ang, way, q + " " + c), []).append(rat[c])
+
+
+def _emit_ratios(b: _Sweep, configs: list[tuple[int, float]],
+                 ratios: dict[tuple[str, str, str], list[float]],
+                 per_config: dict[tuple[int, float, str, str], list[float]]) -> None:
+    """The summary: per configuration, then over all of them, for each way and quantity."""
+    b.emit("ratio stock / fast at equal noise, median (range) ±half-range over the repeats; "
+           "per configuration, then the sum of the stock times over the sum of the fast ones")
+    ways = ["alone"] + (["amortised"] if b.amortised else [])
+    for way in ways:
+        for q in QUANTITIES:
+            cells = [f"{b.sweep[p - 1].name}@{ang:g} CPU "
+                     f"{spread(per_config[(p, ang, way, q + ' CPU')])}"
+                     for p, ang in configs]
+            b.emit(f"  {way:9s} {q:4s}: " + "; ".join(cells))
+            b.emit(f"  {way:9s} {q:4s}: all, wall {spread(ratios[(way, q, 'wall')])}, CPU "
+                   f"{spread(ratios[(way, q, 'CPU')])}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
