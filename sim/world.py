@@ -84,6 +84,11 @@ class VirtualNormbox(WorldState):
         self.wall = truth_wall(self.truth, self.geometry.wall_lightness_L)
         self.holder = holder_material()
         self.last_render: RenderResult | None = None
+        #: the truth's Monte-Carlo noise as its renders achieved it: per configuration (patch,
+        #: commanded angle to 0.1°) the relative standard error of the last reading's render on
+        #: the radiometer grid (`truth_relative_se`; the demo stores it with the sweep, and
+        #: the error budget's `render` term takes it instead of the stated target)
+        self.achieved_rel_se: dict[tuple[int | None, float], np.ndarray] = {}
 
     # --- what the operator changes (the rest: `WorldState`) -------------------------------------
     def mount_gonio_material(self, name: str | int) -> None:
@@ -132,8 +137,21 @@ class VirtualNormbox(WorldState):
         result = self.render(self.patch, commanded + self.last_angle_error_deg)
         self.last_render = result.scaled(output * self.box_light_gain)
         _, radiance = self.last_render.to_1nm(self.wavelength_nm)
+        self.achieved_rel_se[key] = np.interp(self.wavelength_nm, result.wavelength_nm,
+                                              result.relative_std_error)
         radiance = self.errors.radiometer(self.wavelength_nm, radiance, (*key, reading))
         return self.wavelength_nm.copy(), radiance
+
+    def truth_relative_se(self, patches: list[int], angles_deg: np.ndarray) -> np.ndarray:
+        """[patch, angle, λ]: the relative standard error of the truth's render behind each
+        configuration's last reading (`achieved_rel_se`), NaN where none was rendered."""
+        out = np.full((len(patches), len(angles_deg), self.wavelength_nm.size), np.nan)
+        for i, p in enumerate(patches):
+            for j, a in enumerate(angles_deg):
+                se = self.achieved_rel_se.get((int(p), round(float(a), 1)))
+                if se is not None:
+                    out[i, j] = se
+        return out
 
     def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
         r = self.render(patch, angle_deg)

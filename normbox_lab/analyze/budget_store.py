@@ -47,6 +47,52 @@ def is_fast_renderer(metadata: dict) -> bool:
     return str(metadata.get("renderer", "")).startswith("fastrender")
 
 
+#: the artifact kind of the truth's achieved render noise of a virtual reference sweep
+TRUTH_SE_KIND = "truth-render-se"
+
+
+def record_truth_se(store: Store, run_id: int, patches: list[int], angle_deg: np.ndarray,
+                    wavelength_nm: np.ndarray, relative_se: np.ndarray) -> int:
+    """Store the truth's Monte-Carlo noise as the virtual Normbox's renders achieved it
+    ([patch, angle, λ] relative standard error of each configuration's render; the world's
+    `truth_relative_se`) with its reference sweep, for the budget's `render` term."""
+    return store.add_artifact(
+        kind=TRUTH_SE_KIND, name=f"ref-run-{run_id}",
+        arrays={"patches": np.asarray(patches, dtype=float),
+                "angle_deg": np.asarray(angle_deg, dtype=float),
+                "wavelength_nm": np.asarray(wavelength_nm, dtype=float),
+                "relative_std_error": np.asarray(relative_se, dtype=float)},
+        metadata={"what": "the truth render's relative standard error per configuration, "
+                          "as achieved"}, run_ref=run_id)
+
+
+def truth_se_of_run(store: Store, run_id: int, patches: list[int], angle_deg: np.ndarray,
+                    reference: np.ndarray, wavelength_nm: np.ndarray) -> np.ndarray | None:
+    """The truth's achieved standard error [patch, angle, λ] (W·sr⁻¹·m⁻²·nm⁻¹: the stored
+    relative SE times the reference), or None where it was not recorded: a measured truth,
+    a store from before it was recorded, or a configuration the record lacks (then the
+    budget models the term from the stated target, `truth_rel_se`)."""
+    from normbox_lab.core.errors import StoreError
+
+    try:
+        arrays = store.latest_artifact(TRUTH_SE_KIND, f"ref-run-{run_id}").arrays
+    except StoreError:
+        return None
+    rec_p = [int(p) for p in arrays["patches"]]
+    rec_a = [round(float(a), 1) for a in arrays["angle_deg"]]
+    rel = np.asarray(arrays["relative_std_error"], dtype=float)
+    out = np.zeros(np.shape(reference))
+    for i, p in enumerate(patches):
+        for j, a in enumerate(angle_deg):
+            if int(p) not in rec_p or round(float(a), 1) not in rec_a:
+                return None
+            row = rel[rec_p.index(int(p)), rec_a.index(round(float(a), 1))]
+            if not np.all(np.isfinite(row)):
+                return None
+            out[i, j] = np.interp(wavelength_nm, arrays["wavelength_nm"], row)
+    return out * np.asarray(reference, dtype=float)
+
+
 def _prediction_target(metadata: dict) -> float:
     """The fast renderer's target (largest band relative SE) of a stored prediction; 0 for
     another renderer."""
@@ -114,7 +160,9 @@ def budget_inputs_run(store: Store, ref_run: int | str, *, n_paths: int = 1 << 1
                      der.get("d_geometry_rel", {}), der.get("d_homogeneity_rel"), fit_nse,
                      white, truth_rel_se=truth_render_rel_se(run.lab_config),
                      render_noise_correlated=is_fast_renderer(pred_artifact.metadata),
-                     prediction_rel_se=_prediction_target(pred_artifact.metadata))
+                     prediction_rel_se=_prediction_target(pred_artifact.metadata),
+                     truth_se=truth_se_of_run(store, run.id, list(ref.patches), ref.angle_deg,
+                                              ref.radiance, ref.wavelength_nm))
     return x, timings
 
 
