@@ -27,9 +27,12 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from normbox_lab.core.jit_stats import KernelLog, KernelStats
+
+if TYPE_CHECKING:
+    from normbox_lab.acquire.store_api import Store
 
 QUICK_PATCHES = [19, 13, 7, 24]
 #: the virtual camera's view (the paper's Fig. 1): the orange patch at 45°
@@ -208,7 +211,7 @@ def stop_prewarm(child: Any) -> KernelStats | None:
                        ir_ops_max=int(d["ir_ops_max"]))
 
 
-def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
+def run_protocol(lab: Any, store: Store, protocol: str, params: dict[str, Any],
                  on_progress: Callable[[str, int, int], None]) -> Any:
     from normbox_lab.acquire.engine import open_run
 
@@ -229,18 +232,8 @@ def run_protocol(lab: Any, store: Any, protocol: str, params: dict[str, Any],
 
 def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | None = None,
              log: Callable[[str], None] = print) -> DemoResult:
-    import numpy as np
-
     from normbox_lab.acquire.config import format_config, parse_config
-    from normbox_lab.acquire.queries import lamp_from_light_map
     from normbox_lab.acquire.store import Store
-    from normbox_lab.analyze.pipeline import (
-        camera_figures_run,
-        compare_run,
-        fit_run,
-        predict_run,
-        report_run,
-    )
     from normbox_lab.sim.labsim import build_lab
 
     progress = on_progress or (lambda stage, done, total: None)
@@ -251,82 +244,146 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     config_path = out / "lab.toml"
     config_path.write_text(format_config(demo_config(opts, quality, out / "render-cache")))
     config = parse_config(config_path.read_text(), str(config_path))
-    patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
-    angles = QUICK_ANGLES if opts.quick else FULL_ANGLES
-    timings: dict[str, float] = {}
-    kernels: dict[str, KernelStats] = {}
-    runs: dict[str, int] = {}
-    kernel_log = KernelLog()
-    kernel_log.start()
+    stages = _Stages(log)
+    stages.kernel_log.start()
     prewarm = start_prewarm(opts)
-
-    def timed(name: str, fn: Callable[[], Any]) -> Any:
-        before = kernel_log.snapshot()
-        t0 = time.perf_counter()
-        value = fn()
-        timings[name] = time.perf_counter() - t0
-        kernels[name] = k = kernel_log.snapshot() - before
-        log(f"{name}: {timings[name]:.1f} s (work {timings[name] - k.compile_s:.1f} s, "
-            f"{k.line()})" if k.launches else f"{name}: {timings[name]:.1f} s")
-        return value
-
-    world, render = timed("set-up", lambda: make_world(config, opts, quality))
+    world, render = stages.timed("set-up", lambda: make_world(config, opts, quality))
     lab = build_lab(config, world=world)
     store = Store(store_path)
     try:
-        brdf = timed("brdf-inplane", lambda: run_protocol(
-            lab, store, "brdf-inplane", {"materials": [*patches, "wall"]}, progress))
-        runs["brdf-inplane"] = brdf.run_id
-        # the demo goes on through flagged data (recorded in each artifact's provenance) and
-        # prints the flags at the end; `demo --strict` fails on any error flag
-        timed("fit", lambda: fit_run(store, brdf.run_id, 2.0, progress, accept_flagged=True))
-        light = timed("light-map", lambda: run_protocol(lab, store, "light-map", {}, progress))
-        runs["light-map"] = light.run_id
-        ref = timed("reference-sweep", lambda: run_protocol(
-            lab, store, "reference-sweep", {"angles_deg": angles, "patches": patches},
-            progress))
-        runs["reference-sweep"] = ref.run_id
-        lamp = lamp_from_light_map(store, light.run_id)
-        timed("predict", lambda: predict_run(store, ref.run_id, geometry=config.geometry,
-                                             quality=quality, lamp=lamp, render=render,
-                                             progress=progress, accept_flagged=True))
-        comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id,
-                                                          accept_flagged=True))
-        camera_size = (80, 60, 16) if opts.quick else (320, 240, None)
-        images = timed("images", lambda: camera_figures_run(
-            store, ref.run_id, patch=CAMERA_PATCH, angle_deg=CAMERA_ANGLE_DEG, truth=opts.truth,
-            lamp=lamp, geometry=config.geometry, width=camera_size[0], height=camera_size[1],
-            spp=camera_size[2], seed=opts.seed, out_dir=out / "images"))
-        notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
-                  f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
-                  f"quality {quality}, error sources {error_spec(opts) or 'off'}."),
-                 "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in timings.items())]
-        report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
-                                                    brdf.run_id, notes))
-        from normbox_lab.analyze import qa
-
-        flags = {name: qa.flags(store, run_id) for name, run_id in runs.items()}
-        fit_errors = {a.name: float(a.metadata["fit_error_pct"])
-                      for a in {a.name: a for a in store.artifacts("fit", run_ref=brdf.run_id)
-                                }.values()}
+        done = _campaign(stages, _Scene(lab, store, config, world, render, quality, out),
+                         opts, progress)
     finally:
         lab.close()
         store.close()
-        kernel_log.stop()
+        stages.kernel_log.stop()
         background = stop_prewarm(prewarm)
         if background is not None:
             # compiled on the other core while the first stages ran (not in any stage's wall)
-            kernels["prewarm (background)"] = background
-            timings["prewarm (background)"] = 0.0
+            stages.kernels["prewarm (background)"] = background
+            stages.timings["prewarm (background)"] = 0.0
+    return DemoResult(done.report, store_path, done.runs, stages.timings, _summary(done),
+                      stages.kernels)
+
+
+class _Stages:
+    """The demo's stages, timed: wall time and kernel counts of each, logged as it ends."""
+
+    def __init__(self, log: Callable[[str], None]) -> None:
+        self.log = log
+        self.timings: dict[str, float] = {}
+        self.kernels: dict[str, KernelStats] = {}
+        self.kernel_log = KernelLog()
+
+    def timed(self, name: str, fn: Callable[[], Any]) -> Any:
+        before = self.kernel_log.snapshot()
+        t0 = time.perf_counter()
+        value = fn()
+        self.timings[name] = time.perf_counter() - t0
+        self.kernels[name] = k = self.kernel_log.snapshot() - before
+        self.log(f"{name}: {self.timings[name]:.1f} s (work {self.timings[name] - k.compile_s:.1f}"
+                 f" s, {k.line()})" if k.launches else f"{name}: {self.timings[name]:.1f} s")
+        return value
+
+
+@dataclass
+class _Scene:
+    """The simulated lab the demo's campaign runs in, and where its files go."""
+
+    lab: Any
+    store: Store
+    config: Any
+    world: Any
+    render: Any
+    quality: str
+    out: Path
+
+
+@dataclass
+class _Campaign:
+    """What the stages produced: the report, the runs and what the summary reads."""
+
+    report: Path
+    runs: dict[str, int]
+    comparison: Any
+    images: Any
+    flags: dict[str, Any]
+    fit_errors: dict[str, float]
+
+
+def _campaign(stages: _Stages, sc: _Scene, opts: DemoOptions,
+              progress: Callable[[str, int, int], None]) -> _Campaign:
+    """The stages in order: measure the BRDFs, fit, map the light, sweep, predict, compare,
+    the camera's images and the report; then the runs' flags and the fit errors."""
+    import numpy as np
+
+    from normbox_lab.acquire.queries import lamp_from_light_map
+    from normbox_lab.analyze import qa
+    from normbox_lab.analyze.budget_store import record_truth_se
+    from normbox_lab.analyze.pipeline import (
+        camera_figures_run,
+        compare_run,
+        fit_run,
+        predict_run,
+        report_run,
+    )
+
+    timed, store, lab, out = stages.timed, sc.store, sc.lab, sc.out
+    patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
+    angles = QUICK_ANGLES if opts.quick else FULL_ANGLES
+    runs: dict[str, int] = {}
+    brdf = timed("brdf-inplane", lambda: run_protocol(
+        lab, store, "brdf-inplane", {"materials": [*patches, "wall"]}, progress))
+    runs["brdf-inplane"] = brdf.run_id
+    # the demo goes on through flagged data (recorded in each artifact's provenance) and
+    # prints the flags at the end; `demo --strict` fails on any error flag
+    timed("fit", lambda: fit_run(store, brdf.run_id, 2.0, progress, accept_flagged=True))
+    light = timed("light-map", lambda: run_protocol(lab, store, "light-map", {}, progress))
+    runs["light-map"] = light.run_id
+    ref = timed("reference-sweep", lambda: run_protocol(
+        lab, store, "reference-sweep", {"angles_deg": angles, "patches": patches},
+        progress))
+    runs["reference-sweep"] = ref.run_id
+    # the truth's render noise as achieved, with the sweep (the budget's `render` term)
+    record_truth_se(store, ref.run_id, patches, np.array(angles, dtype=float),
+                    sc.world.wavelength_nm, sc.world.truth_relative_se(patches, angles))
+    lamp = lamp_from_light_map(store, light.run_id)
+    timed("predict", lambda: predict_run(store, ref.run_id, geometry=sc.config.geometry,
+                                         quality=sc.quality, lamp=lamp, render=sc.render,
+                                         progress=progress, accept_flagged=True))
+    comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id,
+                                                      accept_flagged=True))
+    camera_size = (80, 60, 16) if opts.quick else (320, 240, None)
+    images = timed("images", lambda: camera_figures_run(
+        store, ref.run_id, patch=CAMERA_PATCH, angle_deg=CAMERA_ANGLE_DEG, truth=opts.truth,
+        lamp=lamp, geometry=sc.config.geometry, width=camera_size[0], height=camera_size[1],
+        spp=camera_size[2], seed=opts.seed, out_dir=out / "images"))
+    notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
+              f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
+              f"quality {sc.quality}, error sources {error_spec(opts) or 'off'}."),
+             "Timing (s): " + ", ".join(f"{k} {v:.1f}" for k, v in stages.timings.items())]
+    report = timed("report", lambda: report_run(store, ref.run_id, out / "report.html",
+                                                brdf.run_id, notes))
+    flags = {name: qa.flags(store, run_id) for name, run_id in runs.items()}
+    fit_errors = {a.name: float(a.metadata["fit_error_pct"])
+                  for a in {a.name: a for a in store.artifacts("fit", run_ref=brdf.run_id)
+                            }.values()}
+    return _Campaign(report, runs, comparison, images, flags, fit_errors)
+
+
+def _summary(done: _Campaign) -> dict[str, Any]:
+    """The figures `DemoResult.summary` carries: ΔE00 and NRMSE, ratings, camera, fits, flags."""
+    import numpy as np
+
+    comparison = done.comparison
     de, nr = comparison.delta_e00, comparison.nrmse
-    summary = {"delta_e00_mean": float(np.nanmean(de)), "delta_e00_max": float(np.nanmax(de)),
-               "nrmse_mean_pct": 100 * float(np.nanmean(nr)),
-               "nrmse_max_pct": 100 * float(np.nanmax(nr)),
-               "nrmse_by_angle_pct": {f"{a:g}": 100 * float(np.nanmean(nr[:, i]))
-                                      for i, a in enumerate(comparison.angle_deg)},
-               "ratings": comparison.rating_counts(),
-               "camera_delta_e00": images.delta_e00,
-               "camera_files": {k: str(v) for k, v in images.files.items()},
-               "fit_error_pct": fit_errors,
-               "flags": flags}
-    return DemoResult(report, store_path, runs, timings, summary, kernels)
+    return {"delta_e00_mean": float(np.nanmean(de)), "delta_e00_max": float(np.nanmax(de)),
+            "nrmse_mean_pct": 100 * float(np.nanmean(nr)),
+            "nrmse_max_pct": 100 * float(np.nanmax(nr)),
+            "nrmse_by_angle_pct": {f"{a:g}": 100 * float(np.nanmean(nr[:, i]))
+                                   for i, a in enumerate(comparison.angle_deg)},
+            "ratings": comparison.rating_counts(),
+            "camera_delta_e00": done.images.delta_e00,
+            "camera_files": {k: str(v) for k, v in done.images.files.items()},
+            "fit_error_pct": done.fit_errors,
+            "flags": done.flags}
