@@ -51,7 +51,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                        description="Spectral images of the virtual Normbox and the tools of the "
                                    "MIST and Wilkie & Weidlich papers (docs/images.md).")
     s = p.add_subparsers(dest="image_command", metavar="SUBCOMMAND", required=True)
+    _add_camera(s)
+    _add_figure1(s)
+    _add_metamer(s)
+    _add_triplet(s)
+    _add_whitebalance(s)
+    _add_exr_info(s)
 
+
+def _add_camera(s: argparse._SubParsersAction) -> None:
+    """`image camera`: the box interior from the open side, as EXR and PNG."""
     c = s.add_parser("camera", help="render the box interior from the open side",
                      description="Render the virtual Normbox seen from its open side with the "
                                  "truth materials of the virtual world (or the fits of a store) "
@@ -75,6 +84,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_store_argument(c)
     c.set_defaults(handler=_camera)
 
+
+def _add_figure1(s: argparse._SubParsersAction) -> None:
+    """`image figure1`: the paper's Fig. 1, virtually, into the store."""
     f = s.add_parser("figure1", help="truth vs prediction images and the ΔE00 map into the store",
                      description="The paper's Fig. 1, virtually: the box with the truth materials "
                                  "and with the latest fits, the per-pixel ΔE00 map and the W&W "
@@ -95,6 +107,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_store_argument(f)
     f.set_defaults(handler=_figure1)
 
+
+def _add_metamer(s: argparse._SubParsersAction) -> None:
+    """`image metamer`: reflectance spectra for sRGB colours (MIST)."""
     m = s.add_parser("metamer", help="reflectance spectra for sRGB colours (MIST)",
                      description="A physical reflectance spectrum (380–780 nm, 5 nm) whose "
                                  "colour under D65 is the given sRGB colour: MIST's KD-tree "
@@ -106,6 +121,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     m.add_argument("--csv", metavar="PATH", help="write wavelength_nm + one column per colour")
     m.set_defaults(handler=_metamer)
 
+
+def _add_triplet(s: argparse._SubParsersAction) -> None:
+    """`image triplet`: the MIST wavelength-triplet cross-check."""
     t = s.add_parser("triplet", help="MIST wavelength-triplet cross-check of the renderer",
                      description="Render the radiometer's view with three wavelengths per "
                                  "render in Mitsuba's RGB variant and compare with the spectral "
@@ -128,6 +146,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     t.add_argument("--seed", type=option(SEED, "--seed"), default=0)
     t.set_defaults(handler=_triplet)
 
+
+def _add_whitebalance(s: argparse._SubParsersAction) -> None:
+    """`image whitebalance`: Wilkie & Weidlich against gray world."""
     wb = s.add_parser("whitebalance", help="Wilkie & Weidlich vs gray world on a coloured room",
                       description="Render the Cornell-like test room lit by a Planckian lamp of "
                                   "--lamp-k kelvin, estimate the illuminant by Wilkie & Weidlich "
@@ -145,6 +166,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     wb.add_argument("-o", "--out", metavar="DIR", help="also write raw and balanced PNGs here")
     wb.set_defaults(handler=_whitebalance)
 
+
+def _add_exr_info(s: argparse._SubParsersAction) -> None:
+    """`image exr-info`: the layers of a spectral OpenEXR file."""
     e = s.add_parser("exr-info", help="list the layers of a spectral OpenEXR file")
     e.add_argument("path")
     e.set_defaults(handler=_exr_info)
