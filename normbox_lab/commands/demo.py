@@ -6,6 +6,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from normbox_lab.demo import DemoOptions, DemoResult
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,15 +53,10 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _demo(args: argparse.Namespace) -> int:
-    from rich.console import Console
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
-
     from normbox_lab.core.machine import machine_header
-    from normbox_lab.demo import DemoOptions, run_demo
+    from normbox_lab.demo import DemoOptions
 
-    console = Console(stderr=True)
     machine = machine_header()             # before the first kernel: cold or warm cache
-    console.print(machine)
     if args.errors is not None:
         from normbox_lab.core.error_sources import parse_error_spec
 
@@ -66,6 +65,27 @@ def _demo(args: argparse.Namespace) -> int:
                        errors=args.errors,
                        store=args.store, out_dir=args.out, renderer=args.renderer,
                        prewarm=not args.no_prewarm)
+    result = _run_with_progress(opts, machine)
+    print(machine)
+    _print_timings(result)
+    n_err = _print_summary(result)
+    if args.timings_json:
+        _write_timings_json(Path(args.timings_json), machine, bool(args.quick), result)
+    if args.strict and n_err:
+        print(f"normbox-lab: error: --strict: {n_err} error flags", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _run_with_progress(opts: DemoOptions, machine: str) -> DemoResult:
+    """The demo with a progress bar per stage on stderr (the machine line first)."""
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+
+    from normbox_lab.demo import run_demo
+
+    console = Console(stderr=True)
+    console.print(machine)
     tasks: dict[str, int] = {}
     with Progress(TextColumn("[bold]{task.description:<16}"), BarColumn(), MofNCompleteColumn(),
                   TimeElapsedColumn(), console=console) as progress:
@@ -74,9 +94,12 @@ def _demo(args: argparse.Namespace) -> int:
                 tasks[stage] = progress.add_task(stage, total=total)
             progress.update(tasks[stage], completed=done, total=total)
 
-        result = run_demo(opts, on_progress, log=lambda s: progress.console.print(s))
+        return run_demo(opts, on_progress, log=lambda s: progress.console.print(s))
+
+
+def _print_timings(result: DemoResult) -> None:
+    """The timing breakdown: wall, share, work and compile time and kernels per stage."""
     total = sum(result.timings_s.values())
-    print(machine)
     print("timing breakdown (work = wall - kernel compilation):")
     print(f"  {'stage':<16} {'wall':>8}    {'%':>5}   {'work':>8}  {'compile':>8}  kernels "
           f"compiled / from disk / launches")
@@ -91,6 +114,11 @@ def _demo(args: argparse.Namespace) -> int:
               f"{counts}")
     print(f"  {'total':<16} {total:8.1f} s          {total - compile_s:8.1f} s "
           f"{compile_s:8.1f} s  {int(compiled)} kernels compiled")
+
+
+def _print_summary(result: DemoResult) -> int:
+    """The figures, the flags, the store and the report (last line); returns the number of
+    error flags."""
     s = result.summary
     print(f"ΔE00 mean {s['delta_e00_mean']:.2f} (max {s['delta_e00_max']:.2f}); "
           f"NRMSE mean {s['nrmse_mean_pct']:.2f} % (max {s['nrmse_max_pct']:.2f} %)")
@@ -120,22 +148,22 @@ def _demo(args: argparse.Namespace) -> int:
     print(f"{n_all} flags: {n_err} errors, {n_all - n_err} warnings")
     print(f"store: {result.store} (runs {result.runs})")
     print(f"report: {result.report}")
-    if args.timings_json:
-        import json
+    return n_err
 
-        Path(args.timings_json).write_text(json.dumps({
-            "machine": machine, "quick": bool(args.quick),
-            "stages": {k: {"wall_s": v, "compile_s": result.kernels[k].compile_s
-                           if k in result.kernels else 0.0,
-                           "compiled": result.kernels[k].compiled if k in result.kernels else 0,
-                           "from_disk": result.kernels[k].from_disk
-                           if k in result.kernels else 0,
-                           "launches": result.kernels[k].launches
-                           if k in result.kernels else 0,
-                           "ir_ops_max": result.kernels[k].ir_ops_max
-                           if k in result.kernels else 0}
-                       for k, v in result.timings_s.items()}}, indent=1))
-    if args.strict and n_err:
-        print(f"normbox-lab: error: --strict: {n_err} error flags", file=sys.stderr)
-        return 1
-    return 0
+
+def _write_timings_json(path: Path, machine: str, quick: bool, result: DemoResult) -> None:
+    """Each stage's wall and compile time and kernel counts, and the machine (what
+    `bench demo` reads)."""
+    import json
+
+    from normbox_lab.core.jit_stats import KernelStats
+
+    none = KernelStats()                    # a stage without kernels: zeros
+    stages = {}
+    for k, v in result.timings_s.items():
+        ks = result.kernels.get(k, none)
+        stages[k] = {"wall_s": v, "compile_s": ks.compile_s, "compiled": ks.compiled,
+                     "from_disk": ks.from_disk, "launches": ks.launches,
+                     "ir_ops_max": ks.ir_ops_max}
+    path.write_text(json.dumps({"machine": machine, "quick": quick, "stages": stages},
+                               indent=1))
