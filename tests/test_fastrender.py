@@ -165,16 +165,6 @@ def test_agrees_with_stock_mitsuba_within_mc_error(truth, patch_no, angle_deg):
     assert abs(np.mean(z)) < 0.8, z
 
 
-@pytest.mark.slow
-def test_megakernel_equals_wavefront():
-    patch, wall = _model_materials()
-    a = FastNormbox(symbolic=True).render_view(patch=patch, wall=wall, angle_deg=60,
-                                               n_paths=4096, seed=4)
-    b = FastNormbox(symbolic=False).render_view(patch=patch, wall=wall, angle_deg=60,
-                                                n_paths=4096, seed=4)
-    np.testing.assert_allclose(a.radiance, b.radiance, rtol=1e-5)
-
-
 # --------------------------------------------------------------------------------------------
 # All patches per path (normbox_lab.predict.patchset)
 # --------------------------------------------------------------------------------------------

@@ -114,7 +114,7 @@ class CameraTracer(BandPathTracer):
             raise ValueError("rr_depth must be ≥ 1 (no roulette at the first hit)")
         super().__init__(scene, bsdf_slots, None, emitter, variant=jit_variant("mono", variant),
                          emitter_slot=emitter_slot, grid=grid, max_depth=max_depth,
-                         rr_depth=rr_depth, chunk_paths=chunk_paths, symbolic=True)
+                         rr_depth=rr_depth, chunk_paths=chunk_paths)
         self.camera = camera
         self._ybar: np.ndarray | None = None
         #: a pixel's samples from a scrambled Sobol' net (randomised QMC, below)

@@ -6,7 +6,7 @@ its *throughput* evaluated per band.  Stock Mitsuba spectral rendering carries 4
 per path, so a 5 nm band sees a path only ~4/81 of the time; here every path feeds all 81 bands.
 
 How it works (a path tracer written with Dr.Jit, `BandPathTracer`; one symbolic-loop
-megakernel per chunk of paths, or a wavefront of one kernel per bounce with symbolic=False):
+megakernel per chunk of paths, its bands a loop over per-lane local arrays):
 - Mitsuba does ray intersection, emitter sampling (position, pdf, visibility) and the
   shape/BSDF bookkeeping, in a *mono* JIT variant (`llvm_ad_mono` on a CPU, `cuda_ad_mono` on a
   GPU: nothing here is LLVM-specific).  The mono scene is `normbox_lab.predict.scene.scene_dict` — the
@@ -156,6 +156,36 @@ class RectEmitter:
         return 4.0 * self.half_x_m * self.half_y_m
 
 
+class BandLookup:
+    """Spectra at λ_b + δ for a path's offset δ (δ + step = k + frac, k the 1 nm cell) from
+    interleaved (value, slope) tables of `width`/2 spectra per slot (one packet gather per band).
+
+    - `lookup(table, slot, active, width)`: every band, as Python lists (straight-line code:
+      for values needed once per path, e.g. the lamp spectrum at the end);
+    - `lookup.band(table, slot, active, width, b)`: band b (a UInt32, the counter of a band
+      loop), so that a kernel holds one band's code however many bands there are.
+    Every index lies in the table: slot < slots, k < 2·step, b < n_bands."""
+
+    def __init__(self, dr: Any, m: Any, k: Any, frac: Any, n_fine: int, grid: BandGrid) -> None:
+        self.dr, self.m, self.k, self.frac = dr, m, k, frac
+        self.n_fine = int(n_fine)
+        self.step = int(grid.step_nm)
+        self.n_bands = grid.n_bands
+
+    def band(self, table: Any, slot: Any, active: Any, width: int, b: Any) -> list[Any]:
+        dr, m = self.dr, self.m
+        arr = m.Array4f if width == 4 else m.Array2f
+        v = dr.gather(arr, table, slot * self.n_fine + self.k + b * self.step, active)
+        return [dr.fma(self.frac, v[2 * t + 1], v[2 * t]) for t in range(width // 2)]
+
+    def __call__(self, table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
+        out: list[list[Any]] = [[] for _ in range(width // 2)]
+        for b in range(self.n_bands):
+            for t, value in enumerate(self.band(table, slot, active, width, b)):
+                out[t].append(value)
+        return out
+
+
 class BandPathTracer:
     """Path tracer carrying all bands per path; Mitsuba (any JIT mono variant) does only the
     ray casting: `scene.ray_intersect_preliminary` and `scene.ray_test`.
@@ -186,14 +216,13 @@ class BandPathTracer:
     def __init__(self, scene: Any, bsdf_slots: Sequence[tuple[Any, str]],
                  radiometer: Radiometer | None, emitter: RectEmitter, *, variant: str,
                  emitter_slot: str = "panel", grid: BandGrid | None = None, max_depth: int = 12,
-                 rr_depth: int = 6, chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
+                 rr_depth: int = 6, chunk_paths: int = 1 << 16) -> None:
         import drjit as dr
         import mitsuba as mi
 
         self.m = getattr(mi, variant)
         self.dr = dr
         self.variant = variant
-        self.symbolic = bool(symbolic)
         self.scene = scene
         self.grid = grid or BandGrid()
         self.max_depth = int(max_depth)
@@ -331,25 +360,10 @@ class BandPathTracer:
         k = cell_index(dr, m, pos, 2.0 * step)
         return pos - step, k, pos - m.Float(k)
 
-    def _lookup(self, tab: Mapping[str, Any], k: Any, frac: Any) -> Any:
-        """`lookup(table, slot, active, width)`: spectra at λ_b + δ for every band (δ + step =
-        k + frac), `width`/2 interleaved (value, slope) tables, one packet gather per band."""
-        dr, m = self.dr, self.m
-        step = self.grid.step_nm
-        offsets = [b * step for b in range(self.grid.n_bands)]
-        n_fine = tab["n_fine"]
-
-        def lookup(table: Any, slot: Any, active: Any, width: int) -> list[list[Any]]:
-            base = slot * n_fine + k
-            arr = m.Array4f if width == 4 else m.Array2f
-            out: list[list[Any]] = [[] for _ in range(width // 2)]
-            for off in offsets:
-                v = dr.gather(arr, table, base + off, active)
-                for t in range(width // 2):
-                    out[t].append(dr.fma(frac, v[2 * t + 1], v[2 * t]))
-            return out
-
-        return lookup
+    def _lookup(self, tab: Mapping[str, Any], k: Any, frac: Any) -> BandLookup:
+        """Spectra at λ_b + δ (δ + step = k + frac) from the interleaved (value, slope) tables:
+        all bands at once (`BandLookup.__call__`) or band b alone (`BandLookup.band`)."""
+        return BandLookup(self.dr, self.m, k, frac, tab["n_fine"], self.grid)
 
     def _radiometer_ray(self, rng: Any) -> Any:
         """A ray uniform over the radiometer's square field of view."""
@@ -413,22 +427,32 @@ class BandPathTracer:
         frame = m.Frame3f(nf)
         return frame, frame.to_local(wi_w), self._offset(hit.p, nf)
 
-    def _vertex(self, tab: Mapping[str, Any], lookup: Any, delta: Any, slot: Any, wi: Any,
-                active: Any) -> SimpleNamespace:
+    def _vertex(self, tab: Mapping[str, Any], lookup: BandLookup, delta: Any, slot: Any,
+                wi: Any, active: Any, *, spectra: bool = True) -> SimpleNamespace:
         """The material of `slot` at a vertex with local incoming direction wi (the `vx` of
-        `_band_factors` / `_sample`)."""
+        `_band_factors` / `_sample`).  With `spectra`, kd, ks (and kb) of every band as lists;
+        without, only what `_band_spectra` needs to gather band b inside a band loop."""
         dr, m = self.dr, self.m
-        kd, ks = lookup(tab["kdks"], slot, active, 4)
         has_kb, dispersive = tab["has_kb"], tab["dispersive"]
+        kd = ks = kb = None
+        if spectra:
+            kd, ks = lookup(tab["kdks"], slot, active, 4)
+            kb = lookup(tab["kb"], slot, active, 2)[0] if has_kb else None
         return SimpleNamespace(
             wi=wi, alpha=dr.gather(m.Float, tab["alpha"], slot, active),
             eta=dr.gather(m.Float, tab["eta"], slot, active),
             c=dr.gather(m.Float, tab["c"], slot, active),
-            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks,
-            kb=lookup(tab["kb"], slot, active, 2)[0] if has_kb else None,
+            p_spec=dr.gather(m.Float, tab["p_spec"], slot, active), kd=kd, ks=ks, kb=kb,
             inv_s2=dr.gather(m.Float, tab["inv_sigma2"], slot, active) if has_kb else None,
             deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
-            delta=delta)
+            delta=delta, slot=slot, mask=active, has_kb=has_kb, dispersive=dispersive)
+
+    def _band_spectra(self, tab: Mapping[str, Any], lookup: BandLookup, vx: SimpleNamespace,
+                      b: Any) -> tuple[Any, Any, Any]:
+        """kd, ks and kb (None without a backscatter lobe) of band b (UInt32) at vertex `vx`."""
+        kd, ks = lookup.band(tab["kdks"], vx.slot, vx.mask, 4, b)
+        kb = lookup.band(tab["kb"], vx.slot, vx.mask, 2, b)[0] if vx.has_kb else None
+        return kd, ks, kb
 
     def _rect_view(self, c: SimpleNamespace, o: Any) -> SimpleNamespace:
         """The emitter as a spherical rectangle seen from o (below its plane; Ureña, Fajardo
@@ -515,8 +539,8 @@ class BandPathTracer:
         return wo, em_w * mis * wo.z, ok
 
     # ---- the path loop -----------------------------------------------------------------
-    def _path_loop(self, tab: Mapping[str, Any], c: SimpleNamespace, lookup: Any, delta: Any,
-                   ray: Any, active: Any, depth: Any, prev_pdf: Any, rng: Any, *,
+    def _path_loop(self, tab: Mapping[str, Any], c: SimpleNamespace, lookup: BandLookup,
+                   delta: Any, ray: Any, active: Any, depth: Any, prev_pdf: Any, rng: Any, *,
                    probe_scale: Any = None, split_first: bool = False,
                    patches: SimpleNamespace | None = None,
                    first_draws: Sequence[Any] | None = None) -> SimpleNamespace:
@@ -534,15 +558,52 @@ class BandPathTracer:
         `probe_scale` multiplies the Russian-roulette probe (the throughput before `ray`).
         `first_draws` (`FIRST_BOUNCE_DRAWS`: the patch pick when `patches`, the light sample, the
         direction): uniform numbers that replace the generator's in the first bounce (the
-        caller's quasi-random ones); the generator advances the same either way."""
+        caller's quasi-random ones); the generator advances the same either way.
+
+        One symbolic loop over the bounces (a SIMD packet runs until its own longest path
+        ends) holds one symbolic loop over the bands: the per-band throughput and sums live in
+        per-lane local arrays (`dr.alloc_local`), so the kernel holds one band's code, not 81
+        copies of it (a kernel's LLVM compile time grows with its size)."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
         pp = patches
         none = 0xFFFFFFFF
+        lam0 = float(self.grid.centres_nm[0]) - 550.0
+        step = float(self.grid.step_nm)
+        # opaque: with a literal trip count LLVM unrolls the band loop 81 times and compiles
+        # as long as without the loop
+        n_bands = dr.opaque(m.UInt32, n_b)
 
-        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, thr: Any,
-                   acc: Any, e1: Any, late: Any, pstar: Any) -> tuple[Any, ...]:
-            thr, acc, late = list(thr), list(acc), list(late)
+        def bands(thr: Any, acc: Any, late: Any, vx: SimpleNamespace, e_w: Any,
+                  nee: SimpleNamespace, smp: SimpleNamespace, late_e: Any,
+                  late_n: Any) -> Any:
+            """For every band b: acc_b += thr_b·(e_w + f_b(NEE)), thr_b ·= f_b(sample); with
+            `patches`, the emission's share late_e and the NEE's share late_n go to late_b
+            instead.  Returns the roulette probe max |thr_b| over bands 0, 8, 16, …"""
+
+            def body(b: Any, probe: Any, thr: Any, acc: Any, late: Any) -> tuple[Any, ...]:
+                kd, ks, kb = self._band_spectra(tab, lookup, vx, b)
+                lam = dr.fma(m.Float(b), step, lam0) + delta
+                t = thr.read(b)
+                fn = self._band_factor(vx, nee, kd, ks, kb, lam)
+                if pp is not None:
+                    ge, gn = t * e_w, t * fn
+                    late.write(dr.fma(gn, late_n, dr.fma(ge, late_e, late.read(b))), b)
+                    acc.write(dr.fma(gn, 1.0 - late_n, dr.fma(ge, 1.0 - late_e, acc.read(b))),
+                              b)
+                else:
+                    acc.write(dr.fma(t, e_w + fn, acc.read(b)), b)
+                t = t * self._band_factor(vx, smp, kd, ks, kb, lam)
+                thr.write(t, b)
+                probe = dr.select((b & 7) == 0, dr.fmax(probe, dr.abs(t)), probe)
+                return b + 1, probe, thr, acc, late
+
+            state = dr.while_loop((m.UInt32(0), m.Float(0.0), thr, acc, late),
+                                  lambda b, *_: b < n_bands, body, label="bands")
+            return state[1]
+
+        def bounce(depth: Any, active: Any, ray: Any, prev_pdf: Any, rng: Any, w: Any,
+                   thr: Any, acc: Any, e1: Any, late: Any, pstar: Any) -> tuple[Any, ...]:
             src = rng if first_draws is None else FirstBounceDraws(
                 rng, depth == start_depth, first_draws[0 if pp is not None else 1:])
             hit = self._intersect(c, ray, active)
@@ -552,72 +613,52 @@ class BandPathTracer:
                 e1 = e1 + dr.select(first, e, 0.0)
                 e = dr.select(first, 0.0, e)
             slot = hit.slot
+            late_e = late_n = None
+            sel_w = 1.0
             if pp is not None:
-                in_late = dr.select(pstar != none, 1.0, 0.0)
-                for b in range(n_b):
-                    late[b] = dr.fma(thr[b], e * in_late, late[b])
-                    acc[b] = dr.fma(thr[b], e * (1.0 - in_late), acc[b])
+                late_e = dr.select(pstar != none, 1.0, 0.0)   # the emission: the p* before
                 on_patch = hit.surf & (slot == pp.slot)
                 u = src.next_float32()
                 pick = on_patch & (pstar == none)
                 pstar = dr.select(pick, cell_index(dr, m, u * pp.count_f, pp.count_f), pstar)
                 sel_w = dr.select(pick, pp.count_f, 1.0)
                 slot = dr.select(on_patch, pp.base + pstar, slot)
-                in_late = dr.select(pstar != none, 1.0, 0.0)
-            else:
-                sel_w = 1.0
-                for b in range(n_b):
-                    acc[b] = dr.fma(thr[b], e, acc[b])
+                late_n = dr.select(pstar != none, 1.0, 0.0)   # the NEE: the p* after the pick
             active = hit.surf & (depth + 1 < c.max_depth)
             frame, wi, o = self._frame(hit, ray)
-            vx = self._vertex(tab, lookup, delta, slot, wi, active)
+            vx = self._vertex(tab, lookup, delta, slot, wi, active, spectra=False)
             guide = self._guide_at(o, frame)
             wl, wt, ok = self._nee(c, vx, frame, o, src, active, guide)
-            fac = self._band_factors(vx, wl, wt * sel_w, ok)
-            if pp is not None:
-                for b in range(n_b):
-                    late[b] = dr.fma(thr[b], fac[b] * in_late, late[b])
-                    acc[b] = dr.fma(thr[b], fac[b] * (1.0 - in_late), acc[b])
-            else:
-                for b in range(n_b):
-                    acc[b] = dr.fma(thr[b], fac[b], acc[b])
+            nee = self._brdf_terms(vx, wl, w * wt * sel_w, ok)
             wo, bpdf, active = self._sample(vx, src, active, guide, frame)
             if first_draws is not None and src.values:
                 raise AssertionError("first_draws does not match the first bounce's draws")
-            fac = self._band_factors(vx, wo, wo.z / dr.fmax(bpdf, 1e-30) * sel_w, active)
-            for b in range(n_b):
-                thr[b] = thr[b] * fac[b]
+            smp = self._brdf_terms(vx, wo, wo.z / dr.fmax(bpdf, 1e-30) * sel_w, active)
+            probe = w * bands(thr, acc, late, vx, w * e, nee, smp, late_e, late_n)
             # Russian roulette on a λ-independent survival probability (bands 0, 8, 16, …)
-            probe = dr.abs(thr[0])
-            for b in range(8, n_b, 8):
-                probe = dr.fmax(probe, dr.abs(thr[b]))
             if probe_scale is not None:
                 probe = probe * probe_scale
             q = dr.select(depth + 1 >= c.rr_depth, dr.minimum(probe, 0.95), 1.0)
             active = active & (rng.next_float32() < q)
-            inv_q = dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
-            for b in range(n_b):
-                thr[b] = thr[b] * inv_q
-            return (depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, thr, acc, e1,
-                    late, pstar)
+            w = w * dr.select(active, 1.0 / dr.fmax(q, 1e-12), 0.0)
+            return (depth + 1, active, m.Ray3f(o, frame.to_world(wo)), bpdf, rng, w, thr, acc,
+                    e1, late, pstar)
 
         start_depth = m.UInt32(depth)
         state = (m.UInt32(depth), m.Bool(active), ray, m.Float(prev_pdf), rng,
-                 [m.Float(1.0) for _ in range(n_b)],      # per-band throughput
-                 [m.Float(0.0) for _ in range(n_b)],      # per-band Σ throughput · emitter
-                 m.Float(0.0),                            # e1 (split_first)
-                 [m.Float(0.0) for _ in range(n_b)] if pp is not None else [],
+                 m.Float(1.0),                             # λ-independent path weight w
+                 dr.alloc_local(m.Float, n_b, m.Float(1.0)),   # thr_b / w
+                 dr.alloc_local(m.Float, n_b, m.Float(0.0)),   # Σ throughput · emitter
+                 m.Float(0.0),                             # e1 (split_first)
+                 dr.alloc_local(m.Float, n_b if pp is not None else 1, m.Float(0.0)),
                  m.UInt32(none) if pp is not None else m.UInt32(0))
-        if self.symbolic:
-            # one megakernel; a SIMD packet runs until its own longest path ends
-            state = dr.while_loop(state, lambda depth, active, *_: active
-                                  & (depth < c.max_depth), bounce, label="bandpath")
-        else:
-            # wavefront: one kernel per bounce, every lane each time
-            for _ in range(self.max_depth):
-                state = bounce(*state)
-                dr.eval(state)
-        return SimpleNamespace(acc=state[6], e1=state[7], late=state[8], pstar=state[9])
+        state = dr.while_loop(state, lambda depth, active, *_: active & (depth < c.max_depth),
+                              bounce, label="bandpath")
+        acc, late = state[7], state[9]
+        return SimpleNamespace(
+            acc=[acc.read(m.UInt32(b)) for b in range(n_b)], e1=state[8],
+            late=[late.read(m.UInt32(b)) for b in range(n_b)] if pp is not None else [],
+            pstar=state[10])
 
     # ---- one chunk of radiometer paths ---------------------------------------------------
     def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
@@ -637,12 +678,12 @@ class BandPathTracer:
         return require_finite(np.stack([np.asarray(o, dtype=np.float64) for o in out]),
                               f"band path tracer ({self.variant}), seed {seed}")
 
-    def _band_factors(self, vx: Any, wo: Any, weight: Any, mask: Any) -> list[Any]:
-        """weight · f_b(wi, wo) for every band at vertex `vx` (weight includes the cosine); 0
-        where not `mask` (selects, never multiplications by 0, so NaNs cannot leak)."""
+    def _brdf_terms(self, vx: Any, wo: Any, weight: Any, mask: Any) -> SimpleNamespace:
+        """The per-path parts of weight · f_b(wi, wo) at vertex `vx` (weight includes the
+        cosine): f_b·weight = kd_b·a + ks_b·F_b·s + kb_b·k − c (`_band_factor`); all 0 where not
+        `mask` (selects, never multiplications by 0, so NaNs cannot leak)."""
         dr = self.dr
         wi, alpha = vx.wi, vx.alpha
-        dispersive, has_kb = vx.deta is not None, vx.kb is not None
         h = dr.normalize(wi + wo)
         a2 = alpha * alpha
         dist = ggx_d(a2, h.z)
@@ -650,28 +691,41 @@ class BandPathTracer:
         geo = (dist * smith_g1(a2, wi.z) * smith_g1(a2, wo.z)
                / (4.0 * dr.select(valid, wi.z * wo.z, 1.0)))
         cb = dr.clip(dr.dot(wi, h), 0.0, 1.0)
-        a_ = dr.select(valid, weight * INV_PI, 0.0)
-        c_ = dr.select(valid, weight * vx.c, 0.0)
         s_ = weight * geo
-        if not dispersive:
+        if vx.deta is None:
             s_ = s_ * fresnel(vx.eta, cb)
-        s_ = dr.select(valid, s_, 0.0)
-        if has_kb:
+        k_ = None
+        if vx.inv_s2 is not None:
             k_ = dr.select(valid, weight * INV_PI * dr.exp((dr.dot(wi, wo) - 1.0) * vx.inv_s2),
                            0.0)
+        return SimpleNamespace(valid=valid, cb=cb, a=dr.select(valid, weight * INV_PI, 0.0),
+                               c=dr.select(valid, weight * vx.c, 0.0),
+                               s=dr.select(valid, s_, 0.0), k=k_)
+
+    def _band_factor(self, vx: Any, t: SimpleNamespace, kd: Any, ks: Any, kb: Any,
+                     lam_nm: Any) -> Any:
+        """weight · f_b for one band from the vertex's terms `t` (`_brdf_terms`), the band's
+        kd, ks, kb and its wavelength λ_b + δ − 550 nm (used only by a dispersive η)."""
+        dr = self.dr
+        fb = dr.fma(kd, t.a, -t.c)
+        if vx.deta is not None:
+            # select, not multiply: F is NaN where cb = 0 (g = 0), outside `valid`
+            f_b = dr.select(t.valid, fresnel(dr.fma(vx.deta, lam_nm, vx.eta), t.cb), 0.0)
+            fb = dr.fma(ks * f_b, t.s, fb)
+        else:
+            fb = dr.fma(ks, t.s, fb)
+        if t.k is not None:
+            fb = dr.fma(kb, t.k, fb)
+        return fb
+
+    def _band_factors(self, vx: Any, wo: Any, weight: Any, mask: Any) -> list[Any]:
+        """weight · f_b(wi, wo) for every band at vertex `vx` (its spectra as lists)."""
+        t = self._brdf_terms(vx, wo, weight, mask)
         out = []
         for b in range(self.grid.n_bands):
-            fb = dr.fma(vx.kd[b], a_, -c_)
-            if dispersive:
-                lam = (float(self.grid.centres_nm[b]) - 550.0) + vx.delta
-                # select, not multiply: F is NaN where cb = 0 (g = 0), outside `valid`
-                f_b = dr.select(valid, fresnel(dr.fma(vx.deta, lam, vx.eta), cb), 0.0)
-                fb = dr.fma(vx.ks[b] * f_b, s_, fb)
-            else:
-                fb = dr.fma(vx.ks[b], s_, fb)
-            if has_kb:
-                fb = dr.fma(vx.kb[b], k_, fb)
-            out.append(fb)
+            lam = (float(self.grid.centres_nm[b]) - 550.0) + vx.delta
+            out.append(self._band_factor(vx, t, vx.kd[b], vx.ks[b],
+                                         vx.kb[b] if t.k is not None else None, lam))
         return out
 
     def _sample(self, vx: Any, rng: Any, active: Any, guide: Any = None,

@@ -76,10 +76,9 @@ class FastNormbox:
 
     def __init__(self, geometry: Any = None, *, variant: str | None = None,
                  max_depth: int = 12, rr_depth: int = 6, grid: BandGrid | None = None,
-                 chunk_paths: int = 1 << 16, symbolic: bool = True) -> None:
+                 chunk_paths: int = 1 << 16) -> None:
         from normbox_lab.predict.scene import as_geometry
 
-        self.symbolic = bool(symbolic)
         self.geometry = as_geometry(geometry)
         self.variant = jit_variant("mono", variant)
         self.max_depth = int(max_depth)
@@ -192,7 +191,7 @@ class FastNormbox:
                 self._scene, [(self._stand_in[r], STAND_INS[r]) for r in STAND_INS],
                 self._radiometer, self._emitter, variant=self.variant, emitter_slot="panel",
                 grid=self.grid, max_depth=depth, rr_depth=self.rr_depth,
-                chunk_paths=self.chunk_paths, symbolic=self.symbolic)
+                chunk_paths=self.chunk_paths)
             if depth > 2:        # light from the walls: only with more than one bounce
                 tr.guide = GuideRects(nbscene.aperture_sides_m(self.geometry))
         return tr
