@@ -15,6 +15,9 @@ of your own may import the same names from here or from `normbox_lab.acquire.par
 from __future__ import annotations
 
 from normbox_lab.acquire.params import (
+    LAMP,
+    MOVES,
+    READS_SPECTRA,
     Angles,
     Count,
     Limit,
@@ -30,6 +33,7 @@ from normbox_lab.acquire.params import (
     signed_key,
 )
 
-__all__ = ["Angles", "Count", "Limit", "Number", "ParameterError", "Patches", "Positive",
+__all__ = ["LAMP", "MOVES", "READS_SPECTRA", "Angles", "Count", "Limit", "Number",
+           "ParameterError", "Patches", "Positive",
            "Role", "angle_key", "angle_limits_deg", "check_parameters", "material_key",
            "signed_key"]

@@ -10,7 +10,14 @@ from __future__ import annotations
 from typing import Any
 
 from normbox_lab.acquire.engine import Step, measure, prompt, wait_stable
-from normbox_lab.protocols._common import Count, Positive, Role, check_parameters
+from normbox_lab.protocols._common import (
+    LAMP,
+    READS_SPECTRA,
+    Count,
+    Positive,
+    Role,
+    check_parameters,
+)
 
 PARAMETERS: dict[str, Any] = {
     "rows": 5,
@@ -23,7 +30,8 @@ PARAMETERS: dict[str, Any] = {
 }
 LIMITS = {"rows": Count(maximum=50), "columns": Count(maximum=50),
           "panel_x_mm": Positive("mm"), "panel_y_mm": Positive("mm"),
-          "margin_mm": Positive("mm", zero=True), "radiometer": Role(), "lamp": Role()}
+          "margin_mm": Positive("mm", zero=True), "radiometer": Role(READS_SPECTRA),
+          "lamp": Role(LAMP)}
 
 
 def grid_mm(n: int, size_mm: float, margin_mm: float) -> list[float]:

@@ -15,6 +15,9 @@ from typing import Any
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
 from normbox_lab.core.spectral import patch_name
 from normbox_lab.protocols._common import (
+    LAMP,
+    MOVES,
+    READS_SPECTRA,
     Angles,
     Patches,
     Positive,
@@ -34,7 +37,8 @@ PARAMETERS: dict[str, Any] = {
 #: what each parameter may hold (checked before a step is built; angles against the configured
 #: range of the instrument named by "rotator")
 LIMITS = {"angles_deg": Angles(role_param="rotator"), "patches": Patches(),
-          "rotator": Role(), "radiometer": Role(), "lamp": Role(),
+          "rotator": Role(MOVES), "radiometer": Role(READS_SPECTRA),
+          "lamp": Role(LAMP),
           "lamp_timeout_s": Positive("s")}
 
 

@@ -12,6 +12,9 @@ from typing import Any
 from normbox_lab.acquire.engine import Step, measure, move, prompt, wait_stable
 from normbox_lab.core.spectral import WHITE_PATCH, patch_name
 from normbox_lab.protocols._common import (
+    LAMP,
+    MOVES,
+    READS_SPECTRA,
     Angles,
     Count,
     Patches,
@@ -31,8 +34,8 @@ PARAMETERS: dict[str, Any] = {
 }
 LIMITS = {"repeats": Count(), "threshold_percent": Positive("%"),
           "angle_deg": Angles(role_param="rotator", many=False),
-          "patch": Patches(many=False), "rotator": Role(), "radiometer": Role(),
-          "lamp": Role()}
+          "patch": Patches(many=False), "rotator": Role(MOVES),
+          "radiometer": Role(READS_SPECTRA), "lamp": Role(LAMP)}
 
 
 def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:

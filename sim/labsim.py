@@ -61,8 +61,45 @@ def build_lab(config: Any, *, world: str | Any = "normbox", clock: Clock | None 
     return assemble_lab(config, simulation=simulation, clock=clock, **options)
 
 
+def check_sim_ports(config: Any) -> None:
+    """Every ``sim://DEVICE?…`` port of `config` opens as written, or a `ConfigError` (one
+    line, exit 2) before any run starts: a known emulator, its options (an emulator built
+    with them on a throwaway clock, then dropped), only fault kinds it has, within their
+    ranges.  The lab config has read the spec's numbers and the seed
+    (`acquire.params.parse_fault_spec`); the kinds are the emulator's table."""
+    from normbox_lab.acquire.params import SEED, ParameterError, read
+    from normbox_lab.core.clock import VirtualClock
+    from normbox_lab.core.errors import ConfigError
+
+    for role, inst in config.instruments.items():
+        if not inst.simulated:
+            continue
+        parts = urllib.parse.urlsplit(inst.port)
+        device = parts.netloc or parts.path.lstrip("/")
+        line = next((i for i, raw in enumerate(str(config.text).splitlines(), 1)
+                     if inst.port in raw), 0)
+        options = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
+        options.pop("key", None)
+        spec = options.pop("faults", "")
+        try:
+            seed = read(options.pop("seed", "0"), SEED, "seed")
+            if device == "qepro":            # on the emulated USB bus (sim.transport)
+                if spec:
+                    core.FaultInjector(spec, 0, core.fault_table(device)[device])
+                continue
+            if device not in core.EMULATORS:
+                raise ValueError(f"unknown simulated device {device[:40]!r}; known: "
+                                 f"{', '.join([*core.EMULATORS, 'qepro'])}")
+            core.create(device, clock=VirtualClock(), faults=spec, seed=seed, world=None,
+                        **options)
+        except (ValueError, TypeError, ParameterError) as exc:
+            raise ConfigError(config.path, line, f"instruments.{role}.port",
+                              " ".join(str(exc).split())[:200]) from None
+
+
 class Simulation:
     def __init__(self, config: Any, clock: Clock, world: Any) -> None:
+        check_sim_ports(config)
         register_url_scheme()
         core.CONTEXT.reset(clock=clock, world=world)
         self.config = config

@@ -13,6 +13,7 @@ import urllib.parse
 
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from normbox_lab.acquire.params import SEED, ParameterError, read
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.sim import core
 
@@ -59,10 +60,10 @@ class Serial(ModemLinesOn, SerialBase):
         opts = {k: v[-1] for k, v in urllib.parse.parse_qs(parts.query).items()}
         key = opts.pop("key", None)
         faults = opts.pop("faults", "")
-        seed = int(opts.pop("seed", "0"))
         try:
+            seed = read(opts.pop("seed", "0"), SEED, "seed")     # the one parser of numbers
             self.emulator = core.instance(device, key=key, faults=faults, seed=seed, **opts)
-        except (ValueError, TypeError) as exc:
+        except (ValueError, TypeError, ParameterError) as exc:
             raise SerialException(f"cannot open {self._port!r}: {exc}") from exc
         if faults and key is None and self.emulator.faults.rules == {}:
             self.emulator.faults = core.FaultInjector(

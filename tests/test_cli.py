@@ -156,10 +156,11 @@ def test_every_numeric_option_goes_through_the_one_parser(capsys, argv, expect):
 
 
 @pytest.mark.parametrize("spec, expect", [
-    ("garble@-1", "--faults garble@-1: -1 must be ≥ 1"),
-    ("garble=NaN", "--faults garble=NaN: NaN is not a finite number"),
-    ("no-reply=2", "--faults no-reply=2: 2 is above 1"),
-    ("late-reply=0.2:1e999", "--faults late-reply=0.2:1e999: 1e999 is not a finite number"),
+    ("garble@-1", "--faults 'garble@-1': N: -1 must be ≥ 1"),
+    ("garble=NaN", "--faults 'garble=NaN': P: NaN is not a finite number"),
+    ("no-reply=2", "--faults 'no-reply=2': P: 2 is above 1"),
+    ("late-reply=0.2:1e999", "--faults 'late-reply=0.2:1e999': X: 1e999 is not a finite number"),
+    ("garble@٣", "--faults 'garble@٣': N: '٣' has digits of another script"),
 ])
 def test_sim_serve_fault_numbers_go_through_the_one_parser(capsys, spec, expect):
     assert main(["sim", "serve", "cs1000a", "--tcp", "127.0.0.1:0", "--faults", spec]) == 2

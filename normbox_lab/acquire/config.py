@@ -413,6 +413,39 @@ def _parse_instruments(r: _Reader, obj: Any) -> dict[str, InstrumentConfig]:
     return instruments
 
 
+def _check_sim_port(port: str) -> str:
+    """Why a ``sim://DEVICE?faults=SPEC&seed=N&key=NAME`` port cannot be opened as written
+    ("" when it can): its fault spec and seed through the one parser
+    (`normbox_lab.acquire.params`), as `sim serve --faults` reads them.  Which fault kinds the
+    device has is the emulator's table; the simulated lab checks them when it is built."""
+    import urllib.parse
+
+    from normbox_lab.acquire.params import SEED, ParameterError, parse_fault_spec, read
+
+    query = urllib.parse.urlsplit(port).query
+    try:
+        pairs = urllib.parse.parse_qsl(query, keep_blank_values=True, strict_parsing=bool(query),
+                                       max_num_fields=64)
+    except ValueError as exc:
+        return f"cannot read the query {query[:40]!r}: {exc}"
+    names = [k for k, _ in pairs]
+    twice = sorted({k for k in names if names.count(k) > 1})
+    if twice:
+        return f"{', '.join(twice)} given twice in the port's query"
+    options = dict(pairs)
+    try:
+        if "faults" in options:
+            parse_fault_spec(options["faults"], "faults")
+        if "seed" in options:
+            read(options["seed"], SEED, "seed")
+    except ParameterError as exc:
+        return str(exc)
+    key = options.get("key")
+    if key is not None and not key.replace("-", "").replace("_", "").isalnum():
+        return f"key {key[:40]!r} is not a name (letters, digits, - and _)"
+    return ""
+
+
 def _parse_instrument(r: _Reader, role: str, spec: Any) -> InstrumentConfig:
     tab = f"instruments.{role}"
     if role not in ROLES:
@@ -427,6 +460,10 @@ def _parse_instrument(r: _Reader, role: str, spec: Any) -> InstrumentConfig:
     if not isinstance(port, str) or not port:
         raise r.err(tab, "port", "must be a non-empty string (device path, socket:// or "
                     "sim:// URL)")
+    if port.startswith("sim://"):
+        problem = _check_sim_port(port)
+        if problem:
+            raise r.err(tab, "port", problem)
     serial_number = spec.get("serial_number", "")
     if not isinstance(serial_number, str):
         raise r.err(tab, "serial_number", f"must be a string, got {serial_number!r}")

@@ -408,7 +408,11 @@ class Number:
 
 @dataclass(frozen=True)
 class Role:
-    """The name of an instrument role of the lab (checked when the lab's config is known)."""
+    """The name of an instrument role of the lab (checked when the lab's config is known);
+    `needs`: the capabilities (`core.capabilities` names) the protocol asks of it, so that
+    ``radiometer=rotator`` is refused as a parameter (one line, exit 2), not later by a step."""
+
+    needs: tuple[str, ...] = ()
 
     many = False
     whole = False
@@ -421,13 +425,37 @@ class Role:
         if config is None:
             return
         roles = list(config.instruments)
-        if value == "gonio" or value in roles:
+        if value == "gonio":
             return
-        raise ParameterError(f"{field}: {show(value)} is not an instrument of this lab "
-                             f"({', '.join(roles)})")
+        if value not in roles:
+            raise ParameterError(f"{field}: {show(value)} is not an instrument of this lab "
+                                 f"({', '.join(roles)})")
+        if not self.needs:
+            return
+        from normbox_lab.acquire.registry import driver_class
+        from normbox_lab.core.capabilities import capabilities_of
+
+        def has(role: str) -> tuple[str, ...]:
+            try:
+                return capabilities_of(driver_class(config.instruments[role].driver))
+            except (NormboxError, ImportError):
+                return ()
+
+        driver = config.instruments[value].driver
+        missing = [c for c in self.needs if c not in has(value)]
+        if missing:
+            fit = [r for r in roles if all(c in has(r) for c in self.needs)]
+            hint = f"; this lab's: {', '.join(fit)}" if fit else ""
+            raise ParameterError(f"{field}: {show(value)} ({driver}) is not "
+                                 f"{' and '.join(missing)}{hint}")
 
 
 Limit = Angles | Patches | Count | Positive | Number | Role
+
+#: what the shipped protocols ask of a role they are given (`Role(needs)`)
+MOVES = ("Movable",)
+READS_SPECTRA = ("SpectrumReadable",)
+LAMP = ("Settling",)
 
 
 def check_parameters(limits: Mapping[str, Limit], params: Mapping[str, Any], lab: Any = None,
@@ -501,6 +529,75 @@ WORKERS = Number(1, 1024, whole=True)
 PROBABILITY = Number(0, 1)
 
 
+#: the numbers of a fault rule (``sim://DEVICE?faults=SPEC``, ``sim serve --faults``, a
+#: campaign's replay): KIND=P (a probability per opportunity), KIND@N (once, at the N-th
+#: opportunity), :X (the kind's parameter: seconds late, a fraction of full scale …)
+FAULT_AT = Number(1, 1_000_000_000, whole=True)
+FAULT_PARAMETER = Number(-1e12, 1e12)
+_FAULT_KIND = re.compile(r"[a-z][a-z0-9-]{0,31}")
+
+
+@dataclass(frozen=True)
+class FaultRuleText:
+    """One rule of a fault spec, read: ``garble=0.01`` → ("garble", "=", 0.01, None)."""
+
+    kind: str
+    mode: str                  # "=" a rate per opportunity, "@" once at the n-th
+    value: float               # the rate, or n
+    param: float | None = None
+
+
+def parse_fault_spec(spec: str, field: str = "faults") -> list[FaultRuleText]:
+    """A fault spec (``KIND``, ``KIND=P``, ``KIND@N``, each with an optional ``:X``, comma
+    separated) read with the one parser: every number through its kind (``garble@٣``,
+    ``garble=NaN``, a 30-digit count are refused here, not read by ``float()`` or left to
+    fire never), each kind named once (a second rule of a kind replaced the first silently).
+    Which kinds a device has is the emulator's table (``sim.core.fault_table``)."""
+    if not isinstance(spec, str):
+        raise ParameterError(f"{field}: expected a fault spec, got {show(spec)}")
+    if len(spec) > MAX_TEXT_CHARS:
+        raise ParameterError(f"{field}: {len(spec)} characters is too long for a fault spec "
+                             f"(at most {MAX_TEXT_CHARS})")
+    rules: list[FaultRuleText] = []
+    if not spec.strip():
+        return rules
+    for item in (s.strip() for s in spec.split(",")):
+        if not item:
+            raise ParameterError(f"{field}: {_quoted(spec)} has an empty rule (two commas, "
+                                 "or a comma at an end)")
+        where = f"{field} {_quoted(item)}"
+        head, colon, param_text = item.partition(":")
+        mode = "@" if "@" in head else "=" if "=" in head else ""
+        kind, _, value_text = head.partition(mode) if mode else (head, "", "")
+        kind = kind.strip()
+        if not _FAULT_KIND.fullmatch(kind):
+            raise ParameterError(f"{where}: {_quoted(kind)} is not a fault kind (KIND, "
+                                 "KIND=P or KIND@N, then :X)")
+        value: float = 1.0
+        if mode == "@":
+            value = read(value_text, FAULT_AT, f"{where}: N")
+        elif mode == "=":
+            value = read(value_text, PROBABILITY, f"{where}: P")
+        param = read(param_text, FAULT_PARAMETER, f"{where}: X") if colon else None
+        if any(r.kind == kind for r in rules):
+            raise ParameterError(f"{where}: {kind} is given twice; one rule per kind")
+        rules.append(FaultRuleText(kind, mode or "=", value, param))
+    return rules
+
+
+def check_fault_values(rule: FaultRuleText, field: str = "faults") -> None:
+    """A rule that arrives as Python values (a campaign's replay JSON) through the same kinds
+    as its text (`parse_fault_spec`)."""
+    if not isinstance(rule.kind, str) or not _FAULT_KIND.fullmatch(rule.kind):
+        raise ParameterError(f"{field}: {show(rule.kind)} is not a fault kind")
+    if rule.mode not in ("=", "@"):
+        raise ParameterError(f"{field} {rule.kind}: mode {show(rule.mode)} is not = or @")
+    (FAULT_AT if rule.mode == "@" else PROBABILITY).check(f"{field} {rule.kind}",
+                                                         rule.value, {}, None)
+    if rule.param is not None:
+        FAULT_PARAMETER.check(f"{field} {rule.kind}: X", rule.param, {}, None)
+
+
 def option(kind: Limit, field: str = "") -> Callable[[str], Any]:
     """An argparse ``type=`` for a numeric option: the text read as `kind` within its
     limits; a refusal becomes argparse's one-line error (the command exits 2)."""
@@ -519,15 +616,21 @@ def option(kind: Limit, field: str = "") -> Callable[[str], Any]:
 
 
 __all__ = [
+    "FAULT_AT",
+    "FAULT_PARAMETER",
+    "LAMP",
     "MAX_ITEMS",
     "MAX_NUMBER_CHARS",
     "MAX_TEXT_CHARS",
+    "MOVES",
     "PROBABILITY",
+    "READS_SPECTRA",
     "SEED",
     "TIME_SCALE",
     "WORKERS",
     "Angles",
     "Count",
+    "FaultRuleText",
     "Limit",
     "Number",
     "ParameterError",
@@ -536,9 +639,11 @@ __all__ = [
     "Role",
     "angle_key",
     "angle_limits_deg",
+    "check_fault_values",
     "check_parameters",
     "material_key",
     "option",
+    "parse_fault_spec",
     "parse_items",
     "parse_number",
     "parse_param",

@@ -19,6 +19,7 @@ from types import ModuleType
 from typing import Any
 
 from normbox_lab.acquire.steps import KINDS, STEP_KINDS, PlanError, Step, iter_roles
+from normbox_lab.core.errors import NormboxError
 
 
 class Plan:
@@ -115,11 +116,41 @@ def load_protocol(name_or_path: str) -> ModuleType:
     spec = importlib.util.spec_from_file_location(mod_name, path)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
+    try:
+        spec.loader.exec_module(module)
+    except Exception as exc:     # noqa: BLE001 - the person's own code: refused in one line
+        raise PlanError(_user_code_failed(path, "cannot be loaded", exc)) from None
     for attr in ("PARAMETERS", "steps"):
         if attr not in vars(module):
             raise PlanError(f"protocol file {path} defines no {attr}")
+    declared = module.PARAMETERS
+    if not isinstance(declared, dict) or not all(isinstance(k, str) for k in declared):
+        raise PlanError(f"protocol file {path}: PARAMETERS must be a dict of names to "
+                        f"defaults, not {type(declared).__name__}")
+    if not callable(module.steps):
+        raise PlanError(f"protocol file {path}: steps must be a function steps(params, lab)")
     return module
+
+
+def _user_code_failed(path: Path | str, what: str, exc: BaseException) -> str:
+    """One line for an exception raised by a protocol file's own code: the file, the line of
+    that file nearest the error, and the exception (a traceback is not an answer to a person
+    who ran a command)."""
+    import traceback
+
+    line = exc.lineno if isinstance(exc, SyntaxError) and exc.lineno else 0
+    if not line:
+        for frame in traceback.extract_tb(exc.__traceback__):
+            if Path(frame.filename).resolve() == Path(path).resolve() and frame.lineno:
+                line = frame.lineno
+    message = " ".join(str(exc.msg if isinstance(exc, SyntaxError) else exc).split())
+    message = message if len(message) <= 160 else message[:159] + "…"
+    where = f"{path}:{line}" if line else str(path)
+    return f"protocol file {where}: {what}: {type(exc).__name__}: {message}"
+
+
+def _user_protocol(module: ModuleType) -> bool:
+    return module.__name__.startswith("normbox_lab_user_protocol_")
 
 
 def coerce_param(default: Any, text: str, name: str = "parameter", kind: Any = None) -> Any:
@@ -157,7 +188,22 @@ def build_plan(protocol: str, params: Mapping[str, Any] | None = None, lab: Any 
     if hook is not None:
         def on_reading(step: Step, reading: Any, context: dict[str, Any]) -> Any:
             return hook(full, step, reading, context)
-    return Plan(protocol, full, module.steps(full, lab), on_reading)
+    if not _user_protocol(module):
+        return Plan(protocol, full, module.steps(full, lab), on_reading)
+    try:
+        steps = module.steps(full, lab)
+        if not isinstance(steps, (list, tuple)) or not all(isinstance(s, Step) for s in steps):
+            raise PlanError(f"protocol file {module.__file__}: steps() must return a list "
+                            f"of steps, not {type(steps).__name__}")
+        return Plan(protocol, full, steps, on_reading)
+    except PlanError as exc:
+        where = f"protocol file {module.__file__}"
+        raise (exc if str(exc).startswith(where) else type(exc)(f"{where}: {exc}")) from None
+    except NormboxError:
+        raise
+    except Exception as exc:     # noqa: BLE001 - the person's own code: refused in one line
+        raise PlanError(_user_code_failed(module.__file__ or protocol, "steps() failed",
+                                          exc)) from None
 
 
 __all__ = [

@@ -13,7 +13,7 @@ from normbox_lab.acquire.params import (
     Number,
     ParameterError,
     option,
-    read,
+    parse_fault_spec,
 )
 
 SERVE_EPILOG = """\
@@ -116,25 +116,34 @@ def _fail(message: str) -> int:
     return 2
 
 
-#: the numbers of a fault rule: KIND=P (a probability per opportunity), KIND@N (once, at the
-#: N-th opportunity), :X (the kind's parameter: seconds late, a fraction of full scale,
-#: counts/s of drift …)
-FAULT_AT = Number(1, 1_000_000_000, whole=True)
-FAULT_PARAMETER = Number(-1e12, 1e12)
-
-
 def check_fault_spec(spec: str) -> None:
     """Every number of a `--faults` spec through the one parser (``garble@-1`` never fired,
-    ``garble=NaN`` never fired either): a refusal is one line naming the rule."""
-    for item in filter(None, (s.strip() for s in spec.split(","))):
-        head, colon, param = item.partition(":")
-        field = f"--faults {item[:24]}"
-        if colon:
-            read(param, FAULT_PARAMETER, field)
-        if "@" in head:
-            read(head.partition("@")[2], FAULT_AT, field)
-        elif "=" in head:
-            read(head.partition("=")[2], PROBABILITY, field)
+    ``garble=NaN`` never fired either): a refusal is one line naming the rule.  The same
+    reading as a lab config's ``sim://…?faults=`` (`acquire.params.parse_fault_spec`)."""
+    parse_fault_spec(spec, "--faults")
+
+
+def check_replay_faults(scenario: Any) -> None:
+    """A replayed scenario's faults (JSON numbers: NaN, 1e400 and a huge count parse) through
+    the same kinds as a ``--faults`` spec, then the device's own table (kinds and ranges):
+    `ParameterError`, one line."""
+    from normbox_lab.acquire.params import FaultRuleText, check_fault_values, show
+    from normbox_lab.sim import core
+
+    for fault in scenario.faults:
+        field = f"fault of {show(fault.role)}"
+        if not isinstance(fault.role, str):
+            raise ParameterError(f"{field}: the role must be a name")
+        try:
+            device = scenario.device_of(fault.role)
+        except KeyError:
+            raise ParameterError(f"{field}: not a role of a campaign's lab") from None
+        check_fault_values(FaultRuleText(fault.kind, fault.mode, fault.value, fault.param),
+                           field)
+        try:
+            core.FaultInjector(fault.spec(), 0, core.fault_table(device)[device])
+        except ValueError as exc:
+            raise ParameterError(f"{field} ({device}): {exc}") from None
 
 
 def _serve(args: argparse.Namespace) -> int:
@@ -203,9 +212,13 @@ def _campaign(args: argparse.Namespace) -> int:
         from normbox_lab.campaign.scenario import Scenario
 
         try:
-            Scenario.from_json(args.replay)
+            scenario = Scenario.from_json(args.replay)
         except (ValueError, TypeError, KeyError) as exc:
             return _fail(f"--replay wants a scenario as printed by a campaign: {exc}")
+        try:
+            check_replay_faults(scenario)
+        except ParameterError as exc:
+            return _fail(f"--replay: {exc}")
     results = run_campaign(args.scenarios, args.seed, args.jobs, args.keep,
                            shrink_failures=args.shrink, normbox_share=args.normbox_share,
                            replay=args.replay, verbose=not args.quiet,

@@ -96,7 +96,11 @@ class OperatorAbort(NormboxError):
 class PlanError(NormboxError):
     """A protocol declared an inconsistent plan (duplicate keys, unsatisfiable requirements,
     or a step an instrument has no capability for).  Here (not in `acquire.steps`) so that the
-    parameter parser (`acquire.params`) stays importable without numpy for the command line."""
+    parameter parser (`acquire.params`) stays importable without numpy for the command line.
+    A plan is built from what a person gave (the protocol's name or file, its parameters, the
+    lab config), before anything moves: a refusal of user input, so the command line exits 2."""
+
+    exit_code = 2
 
 
 class RenderError(NormboxError):
