@@ -472,34 +472,14 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
     config = getattr(lab, "config", None)
     configured = list(config.instruments) if config is not None else \
         ["radiometer", "rotator", "sphere"]
-    roles = list(params["roles"]) or configured
-    for r in roles:
-        if r not in configured:
-            raise PlanError(f"roles: {r!r} is not an instrument of the lab config "
-                            f"({', '.join(configured)})")
-    for key in ("sphere_level_percent", "warmup_timeout_s", "tec_timeout_s",
-                "backlash_step_deg"):
-        v = params[key]
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1e6:
-            raise PlanError(f"{key}: must be a positive number, got {v!r}")
-    if isinstance(params["repeats"], bool) or not isinstance(params["repeats"], int) \
-            or not 2 <= params["repeats"] <= 100:
-        raise PlanError(f"repeats: must be an integer 2–100, got {params['repeats']!r}")
+    roles = _roles(params, configured)
     quality = getattr(config, "quality", None)
     today = datetime.date.today().isoformat()
     level = float(params["sphere_level_percent"])
     out: list[Step] = []
 
     def common(role: str, requires: dict[str, Any] | None = None) -> None:
-        inst = config.instruments[role] if config is not None else None
-        out.append(_check(role, "identity", requires,
-                          serial_number=inst.serial_number if inst is not None else ""))
-        cal = inst.calibration if inst is not None else None
-        if cal is not None:
-            out.append(_check(role, "calibration", requires, today=today,
-                              due=cal.due.isoformat(),
-                              certificate=cal.certificate, laboratory=cal.laboratory,
-                              strict=bool(params["strict"])))
+        out.extend(_common_checks(config, role, requires, today, bool(params["strict"])))
 
     for role in (r for r in _STAGE_ROLES if r in roles):
         common(role)
@@ -519,28 +499,11 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
                           scatter_percent=quality.lamp_drift_percent if quality is not None
                           else SPHERE_SCATTER.high))
     if "radiometer" in roles and "rotator" in configured and "sphere" in configured:
-        from normbox_lab.acquire.steps import move, wait_stable
-
-        sample = f"patch:{WHITE_PATCH}"
-        out.append(wait_stable("sphere/stable", "sphere", level_percent=level,
-                               timeout_s=float(params["warmup_timeout_s"])))
-        out.append(move("rotator/to-90", "rotator", 90.0))
-        out.append(prompt("radiometer/place-white",
-                          f"place patch {WHITE_PATCH} ({patch_name(WHITE_PATCH)}) on the holder",
-                          action="place_patch", patch=WHITE_PATCH, sets={"sample": sample}))
-        need = {"sphere": "stable", "rotator": 90.0, "sample": sample}
+        need = {"sphere": "stable", "rotator": 90.0, "sample": f"patch:{WHITE_PATCH}"}
+        out.extend(_white_at_90(params, level))
         # (a radiometer's every step waits for stable lamps: these too)
         common("radiometer", need)
-        lo = quality.radiometer_min_luminance_cd_m2 if quality is not None else 0.01
-        hi = quality.radiometer_max_luminance_cd_m2 if quality is not None else 80000.0
-        out.append(Step("radiometer/level", "check",
-                        {"role": "radiometer", "check": "level", "level_percent": level,
-                         "range_low": lo, "range_high": hi, "angle_deg": 90.0,
-                         "patch": WHITE_PATCH}, requires=need))
-        out.append(Step("radiometer/repeatability", "check",
-                        {"role": "radiometer", "check": "repeatability",
-                         "repeats": int(params["repeats"]), "angle_deg": 90.0,
-                         "patch": WHITE_PATCH}, requires=need))
+        out.extend(_radiometer_on_white(params, quality, level, need))
     if "radiometer" in roles:
         if "radiometer/level" not in {s.key for s in out}:
             common("radiometer")
@@ -559,6 +522,69 @@ def steps(params: dict[str, Any], lab: Any = None) -> list[Step]:
                           max_counts_s=2621.0))
         out.append(_check("spectrometer", "nonlinearity"))
     return out
+
+
+def _roles(params: dict[str, Any], configured: list[str]) -> list[str]:
+    """The roles to check (default: every configured one), after the parameters' limits."""
+    roles = list(params["roles"]) or configured
+    for r in roles:
+        if r not in configured:
+            raise PlanError(f"roles: {r!r} is not an instrument of the lab config "
+                            f"({', '.join(configured)})")
+    for key in ("sphere_level_percent", "warmup_timeout_s", "tec_timeout_s",
+                "backlash_step_deg"):
+        v = params[key]
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not 0 < v < 1e6:
+            raise PlanError(f"{key}: must be a positive number, got {v!r}")
+    if isinstance(params["repeats"], bool) or not isinstance(params["repeats"], int) \
+            or not 2 <= params["repeats"] <= 100:
+        raise PlanError(f"repeats: must be an integer 2–100, got {params['repeats']!r}")
+    return roles
+
+
+def _common_checks(config: Any, role: str, requires: dict[str, Any] | None, today: str,
+                   strict: bool) -> list[Step]:
+    """What every instrument gets: its identity, and its certificate when the config names
+    one (checked against `today`; `strict`: an expired one is an error)."""
+    inst = config.instruments[role] if config is not None else None
+    out = [_check(role, "identity", requires,
+                  serial_number=inst.serial_number if inst is not None else "")]
+    cal = inst.calibration if inst is not None else None
+    if cal is not None:
+        out.append(_check(role, "calibration", requires,
+                          today=today, due=cal.due.isoformat(),
+                          certificate=cal.certificate, laboratory=cal.laboratory,
+                          strict=strict))
+    return out
+
+
+def _white_at_90(params: dict[str, Any], level: float) -> list[Step]:
+    """Stable lamps, the rotator at 90° and the white patch on the holder."""
+    from normbox_lab.acquire.steps import move, wait_stable
+
+    return [wait_stable("sphere/stable", "sphere", level_percent=level,
+                        timeout_s=float(params["warmup_timeout_s"])),
+            move("rotator/to-90", "rotator", 90.0),
+            prompt("radiometer/place-white",
+                   f"place patch {WHITE_PATCH} ({patch_name(WHITE_PATCH)}) on the holder",
+                   action="place_patch", patch=WHITE_PATCH,
+                   sets={"sample": f"patch:{WHITE_PATCH}"})]
+
+
+def _radiometer_on_white(params: dict[str, Any], quality: Any, level: float,
+                         need: dict[str, Any]) -> list[Step]:
+    """The radiometer on the white patch at 90°: its level within the quality limits, and
+    its repeatability."""
+    lo = quality.radiometer_min_luminance_cd_m2 if quality is not None else 0.01
+    hi = quality.radiometer_max_luminance_cd_m2 if quality is not None else 80000.0
+    return [Step("radiometer/level", "check",
+                 {"role": "radiometer", "check": "level", "level_percent": level,
+                  "range_low": lo, "range_high": hi, "angle_deg": 90.0,
+                  "patch": WHITE_PATCH}, requires=need),
+            Step("radiometer/repeatability", "check",
+                 {"role": "radiometer", "check": "repeatability",
+                  "repeats": int(params["repeats"]), "angle_deg": 90.0,
+                  "patch": WHITE_PATCH}, requires=need)]
 
 
 # --- running it, and what a sweep asks of it ------------------------------------------------------
