@@ -37,11 +37,14 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from normbox_lab.campaign.harness import Execution, qa_listing, runs_listing
+
+if TYPE_CHECKING:
+    from normbox_lab.acquire.store_api import Store
 
 RADIOMETRIC = 0.02
 WAVELENGTH_NM = 0.3
@@ -273,7 +276,7 @@ def _notes(ex: Execution) -> dict[str, dict[str, Any]]:
     return out
 
 
-def oracle(ex: Execution, store: Any, run_id: int, error_keys: set[str]) -> list[Violation]:
+def oracle(ex: Execution, store: Store, run_id: int, error_keys: set[str]) -> list[Violation]:
     out = []
     notes = _notes(ex)
     for r in store.readings(run_id):
@@ -435,7 +438,7 @@ def lock_is_free(store_path: Any, uuid: str) -> bool:
     return True
 
 
-def consistent_state(ex: Execution, store: Any, rec: Any, keys: set[str],
+def consistent_state(ex: Execution, store: Store, rec: Any, keys: set[str],
                      flags: list[Any]) -> list[Violation]:
     out = []
     for i, seg in enumerate(ex.segments):
@@ -505,7 +508,7 @@ def consistent_state(ex: Execution, store: Any, rec: Any, keys: set[str],
     return out
 
 
-def resume_matches(ex: Execution, store: Any, rec: Any, error_keys: set[str]) -> list[Violation]:
+def resume_matches(ex: Execution, store: Store, rec: Any, error_keys: set[str]) -> list[Violation]:
     from normbox_lab.acquire.store import Store
 
     ref = ex.reference

@@ -19,10 +19,13 @@ import threading
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from normbox_lab.acquire.events import fault_text
 from normbox_lab.core.errors import NormboxError, OperatorAbort
+
+if TYPE_CHECKING:
+    from normbox_lab.acquire.store_api import Store
 
 log = logging.getLogger("normbox_lab.tui")
 
@@ -141,7 +144,7 @@ class Session:
         self.virtual_operator = virtual_operator
         self.time_scale = time_scale
         self.post = post or (lambda ev: None)
-        self.store: Any = None
+        self.store: Store | None = None
         self.lab: Any = None
         self.engine: Any = None
         self.operator: ConsoleOperator | None = None
