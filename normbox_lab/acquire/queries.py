@@ -194,3 +194,13 @@ def scene_package_inputs(store: Store, ref_run: int | str, *,
                          code_version=run.code_version, ref=ref,
                          fits={k: fits[k] for k in need}, geometry=geometry, lamp=lamp,
                          provenance=prov, measured_light=measured_light(store, lm))
+
+
+def renderers(store: Store, run_id: int, kind: str = "comparison") -> list[str | None]:
+    """Renderers with a `kind` artifact for the run: None (ours) first, then by name."""
+    from normbox_lab.predict.renderers import artifact_name, renderer_of
+
+    base = artifact_name(run_id)
+    names = {a.name for a in store.artifacts(kind) if a.name == base
+             or a.name.startswith(base + "@")}
+    return sorted({renderer_of(n) for n in names}, key=lambda r: (r is not None, r or ""))

@@ -57,8 +57,9 @@ def _version(store: Store, run_id: int, renderer: str | None) -> str:
 
 
 def renderer_rows(store: Store, run_id: int) -> list[RendererRow]:
+    from normbox_lab.acquire.queries import renderers
     from normbox_lab.analyze.compare import RATING_SCALE, ComparisonResult, rating_index
-    from normbox_lab.predict.renderers import artifact_name, renderers
+    from normbox_lab.predict.renderers import artifact_name
 
     rows = []
     for r in renderers(store, run_id):

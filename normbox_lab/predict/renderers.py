@@ -63,15 +63,6 @@ def renderer_of(name: str) -> str | None:
     return name.split("@", 1)[1] if "@" in name else None
 
 
-def renderers(store: Any, run_id: int, kind: str = "comparison") -> list[str | None]:
-    """Renderers with a `kind` artifact for the run: None (ours) first, then by name."""
-    base = artifact_name(run_id)
-    names = {a.name for a in store.artifacts(kind) if a.name == base
-             or a.name.startswith(base + "@")}
-    found = sorted({renderer_of(n) for n in names}, key=lambda r: (r is not None, r or ""))
-    return found
-
-
 @dataclass
 class PredictionFile:
     """Spectra as read: {(patch, angle_deg): (wavelength_nm, radiance, std_error | None)}."""
