@@ -28,7 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -124,6 +124,16 @@ class GgxParameters:
     c: float
 
 
+class ArtifactSink(Protocol):
+    """Where a fit is written: the one call of the measurement store
+    (`normbox_lab.acquire.store_api.Store`) a fit makes.  The prediction's floor stands below
+    the store's and names no store type of its own; any `Store` is an `ArtifactSink`."""
+
+    def add_artifact(self, kind: str, name: str, arrays: Mapping[str, Any] | None = None, *,
+                     metadata: Mapping[str, Any] | None = None,
+                     run_ref: int | str | None = None) -> int: ...
+
+
 @dataclass
 class MaterialFit(GgxParameters):
     """One material's fitted model parameters (store artifact kind "fit", name = material)."""
@@ -157,7 +167,7 @@ class MaterialFit(GgxParameters):
                 "cost": float(self.cost), "tilt_deg": float(self.tilt_deg),
                 **dict(self.metadata)}
 
-    def store(self, store: Any, run_ref: int | str | None = None) -> int:
+    def store(self, store: ArtifactSink, run_ref: int | str | None = None) -> int:
         """Write as an artifact: `store.add_artifact(kind="fit", name=self.name, ...)`."""
         return store.add_artifact(kind="fit", name=self.name, arrays=self.to_arrays(),
                                   metadata=self.to_metadata(), run_ref=run_ref)
