@@ -37,6 +37,7 @@ from typing import Any
 
 from normbox_lab.acquire.steps import KINDS, PlanError, Step, StepKind, prompt
 from normbox_lab.acquire.store import ReadingRecord
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.errors import DeviceError, InstrumentError, NotReady
 from normbox_lab.core.spectral import WHITE_PATCH, patch_name
 
@@ -614,7 +615,7 @@ class CheckReport:
         return out
 
 
-def results_of(store: Any, run_id: int) -> list[dict[str, Any]]:
+def results_of(store: Store, run_id: int) -> list[dict[str, Any]]:
     return [dict(r.metadata) for r in store.readings(run_id, kind="check")]
 
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.acquire.registry import DRIVERS, DriverEntry
+from normbox_lab.acquire.store_api import Store
 from normbox_lab.core.capabilities import InstrumentIdentity
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentTimeout
@@ -216,7 +217,7 @@ class FakeLab:
     def provenance(self) -> dict[str, Any]:
         return {"lab_config": "", "seeds": {"lab": 0}}
 
-    def record_identities(self, store: Any, run_id: int, segment: int = 1,
+    def record_identities(self, store: Store, run_id: int, segment: int = 1,
                           roles: Any = None) -> None:
         for role, inst in self.instruments.items():
             if roles is not None and role not in roles:
