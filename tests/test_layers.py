@@ -17,11 +17,13 @@ the list only shrinks.
 
 from __future__ import annotations
 
+import ast
+import inspect
 from collections import Counter
 from pathlib import Path
 
 import pytest
-from test_import_graph import import_graph, imports_of
+from test_import_graph import ROOT, import_graph, imports_of, module_files
 
 #: the floors, bottom up: (rooms, what stands there)
 FLOORS: tuple[tuple[tuple[str, ...], str], ...] = (
@@ -136,6 +138,60 @@ def test_every_exception_names_a_module_and_a_reason(graph: dict[str, set[str]])
     # the exceptions still cover an import that would otherwise fail (else they are stale)
     up = upward_imports(graph)
     assert all(any(_under(m, src) for m, _t in up) for src, _d, _r in EXCEPTIONS)
+
+
+
+# --- what is handed over: a store is typed ---------------------------------------------------
+
+def untyped_stores(path: Path) -> list[str]:
+    """``line: name`` of every parameter, variable or attribute named ``store`` (or
+    ``…_store``) annotated ``Any`` in one file."""
+    def is_any(node: ast.expr | None) -> bool:
+        return (isinstance(node, ast.Name) and node.id == "Any") or (
+            isinstance(node, ast.Constant) and node.value == "Any")
+
+    def is_store(name: str) -> bool:
+        return name == "store" or name.endswith("_store")
+
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.arg) and is_store(node.arg) and is_any(node.annotation):
+            found.append(f"{node.lineno}: {node.arg}")
+        elif isinstance(node, ast.AnnAssign) and is_any(node.annotation):
+            target = node.target
+            name = target.id if isinstance(target, ast.Name) else \
+                target.attr if isinstance(target, ast.Attribute) else ""
+            if is_store(name):
+                found.append(f"{node.lineno}: {name}")
+    return found
+
+
+def test_untyped_stores_are_found(tmp_path: Path) -> None:
+    src = tmp_path / "m.py"
+    src.write_text("from typing import Any\n"
+                   "def f(store: Any, n: Any, ref_store: 'Any') -> None: ...\n"
+                   "class C:\n    def __init__(self) -> None:\n        self.store: Any = None\n"
+                   "def g(store: Store) -> None: ...\n")
+    assert untyped_stores(src) == ["2: store", "2: ref_store", "5: store"]
+
+
+def test_no_store_is_typed_any() -> None:
+    """A store is a `normbox_lab.acquire.store_api.Store` (or, below the store's floor, the
+    narrow protocol of what it calls there), never ``Any``: product and tests alike."""
+    files = [*module_files().values(), *sorted((ROOT / "tests").glob("*.py"))]
+    bad = [f"{p.relative_to(ROOT)}:{hit}" for p in files for hit in untyped_stores(p)]
+    assert bad == []
+
+
+def test_the_fit_writes_through_a_part_of_the_store_protocol() -> None:
+    # predict stands below acquire: a fit names an ArtifactSink, whose one method is the
+    # Store's own, signature for signature
+    from normbox_lab.acquire.store_api import Store
+    from normbox_lab.predict.brdf_model import ArtifactSink
+
+    own = [n for n in vars(ArtifactSink) if not n.startswith("_")]
+    assert own == ["add_artifact"]
+    assert inspect.signature(ArtifactSink.add_artifact) == inspect.signature(Store.add_artifact)
 
 
 if __name__ == "__main__":
