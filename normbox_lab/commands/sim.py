@@ -26,10 +26,19 @@ IPv6 loopback: --tcp ::1:0 (printed as tcp: [::1]:PORT)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    from normbox_lab.sim.core import EMULATORS, devices_for
-
     p = sub.add_parser("sim", help="serve simulated instruments to outside programs")
     simsub = p.add_subparsers(dest="sim_command", metavar="SUBCOMMAND")
+    _add_serve(simsub)
+    _add_faults(simsub)
+    _add_latency(simsub)
+    _add_campaign(simsub)
+    p.set_defaults(handler=lambda a: p.print_help() or 2)
+
+
+def _add_serve(simsub: argparse._SubParsersAction) -> None:
+    """`sim serve DEVICE --pty | --tcp HOST:PORT`: one emulator for outside programs."""
+    from normbox_lab.sim.core import EMULATORS
+
     s = simsub.add_parser(
         "serve", help="serve one emulator on a pty or a loopback TCP port",
         formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -59,6 +68,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="an emulator option, as in the sim:// URL (e.g. noise=off, "
                         "time_factor=0.05 for the radiometers); repeatable")
     s.set_defaults(handler=_serve)
+
+
+def _add_faults(simsub: argparse._SubParsersAction) -> None:
+    """`sim faults [DEVICE]`: the fault kinds each emulator declares."""
     fl = simsub.add_parser(
         "faults", help="the fault kinds each emulator declares: range, distribution, detector",
         description="The fault registry (sim.core.fault_table): what `sim serve --faults`, "
@@ -66,6 +79,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     fl.add_argument("device", nargs="?", metavar="DEVICE",
                     help="one device (default: every emulated device)")
     fl.set_defaults(handler=_faults)
+
+
+def _add_latency(simsub: argparse._SubParsersAction) -> None:
+    """`sim latency DEVICE`: a served radiometer's first measurement from a cold start."""
+    from normbox_lab.sim.core import devices_for
+
     lat = simsub.add_parser(
         "latency", help="first-measurement latency of a served radiometer from a cold start",
         description="Start `sim serve DEVICE --tcp 127.0.0.1:0` in a new process (noise off, "
@@ -75,6 +94,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     lat.add_argument("device", choices=devices_for("radiometer"), metavar="DEVICE",
                      help=" or ".join(devices_for("radiometer")))
     lat.set_defaults(handler=_latency)
+
+
+def _add_campaign(simsub: argparse._SubParsersAction) -> None:
+    """`sim campaign`: deterministic simulation testing of the whole lab."""
     camp = simsub.add_parser(
         "campaign", help="deterministic simulation testing of the whole lab",
         description="Draw N scenarios from the seed (a protocol and its parameters, a fault "
@@ -108,7 +131,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     camp.add_argument("--quiet", action="store_true",
                       help="print only failing scenarios and the summary")
     camp.set_defaults(handler=_campaign)
-    p.set_defaults(handler=lambda a: p.print_help() or 2)
 
 
 def _fail(message: str) -> int:
