@@ -398,3 +398,51 @@ def test_the_dry_run_line_and_every_parameter_field_are_whole_at_80x24(lab_env):
             assert " ".join(info(app).split()) == " ".join(shown.split()), (info(app), shown)
     asyncio.run(scenario())
     session.close()
+
+
+def test_p_during_a_move_pauses_at_the_prompt_that_follows_not_after_one_more_patch(lab_env):
+    """A pause asked while the holder moves to the next angle (status 'pausing…') took effect
+    only at the engine's next checkpoint, after the reading the next prompt prepares: the
+    operator was asked to place one more patch (and a second p at that prompt cancelled the
+    pause).  The prompt that follows a requested pause is withdrawn at once: the segment ends
+    paused before it, nothing more is measured, and r asks it again."""
+    import threading
+
+    session = new_session(lab_env)
+    app = NormboxConsole(session)
+    moving, release = threading.Event(), threading.Event()
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await set_reduced_parameters(pilot, app)
+            rotator = session.lab.instrument("rotator")
+            move_to = rotator.move_to
+
+            def held_move(angle_deg: float, wait: bool = True) -> None:
+                if angle_deg == 90:                    # the move to the second angle: held
+                    moving.set()
+                    release.wait(30)
+                move_to(angle_deg, wait)
+            rotator.move_to = held_move
+            await pilot.press("s")
+            for _ in range(3):                          # 30°: patches 1, 9, 19
+                await answer_prompt(pilot, app)
+            await until(pilot, moving.is_set, "the move to 90°")
+            await pilot.press("p")
+            assert app.run_status == "pausing…"
+            release.set()
+            await until(pilot, lambda: not session.busy and app.run_status == "paused",
+                        "paused at the prompt that follows the move")
+            assert not isinstance(app.screen, PromptScreen)
+            assert app.progress_done == 3
+            assert "paused before a90/p01/place: r resumes" in app.toasts_shown
+            rotator.move_to = move_to
+            await pilot.press("r")
+            await until(pilot, lambda: isinstance(app.screen, PromptScreen)
+                        and app.session.operator is not None
+                        and app.session.operator.pending is not None, "prompt again")
+            assert app.screen.request.key == "a90/p01/place"
+    asyncio.run(scenario())
+    release.set()
+    session.wait(5.0)
+    session.close()

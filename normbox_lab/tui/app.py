@@ -433,23 +433,32 @@ class NormboxConsole(App):
             self._set_run_status("running")
             self._log("pause cancelled: the run goes on")
             self.notify("pause cancelled: the run goes on", markup=False)
-        elif self.waiting_prompt is not None:
+        elif self.waiting_prompt is not None or self._operator_pending() is not None:
             # nothing is being measured: pause here, before the reading the prompt prepares
-            # (no one more patch to place first); a resume asks the prompt again
-            req = self.waiting_prompt
-            self.waiting_prompt = None
-            self.session.pause_at_prompt()
-            if self.prompt_screen is not None:
-                self.prompt_screen.dismiss("")
-            self._set_run_status("pausing…")
-            self._log("pause at the prompt: ", f"the run pauses before {req.key} (r resumes "
-                      "and asks it again)")
-            self.notify(f"paused before {req.key}: r resumes", markup=False)
+            # (no one more patch to place first); a resume asks the prompt again.  Also when
+            # the engine asks and the prompt's event has not reached the screen yet.
+            self._pause_at_prompt(self.waiting_prompt or self._operator_pending())
         else:
             self.session.pause()
             self._log("pause requested: after the current reading")
             self._set_run_status("pausing…")
             self.notify("pause: the run stops after the current reading", markup=False)
+
+    def _operator_pending(self) -> Any:
+        operator = self.session.operator
+        return operator.pending if operator is not None else None
+
+    def _pause_at_prompt(self, req: Any) -> None:
+        """End the segment paused before the reading `req` prepares: the prompt is withdrawn
+        and a resume asks it again."""
+        self.waiting_prompt = None
+        self.session.pause_at_prompt()
+        if self.prompt_screen is not None:
+            self.prompt_screen.dismiss("")
+        self._set_run_status("pausing…")
+        self._log("pause at the prompt: ", f"the run pauses before {req.key} (r resumes "
+                  "and asks it again)")
+        self.notify(f"paused before {req.key}: r resumes", markup=False)
 
     #: seconds within which a second `a` confirms the abort
     ABORT_CONFIRM_S = 5.0
@@ -714,6 +723,11 @@ class NormboxConsole(App):
             self._log("", f"{req.key}: {req.message} (virtual operator)")
             return
         if self.quitting:
+            return
+        if self.progress.status == "pausing…":
+            # p was pressed while the run moved, warmed up or measured: the pause takes effect
+            # at this prompt, before the reading it prepares (not after one more patch)
+            self._pause_at_prompt(req)
             return
         self._log("[b]prompt[/b] ", f"{req.key}: {req.message}")
         self.waiting_prompt = req
