@@ -147,27 +147,13 @@ class CameraTracer(BandPathTracer):
         y = (1.0 - 2.0 * (m.Float(row) + jy) * c.inv_h) * c.tan_y
         return m.Ray3f(c.origin, dr.normalize(c.fwd + c.right * x + c.up * y))
 
-    def _lobes(self, vx: SimpleNamespace, wo: Any, weight: Any,
-               mask: Any) -> tuple[list[Any], list[Any]]:
-        """weight·f_b split into the diffuse part (kd_b/π − c) and the angular lobes (GGX and
-        backscatter), both through `_band_factors` (one BRDF definition)."""
-        m = self.m
-        zeros = [m.Float(0.0)] * self.grid.n_bands
-        diffuse = SimpleNamespace(**{**vars(vx), "ks": zeros, "kb": None, "inv_s2": None,
-                                     "deta": None})
-        angular = SimpleNamespace(**{**vars(vx), "kd": zeros, "c": m.Float(0.0)})
-        return (self._band_factors(diffuse, wo, weight, mask),
-                self._band_factors(angular, wo, weight, mask))
-
     # ---- the three kernels of a chunk -------------------------------------------------------
     def _first_hit(self, tab: Mapping[str, Any], c: SimpleNamespace, n: int, pix0: int,
-                   spp: int, seed_state: int, layers: bool = True) -> SimpleNamespace:
-        """The camera rays of pixels pix0… (spp each) to their first hit: emission, NEE and the
-        BSDF sample there, and the continuation ray.  Everything evaluated (one kernel).  The
-        NEE and BSDF-sample factors split by lobe (nd, ns, gd, gs) with `layers`; without, only
-        their sums n_b = nd + ns, g_b = gd + gs (half the per-path values to store and read)."""
+                   spp: int, seed_state: int) -> SimpleNamespace:
+        """The camera rays of pixels pix0… (spp each) to their first hit: emission, the NEE
+        and BSDF sample's λ-independent BRDF terms there (`_brdf_terms`; the bands are the
+        third kernel's), and the continuation ray.  Everything evaluated (one kernel)."""
         dr, m = self.dr, self.m
-        n_b = self.grid.n_bands
         idx = dr.arange(m.UInt32, n)
         gidx = m.UInt64(idx) + dr.opaque(m.UInt64, int(pix0) * int(spp))
         # seeded by the global path index (so a chunk's paths do not depend on the chunking)
@@ -202,88 +188,131 @@ class CameraTracer(BandPathTracer):
         e0 = self._emission(c, hit, ray, m.Float(0.0))
         active = hit.surf
         frame, wi, o = self._frame(hit, ray)
-        vx = self._vertex(tab, lookup, delta, hit.slot, wi, active)
+        vx = self._vertex(tab, lookup, delta, hit.slot, wi, active, spectra=False)
         wl, wt, ok = self._nee(c, vx, frame, o, draws, active)
-        nd, ns = self._lobes(vx, wl, wt, ok)
+        nee = self._brdf_terms(vx, wl, wt, ok)
         wo, bpdf, act = self._sample(vx, draws, active)
         if draws.values:
             raise AssertionError("FIRST_HIT_DRAWS does not match the first hit's draws")
-        gd, gs = self._lobes(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), act)
-        # the roulette probe of the full path (as BandPathTracer: bands 0, 8, 16, …)
-        probe = dr.abs(gd[0] + gs[0])
-        for b in range(8, n_b, 8):
-            probe = dr.fmax(probe, dr.abs(gd[b] + gs[b]))
-        out = SimpleNamespace(e0=e0, delta=delta, k=k, frac=frac,
-                              ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
-                              active=act & (1 < c.max_depth), rng=rng, probe=probe,
-                              later=later)
-        if layers:
-            out.nd, out.ns, out.gd, out.gs = nd, ns, gd, gs
-            per_band = (nd, ns, gd, gs)
-        else:
-            # the same float32 sums `_combine` forms from the split factors
-            out.nee = [nd[b] + ns[b] for b in range(n_b)]
-            out.g = [gd[b] + gs[b] for b in range(n_b)]
-            per_band = (out.nee, out.g)
-        dr.eval(*per_band, out.e0, out.delta, out.k, out.frac, out.ray.o, out.ray.d, out.pdf,
-                out.active, out.rng, out.probe, out.later)
+        smp = self._brdf_terms(vx, wo, wo.z / dr.fmax(bpdf, 1e-30), act)
+        out = SimpleNamespace(e0=e0, delta=delta, k=k, frac=frac, slot=hit.slot, surf=active,
+                              nee=nee, smp=smp, ray=m.Ray3f(o, frame.to_world(wo)), pdf=bpdf,
+                              active=act & (1 < c.max_depth), rng=rng,
+                              probe=self._probe(tab, lookup, vx, smp, delta), later=later)
+        dr.eval(out.e0, out.delta, out.k, out.frac, out.slot, out.surf, vars(nee), vars(smp),
+                out.ray.o, out.ray.d, out.pdf, out.active, out.rng, out.probe, out.later)
         return out
 
+    def _probe(self, tab: Mapping[str, Any], lookup: Any, vx: SimpleNamespace,
+               smp: SimpleNamespace, delta: Any) -> Any:
+        """The roulette probe of the full path after the first hit, as `BandPathTracer`'s:
+        max |f_b| over bands 0, 8, 16, … of the BSDF sample's factor (a band loop)."""
+        dr, m = self.dr, self.m
+
+        def body(b: Any, probe: Any) -> tuple[Any, Any]:
+            kd, ks, kb = self._band_spectra(tab, lookup, vx, b)
+            g = self._band_factor(vx, smp, kd, ks, kb, self._band_lam(b, delta))
+            return b + 8, dr.fmax(probe, dr.abs(g))
+
+        n_bands = dr.opaque(m.UInt32, self.grid.n_bands)
+        return dr.while_loop((m.UInt32(0), m.Float(0.0)), lambda b, _: b < n_bands, body,
+                             label="probe")[1]
+
+    def _band_lam(self, b: Any, delta: Any) -> Any:
+        """λ_b + δ − 550 nm of band b (UInt32)."""
+        dr, m = self.dr, self.m
+        lam0 = float(self.grid.centres_nm[0]) - 550.0
+        return dr.fma(m.Float(b), float(self.grid.step_nm), lam0) + delta
+
     def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
-                  fh: SimpleNamespace) -> tuple[list[Any], Any]:
-        """`BandPathTracer._path_loop` from the continuation rays with throughput 1: (acc_b,
-        e1), where e1 is the emitter seen at the first vertex (MIS vs NEE) and acc_b
-        everything after it."""
+                  fh: SimpleNamespace, n: int) -> tuple[Any, Any]:
+        """`BandPathTracer._path_loop` from the continuation rays with throughput 1: (acc as
+        n_bands rows of n lanes, e1), where e1 is the emitter seen at the first vertex (MIS vs
+        NEE) and acc_b everything after it."""
         dr, m = self.dr, self.m
         res = self._path_loop(tab, c, self._lookup(tab, fh.k, fh.frac), fh.delta, fh.ray,
                               fh.active, m.UInt32(1), fh.pdf, fh.rng, probe_scale=fh.probe,
                               split_first=True, first_draws=fh.later)
-        dr.eval(res.acc, res.e1)
-        return res.acc, res.e1
+        acc = self._band_rows(n, [res.acc])[0]
+        dr.eval(acc, res.e1)
+        return acc, res.e1
 
-    def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: list[Any], e1: Any,
+    def _combine(self, tab: Mapping[str, Any], fh: SimpleNamespace, acc: Any, e1: Any, n: int,
                  spp: int, layers: bool = True) -> np.ndarray:
         """Per-path layers, CWNI, NWCI, radiance² and luminance (and its square), summed over
         each pixel's spp paths: (8·B + 2, n_pixels) float32 (the radiance summed as its own
         per-path value, so a render with and without layers gives the same radiance bits);
-        without `layers`, radiance, radiance² and the luminance terms only: (2·B + 2, n_pixels)."""
+        without `layers`, radiance, radiance² and the luminance terms only: (2·B + 2, n_pixels).
+        One kernel of band loops (the band mean of the incoming light, then the images) writing
+        rows of one flat array."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
+        n_img = 8 if layers else 2
+        lane = dr.arange(m.UInt32, int(n))
+        n_lanes = dr.opaque(m.UInt32, int(n))
+        n_bands = dr.opaque(m.UInt32, n_b)
         lookup = self._lookup(tab, fh.k, fh.frac)
-        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
-        inv_b = 1.0 / n_b
+        vx = self._vertex(tab, lookup, fh.delta, fh.slot, None, fh.surf, spectra=False)
+        ybar = jit_table(m.Float, self._luminance_weights())
+
+        def band(b: Any) -> SimpleNamespace:
+            """Band b of one path: the lamp, the continuation and the first hit's factors."""
+            kd, ks, kb = self._band_spectra(tab, lookup, vx, b)
+            lam = self._band_lam(b, fh.delta)
+            nd, gd = self._diffuse_factor(fh.nee, kd), self._diffuse_factor(fh.smp, kd)
+            ns = self._angular_factor(vx, fh.nee, ks, kb, lam)
+            gs = self._angular_factor(vx, fh.smp, ks, kb, lam)
+            le = lookup.band(tab["le"], m.UInt32(0), m.Bool(True), 2, b)[0]
+            acc_b = dr.gather(m.Float, acc, b * n_lanes + lane)
+            return SimpleNamespace(le=le, acc=acc_b, nd=nd, ns=ns, gd=gd, gs=gs, nee=nd + ns,
+                                   g=gd + gs, inc=(e1 + acc_b) * le)
+
+        names = ("le", "acc", "nd", "ns", "gd", "gs")
+        avg = None
         if layers:
-            nee = [fh.nd[b] + fh.ns[b] for b in range(n_b)]
-            g = [fh.gd[b] + fh.gs[b] for b in range(n_b)]
-        else:
-            nee, g = fh.nee, fh.g
-        ybar = self._luminance_weights()
-        emission, diffuse, specular, indirect, cwni, nwci, rad, rad2 = ([] for _ in range(8))
-        y = m.Float(0.0)
-        if layers:
-            inc = [(e1 + acc[b]) * le[b] for b in range(n_b)]
-            avg_le = _sum(le) * inv_b
-            avg_inc = _sum(inc) * inv_b
-            avg_nee = _sum(nee) * inv_b
-            avg_g = _sum(g) * inv_b
-        for b in range(n_b):
-            # the radiance in one form for both modes (identical materials, identical bits)
-            rad_b = (nee[b] + dr.fma(g[b], e1 + acc[b], fh.e0)) * le[b]
+            # pass 1: the band means of the incoming light, the NEE and the BSDF sample; each
+            # band's values wait in per-lane local arrays for pass 2
+            kept = [dr.alloc_local(m.Float, n_b) for _ in names]
+
+            def sums(b: Any, s_le: Any, s_inc: Any, s_nee: Any, s_g: Any,
+                     *kept: Any) -> tuple[Any, ...]:
+                x = band(b)
+                for name, local in zip(names, kept, strict=True):
+                    local.write(getattr(x, name), b)
+                return (b + 1, s_le + x.le, s_inc + x.inc, s_nee + x.nee, s_g + x.g, *kept)
+
+            zero = m.Float(0.0)
+            totals = dr.while_loop((m.UInt32(0), zero, zero, zero, zero, *kept),
+                                   lambda b, *_: b < n_bands, sums, label="band means")
+            avg = [t * (1.0 / n_b) for t in totals[1:5]]
+            kept = totals[5:]
+        out = dr.empty(m.Float, (n_img * n_b + 2) * int(n))
+
+        def images(b: Any, y: Any, *kept: Any) -> tuple[Any, ...]:
             if layers:
-                emission.append(fh.e0 * le[b])
-                diffuse.append(dr.fma(fh.gd[b], e1, fh.nd[b]) * le[b])
-                specular.append(dr.fma(fh.gs[b], e1, fh.ns[b]) * le[b])
-                indirect.append(g[b] * acc[b] * le[b])
-                cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
-                nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
-            rad.append(rad_b)
-            rad2.append(rad_b * rad_b)
-            y = dr.fma(float(ybar[b]), rad_b, y)
-        outputs = (emission + diffuse + specular + indirect + cwni + nwci if layers else []) \
-            + rad + rad2 + [y, y * y]
-        dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
-        sums = dr.block_sum(outputs, int(spp), mode="evaluated")
-        return require_finite(np.stack([np.asarray(s, dtype=np.float32) for s in sums]),
+                x = SimpleNamespace(**{k: v.read(b) for k, v in zip(names, kept, strict=True)})
+                x.nee, x.g, x.inc = x.nd + x.ns, x.gd + x.gs, (e1 + x.acc) * x.le
+            else:
+                x = band(b)
+            # the radiance in one form for both modes (identical materials, identical bits)
+            rad = (x.nee + dr.fma(x.g, e1 + x.acc, fh.e0)) * x.le
+            rows = []
+            if layers:
+                avg_le, avg_inc, avg_nee, avg_g = avg
+                rows = [fh.e0 * x.le, dr.fma(x.gd, e1, x.nd) * x.le,
+                        dr.fma(x.gs, e1, x.ns) * x.le, x.g * x.acc * x.le,
+                        dr.fma(avg_le, x.nee, x.g * avg_inc), dr.fma(avg_nee, x.le, avg_g * x.inc)]
+            for r, value in enumerate(rows + [rad, rad * rad]):
+                dr.scatter(out, value, (b + r * n_b) * n_lanes + lane)
+            return (b + 1, dr.fma(dr.gather(m.Float, ybar, b), rad, y), *kept)
+
+        y = dr.while_loop((m.UInt32(0), m.Float(0.0), *(kept if layers else ())),
+                          lambda b, *_: b < n_bands, images, label="images")[1]
+        dr.scatter(out, y, n_img * n_b * n_lanes + lane)
+        dr.scatter(out, y * y, (n_img * n_b + 1) * n_lanes + lane)
+        dr.eval(out)                  # one kernel
+        sums = dr.block_sum(out, int(spp), mode="evaluated")
+        return require_finite(np.asarray(sums, dtype=np.float32).reshape(n_img * n_b + 2, -1),
                               f"camera tracer ({self.variant})")
 
     def _luminance_weights(self) -> np.ndarray:
@@ -342,9 +371,9 @@ class CameraTracer(BandPathTracer):
         chunk_pix = max(1, self.chunk_paths // spp)
         for p0 in range(0, n_pix, chunk_pix):
             npx = min(chunk_pix, n_pix - p0)
-            fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state, layers)
-            acc, e1 = self._continue(tab, c, fh)
-            sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, spp, layers)
+            fh = self._first_hit(tab, c, npx * spp, p0, spp, seed_state)
+            acc, e1 = self._continue(tab, c, fh, npx * spp)
+            sums[:, p0:p0 + npx] = self._combine(tab, fh, acc, e1, npx * spp, spp, layers)
             del fh, acc, e1
         depth, normal, slot = self._geometry(c, cam)
 
@@ -373,13 +402,6 @@ class CameraTracer(BandPathTracer):
                   "rr_depth": self.rr_depth, "n_paths": n_pix * spp}, **f32)
         image.info["median_rel_se_luminance"] = _median_rel_se(image)
         return image
-
-
-def _sum(values: Sequence[Any]) -> Any:
-    total = values[0]
-    for v in values[1:]:
-        total = total + v
-    return total
 
 
 def _seed_state(seed: int) -> int:

@@ -654,11 +654,31 @@ class BandPathTracer:
                  m.UInt32(none) if pp is not None else m.UInt32(0))
         state = dr.while_loop(state, lambda depth, active, *_: active & (depth < c.max_depth),
                               bounce, label="bandpath")
-        acc, late = state[7], state[9]
-        return SimpleNamespace(
-            acc=[acc.read(m.UInt32(b)) for b in range(n_b)], e1=state[8],
-            late=[late.read(m.UInt32(b)) for b in range(n_b)] if pp is not None else [],
-            pstar=state[10])
+        return SimpleNamespace(acc=state[7], e1=state[8],
+                               late=state[9] if pp is not None else None, pstar=state[10])
+
+    def _band_rows(self, n: int, arrays: Sequence[Any],
+                   lamp: tuple[Mapping[str, Any], BandLookup] | None = None) -> list[Any]:
+        """Each per-lane local array of `_path_loop` (`acc`, `late`) as one flat Float of
+        n_bands rows × n lanes (row b: band b, times the lamp spectrum L_b(λ_b + δ) with
+        `lamp` = (tables, lookup)), written by a band loop: the kernel holds one band's code."""
+        dr, m = self.dr, self.m
+        n_bands = dr.opaque(m.UInt32, self.grid.n_bands)
+        n_lanes = dr.opaque(m.UInt32, int(n))
+        lane = dr.arange(m.UInt32, int(n))
+        rows = [dr.empty(m.Float, self.grid.n_bands * int(n)) for _ in arrays]
+
+        def body(b: Any, *arrays: Any) -> tuple[Any, ...]:
+            scale = 1.0
+            if lamp is not None:
+                tab, lookup = lamp
+                scale = lookup.band(tab["le"], m.UInt32(0), m.Bool(True), 2, b)[0]
+            for local, row in zip(arrays, rows, strict=True):
+                dr.scatter(row, local.read(b) * scale, b * n_lanes + lane)
+            return (b + 1, *arrays)
+
+        dr.while_loop((m.UInt32(0), *arrays), lambda b, *_: b < n_bands, body, label="rows")
+        return rows
 
     # ---- one chunk of radiometer paths ---------------------------------------------------
     def _trace(self, tab: Mapping[str, Any], n: int, seed: int) -> np.ndarray:
@@ -672,10 +692,9 @@ class BandPathTracer:
         ray = self._radiometer_ray(rng)
         res = self._path_loop(tab, c, lookup, delta, ray, m.Bool(True), m.UInt32(0),
                               m.Float(0.0), rng)
-        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
-        out = [res.acc[b] * le[b] for b in range(n_b)]
-        dr.eval(out)
-        return require_finite(np.stack([np.asarray(o, dtype=np.float64) for o in out]),
+        rows = self._band_rows(n, [res.acc], (tab, lookup))[0]
+        dr.eval(rows)
+        return require_finite(np.asarray(rows, dtype=np.float64).reshape(n_b, n),
                               f"band path tracer ({self.variant}), seed {seed}")
 
     def _brdf_terms(self, vx: Any, wo: Any, weight: Any, mask: Any) -> SimpleNamespace:
@@ -705,15 +724,25 @@ class BandPathTracer:
     def _band_factor(self, vx: Any, t: SimpleNamespace, kd: Any, ks: Any, kb: Any,
                      lam_nm: Any) -> Any:
         """weight · f_b for one band from the vertex's terms `t` (`_brdf_terms`), the band's
-        kd, ks, kb and its wavelength λ_b + δ − 550 nm (used only by a dispersive η)."""
+        kd, ks, kb and its wavelength λ_b + δ − 550 nm (used only by a dispersive η): the
+        diffuse part plus the angular lobes."""
+        return self._angular_factor(vx, t, ks, kb, lam_nm, self._diffuse_factor(t, kd))
+
+    def _diffuse_factor(self, t: SimpleNamespace, kd: Any) -> Any:
+        """The angle-independent part of weight · f_b: kd_b·a − c."""
+        return self.dr.fma(kd, t.a, -t.c)
+
+    def _angular_factor(self, vx: Any, t: SimpleNamespace, ks: Any, kb: Any, lam_nm: Any,
+                        base: Any = 0.0) -> Any:
+        """base + the angular lobes of weight · f_b: ks_b·F_b·s (+ kb_b·k with a backscatter
+        lobe)."""
         dr = self.dr
-        fb = dr.fma(kd, t.a, -t.c)
         if vx.deta is not None:
             # select, not multiply: F is NaN where cb = 0 (g = 0), outside `valid`
             f_b = dr.select(t.valid, fresnel(dr.fma(vx.deta, lam_nm, vx.eta), t.cb), 0.0)
-            fb = dr.fma(ks * f_b, t.s, fb)
+            fb = dr.fma(ks * f_b, t.s, base)
         else:
-            fb = dr.fma(ks, t.s, fb)
+            fb = dr.fma(ks, t.s, base)
         if t.k is not None:
             fb = dr.fma(kb, t.k, fb)
         return fb

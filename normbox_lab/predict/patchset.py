@@ -297,24 +297,28 @@ class PatchSetTracer(BandPathTracer):
             base=dr.opaque(m.UInt32, len(self.slot_names)), count_f=f(n_p))
         res = self._path_loop(tab, c, lookup, delta, start, active, depth, prev_pdf, rng,
                               patches=patches, first_draws=later)
-        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
-        post = [res.acc[b] * le[b] for b in range(n_b)]
-        late = [res.late[b] * le[b] for b in range(n_b)]
+        post, late = self._band_rows(n, [res.acc, res.late], (tab, lookup))
         dr.eval(post, late, res.pstar)           # one kernel: the whole path loop
         # light that came back to the patch (rare): only those lanes leave the device
-        late_lanes = dr.compress(res.pstar != dr.opaque(m.UInt32, _NONE))
-        late = [dr.gather(m.Float, v, late_lanes) for v in late]
+        lanes = np.asarray(dr.compress(res.pstar != dr.opaque(m.UInt32, _NONE)),
+                           dtype=np.int64)
+        late_idx = (np.arange(n_b, dtype=np.int64)[:, None] * n + lanes[None, :]).ravel()
+        late = dr.gather(m.Float, late, jit_table(m.UInt32, late_idx, np.uint32)
+                         if late_idx.size else m.UInt32())
         dr.eval(late)
 
-        def np32(values: Sequence[Any]) -> np.ndarray:
-            """(n, len(values)) float32, as a transposed view of a row-major stack; a NaN or
+        def np32(values: Sequence[Any] | Any, lanes: int | None = None) -> np.ndarray:
+            """(lanes, rows) float32 as a transposed view of a row-major stack: `values` a
+            list of rows, or one flat array of `lanes`-long band rows (`_band_rows`); a NaN or
             infinite value in any lane is a `RenderError`."""
-            a = np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
+            if lanes is None:
+                a = np.stack([np.asarray(v, dtype=np.float32) for v in values]).T
+            else:
+                a = np.asarray(values, dtype=np.float32).reshape(n_b, lanes).T
             require_finite(a, f"all patches per path ({self.variant}), seed {seed}")
             return a
 
-        lanes = np.asarray(late_lanes, dtype=np.int64)
-        return {"post": np32(post), "late": np32(late).reshape(lanes.size, n_b),
+        return {"post": np32(post, n), "late": np32(late, lanes.size),
                 "late_lanes": lanes,
                 "rows_nee": np32(rows_nee), "rows_bsdf": np32(rows_bsdf),
                 "first": np.asarray(first, dtype=bool), "frac": np.asarray(frac, np.float32),
