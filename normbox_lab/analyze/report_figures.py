@@ -23,6 +23,7 @@ from normbox_lab.analyze.fit import fit_error_at, half_polar_axes
 from normbox_lab.analyze.paper_figures import NSE_PAPER_SIGN, nse_paper_sign, signed
 from normbox_lab.analyze.report_style import (
     FONT_PT,
+    MAX_WIDTH_IN,
     RADIANCE_UNIT,
     RATING_COLOURS,
     RATING_TEXT,
@@ -82,7 +83,7 @@ def fig_reference(c: ComparisonResult) -> Any:
     nrow = int(np.ceil(n_p / ncol))
     height_in = 1.45 * nrow + 0.9
     fig = new_figure(7.8, height_in, layout=None)
-    fig.subplots_adjust(left=0.1, right=0.86, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
+    fig.subplots_adjust(left=0.12, right=0.86, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
                         wspace=0.5, hspace=0.5)
     cols = angle_colours(c.angle_deg.size)
     ref, label = scaled_for_axis(c.reference, f"spectral radiance [{RADIANCE_UNIT}]",
@@ -107,7 +108,7 @@ def fig_reference(c: ComparisonResult) -> Any:
     for ax in axes.flat[:n_p]:
         ax.yaxis.set_major_formatter(FormatStrFormatter(f"%.{decimals}f"))
     fig.supxlabel("wavelength [nm]")
-    fig.supylabel(label)
+    fig.supylabel(label.replace(" [", "\n[", 1))    # two lines: it fits one row of panels
     _angle_colourbar(fig, axes, c.angle_deg)
     return fig
 
@@ -129,9 +130,13 @@ def fig_prediction(c: ComparisonResult, patches: Sequence[int]) -> Any:
     from matplotlib.lines import Line2D
 
     patches = [p for p in patches if 0 <= p < len(c.patch_names)]
-    fig = new_figure(12.0, 3.6)
+    ncol = min(max(len(patches), 1), 2)            # two panels a row at 8 in
+    nrow = int(np.ceil(max(len(patches), 1) / ncol))
+    fig = new_figure(MAX_WIDTH_IN, 3.4 * nrow)
     cols = angle_colours(c.angle_deg.size)
-    axes = fig.subplots(1, max(len(patches), 1), squeeze=False)[0]
+    axes = fig.subplots(nrow, ncol, squeeze=False).flat
+    for ax in list(axes)[len(patches):]:
+        ax.set_visible(False)
     for k, p in enumerate(patches):
         ax = axes[k]
         for a in range(c.angle_deg.size):
@@ -140,10 +145,10 @@ def fig_prediction(c: ComparisonResult, patches: Sequence[int]) -> Any:
         ax.set_title(f"patch {c.patch_names[p]}")
         ax.set_xlabel("wavelength [nm]")
         ax.locator_params(axis="y", nbins=4)
-    axes[0].set_ylabel(f"radiance [{RADIANCE_UNIT}]")
+    axes[0].set_ylabel(f"radiance\n[{RADIANCE_UNIT}]")
     axes[0].legend([Line2D([], [], color="0.2", ls="-"), Line2D([], [], color="0.2", ls="--")],
                    ["reference", "prediction"], loc="upper left")
-    _angle_colourbar(fig, axes, c.angle_deg)
+    _angle_colourbar(fig, list(axes), c.angle_deg)
     return fig
 
 
@@ -156,7 +161,7 @@ def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: s
 
     from normbox_lab.analyze.compare import LARGE_ANGLES_DEG, SMALL_ANGLES_DEG
 
-    fig = new_figure(12.0, 7.0)
+    fig = new_figure(MAX_WIDTH_IN, 7.0)
     gs = fig.add_gridspec(2, 2, height_ratios=[1.0, 1.0])
     ax = fig.add_subplot(gs[0, :])
     values, label = scaled_for_axis(values, label)
@@ -184,7 +189,7 @@ def fig_metric(c: ComparisonResult, values: np.ndarray, label: str, key_small: s
         for j, a in enumerate(np.flatnonzero(sel)):
             axs.scatter(xs[:, j], ys[:, j], s=14, color=cols[a], edgecolor="none")
         r = c.correlations.get(key, float("nan"))
-        axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°: Pearson r = "
+        axs.set_title(f"sample angles {rng[0]:g}–{rng[1]:g}°\nPearson r = "
                       f"{signed(r, 2, plus=False)}")
         axs.set_xlabel(radiance_label)
         axs.set_ylabel(label)
@@ -333,11 +338,11 @@ def fig_nse(c: ComparisonResult, patch: int) -> Any:
     """NSE [%] spectra of one patch in the paper's sign, (reference − prediction)/reference
     (paper Fig. 13), one panel per sample angle, shared axes."""
     n_a = c.angle_deg.size
-    ncol = 5
+    ncol = 4
     nrow = int(np.ceil(n_a / ncol))
-    height_in = 1.9 * nrow + 0.8
-    fig = new_figure(12.0, height_in, layout=None)
-    fig.subplots_adjust(left=0.08, right=0.98, bottom=0.55 / height_in, top=1 - 0.3 / height_in,
+    height_in = 1.7 * nrow + 1.2
+    fig = new_figure(MAX_WIDTH_IN, height_in, layout=None)
+    fig.subplots_adjust(left=0.1, right=0.98, bottom=0.55 / height_in, top=1 - 0.6 / height_in,
                         wspace=0.12, hspace=0.35)
     axes = fig.subplots(nrow, ncol, sharex=True, sharey=True, squeeze=False)
     pct = 100.0 * nse_paper_sign(c.nse[patch])
@@ -353,7 +358,8 @@ def fig_nse(c: ComparisonResult, patch: int) -> Any:
         ax.set_title(f"{c.angle_deg[k]:g}°", pad=2)
         ax.set_xticks([400, 550, 700])
     fig.supxlabel("wavelength [nm]")
-    fig.supylabel(f"NSE {NSE_PAPER_SIGN} [%]")
+    fig.supylabel("NSE [%]")
+    fig.suptitle(f"NSE = {NSE_PAPER_SIGN}, in percent", fontsize=FONT_PT["label"])
     return fig
 
 
@@ -370,7 +376,7 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
     have_wall = d.wall_name in d.fits and d.wall_name in d.brdf_data
     if not pairs and not have_wall:
         return None
-    fig = new_figure(12.0, 6.5)
+    fig = new_figure(MAX_WIDTH_IN, 7.0)
     axes = fig.subplots(2, 2, sharex=True)
     (ax1, ax2), (ax3, ax4) = axes
     rows: list[list[Any]] = []
@@ -385,33 +391,37 @@ def fig_nse_fit(c: ComparisonResult, d: ReportData) -> tuple[Any, list[list[Any]
                      100.0 * float(np.sqrt(np.nanmean(c.nse[p, 0] ** 2))),
                      f"patch fit at θi = {_deg(ti)}, θo = {_deg(to)}",
                      100.0 * float(np.sqrt(np.nanmean(err ** 2)))])
-    ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}° (direct light dominates)")
-    ax3.set_title(f"patch fitting error at θi = {_deg(ti)}, θo = {_deg(to)}")
+    ax1.set_title(f"(a) NSE at {c.angle_deg[0]:g}°\n(direct light dominates)")
+    ax3.set_title(f"patch fitting error\nat θi = {_deg(ti)}, θo = {_deg(to)}")
     pb = min(max(int(d.nse_fit_patch_b), 0), len(c.patch_names) - 1)
     nse_b = nse_paper_sign(c.nse[pb, -1])
     ax2.plot(c.wavelength_nm, 100.0 * nse_b, lw=1.1, color="C0",
              label=f"patch {c.patch_names[pb]}")
-    ax2.set_title(f"(b) NSE of patch {c.patch_names[pb]} at {c.angle_deg[-1]:g}° "
-                  "(indirect light)")
+    ax2.set_title(f"(b) NSE of patch {_short_patch(c.patch_names[pb])}\nat "
+                  f"{c.angle_deg[-1]:g}° (indirect light)")
     if have_wall:
         wti, wto = d.wall_geometry_deg
         werr = fit_error_at(d.fits[d.wall_name], d.brdf_data[d.wall_name], wti, wto)
         ax4.plot(d.brdf_data[d.wall_name].wavelength_nm, 100.0 * werr, color="C5", lw=1.1)
-        ax4.set_title(f"wall fitting error at θi = {_deg(wti)}, θo = {_deg(wto)}")
+        ax4.set_title(f"wall fitting error\nat θi = {_deg(wti)}, θo = {_deg(wto)}")
         rows.append([c.patch_names[pb], f"{c.angle_deg[-1]:g}°",
                      100.0 * float(np.sqrt(np.nanmean(nse_b ** 2))),
                      f"wall fit at θi = {_deg(wti)}, θo = {_deg(wto)}",
                      100.0 * float(np.sqrt(np.nanmean(werr ** 2)))])
     for ax in (ax1, ax2):
         ax.axhline(0.0, color="0.5", lw=0.7)
-        ax.set_ylabel("NSE (ref − pred)/ref [%]")
+        ax.set_ylabel("NSE [%]\n(ref − pred)/ref")
     for ax in (ax3, ax4):
         ax.axhline(0.0, color="0.5", lw=0.7)
-        ax.set_ylabel("(fit − measured)/measured [%]")
+        ax.set_ylabel("fit error [%]\n(fit − meas.)/meas.")
         ax.set_xlabel("wavelength [nm]")
     for ax in (ax1, ax3):
         if ax.get_legend_handles_labels()[0]:
             ax.legend(loc="best")
+        elif not pairs:             # (the quick demo fits none of the paper's patches)
+            wanted = ", ".join(str(p + 1) for p in d.nse_fit_patches)
+            ax.text(0.5, 0.5, f"no fit of patch {wanted}\nin this campaign",
+                    transform=ax.transAxes, ha="center", va="center", color="0.35")
     return fig, rows
 
 
@@ -420,7 +430,7 @@ def fig_images(f: ImageFigure) -> Any:
     """The panels side by side at their pixel aspect; scalar maps with a labelled colour bar."""
     n = len(f.panels)
     h, w = np.asarray(f.panels[0].data).shape[:2]
-    width_in = min(4.0 * n, 12.0)
+    width_in = min(4.0 * n, MAX_WIDTH_IN)
     fig = new_figure(width_in, width_in / n * h / w + 0.9)
     axes = fig.subplots(1, n, squeeze=False)[0]
     for ax, p in zip(axes, f.panels, strict=True):

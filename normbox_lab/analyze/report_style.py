@@ -34,8 +34,10 @@ SEQUENTIAL_CMAP = "magma"
 FONT_PT = {"base": 10.0, "tick": 9.0, "label": 10.0, "title": 11.0, "legend": 9.0,
            "annotation": 9.0}
 MIN_FONT_PT = 9.0
-#: the widest figure, inches (fits the 1200 px report column at 96 px per inch)
-MAX_WIDTH_IN = 12.0
+#: the widest figure, inches: 768 px at 96 px per inch fits the column of an 800 px window
+#: (776 px), so no browser scales a figure down and its text keeps its points (12 in figures
+#: were scaled to 6 pt there)
+MAX_WIDTH_IN = 8.0
 #: the report's text column in CSS px (body max-width 1200 px less 2 × 1.5 rem padding): the
 #: report's width, at which every figure text is at least MIN_FONT_PT
 REPORT_COLUMN_PX = 1152.0
