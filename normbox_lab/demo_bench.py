@@ -4,7 +4,8 @@ A newcomer's first `make demo` pays for compiling every Dr.Jit kernel (10-25 s e
 2-core AVX2 CPU); a second run with the same options must compile none.  This bench runs
 `normbox-lab demo` twice in child processes that share one Dr.Jit cache directory: the first
 with an empty one (cold, unless ``--warm`` keeps the machine's own ``~/.drjit``), the second
-with what the first left.  It prints the machine first (CPU, vector ISA, cores, load), then per
+with what the first left, both into one output folder as a user's second `make demo` (whose
+render cache holds the virtual Normbox's truth renders of the first).  It prints the machine first (CPU, vector ISA, cores, load), then per
 stage the wall time, the compile time and the kernels compiled, for both runs, then the goals:
 
 - kernel compilation on a cold cache ≤ 60 s;
@@ -67,8 +68,10 @@ def run_bench_demo(*, quick: bool = False, warm: bool = False,
         log(machine_header(cache_dir=cache))
         log(f"bench demo: {'--quick ' if quick else ''}two runs sharing "
             f"{'the machine' + chr(39) + 's kernel cache' if warm else 'an empty kernel cache'}")
-        first = _run_demo(root / "run1", cache, quick, lambda s: None)
-        second = _run_demo(root / "run2", cache, quick, lambda s: None)
+        # both runs in one output folder, as a user's second `make demo` (the truth's renders
+        # kept in its render cache are read again, not traced)
+        first = _run_demo(root / "demo-out", cache, quick, lambda s: None)
+        second = _run_demo(root / "demo-out", cache, quick, lambda s: None)
     log(f"{'stage':<16} {'run 1 wall':>10} {'compile':>8} {'kernels':>7}   "
         f"{'run 2 wall':>10} {'compile':>8} {'kernels':>7}")
     for name, a in first["stages"].items():

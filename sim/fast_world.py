@@ -17,6 +17,11 @@ source's value when it is on, else `target_rel_se`: given, else the lab config's
 truth_rel_se``, else the render quality's preset (`normbox_lab.predict.precision.PRESETS`,
 `TRUTH_REL_SE` here by its old name).  The demo writes ``truth_rel_se``
 into the lab config, so the error budget of a stored run knows the truth's render noise.
+
+The truth's renders are kept in the lab config's ``[render] cache_dir`` when it names one (the
+demo's does: ``demo-out/render-cache``), keyed by everything they depend on, the renderer's
+source code included (`FastNormbox.render_view`): a second run of the same campaign reads the
+same truth instead of tracing it again.
 """
 
 from __future__ import annotations
@@ -50,11 +55,14 @@ class FastVirtualNormbox(VirtualNormbox):
                  render_seed: int | None = None, fast: FastNormbox | None = None,
                  **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
+        render_cfg = dict(getattr(config, "render", None) or {})
         if target_rel_se is None:
-            render_cfg = dict(getattr(config, "render", None) or {})
             target_rel_se = render_cfg.get("truth_rel_se") or PRESETS.get(
                 self.quality, DEFAULT_TARGET_SE)
         self.target_rel_se = float(target_rel_se)
+        #: where the truth's renders are kept between runs (the lab config's ``[render]
+        #: cache_dir``, as the stock renderer's; None: render every time)
+        self.cache_dir = render_cfg.get("cache_dir") or None
         if render_seed is not None:
             self.render_seed = int(render_seed)
         self._fast = fast
@@ -82,7 +90,7 @@ class FastVirtualNormbox(VirtualNormbox):
                                      angle_deg=angle, lamp=self.lamp, target_rel_se=target,
                                      direct_only=direct_only,
                                      seed=config_seed(self.render_seed, f"{mat.name}@{angle:g}"),
-                                     pilot_paths=pilot)
+                                     pilot_paths=pilot, cache_dir=self.cache_dir)
 
 
 # --- the virtual sweep and its prediction, for the error budget's validation -------------------

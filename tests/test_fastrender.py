@@ -111,6 +111,38 @@ def _model_materials():
     return mats.truth_patch(13, "model"), mats.truth_wall("model")
 
 
+def test_a_kept_view_is_read_back_and_any_change_renders_again(tmp_path, monkeypatch):
+    """render_view(cache_dir=...): the second identical call reads the file, bit for bit and
+    without tracing; another seed, another material or edited renderer source is another key."""
+    from normbox_lab.predict import fastrender
+    from normbox_lab.predict import materials as mats
+    from normbox_lab.predict.render import Lamp
+
+    patch, wall = _model_materials()
+    box = FastNormbox()
+    args = {"patch": patch, "wall": wall, "angle_deg": 45.0, "n_paths": 2048, "seed": 3}
+    first = box.render_view(**args, cache_dir=tmp_path)
+    assert not first.cached and len(list(tmp_path.glob("fast-*.npz"))) == 1
+    traced = []
+    render = box._render_view
+    monkeypatch.setattr(box, "_render_view", lambda **kw: traced.append(kw) or render(**kw))
+    again = box.render_view(**args, cache_dir=tmp_path)
+    assert again.cached and traced == []
+    np.testing.assert_array_equal(again.radiance, first.radiance)
+    np.testing.assert_array_equal(again.std_error, first.std_error)
+    assert again.info == first.info
+    other_seed = box.render_view(**{**args, "seed": 4}, cache_dir=tmp_path)
+    other_patch = box.render_view(**{**args, "patch": mats.truth_patch(5, "model")},
+                                  cache_dir=tmp_path)
+    assert len(traced) == 2 and not other_seed.cached and not other_patch.cached
+    assert not np.array_equal(other_seed.radiance, first.radiance)
+    full = {"holder": wall, "lamp": Lamp(), "target_rel_se": None, "direct_only": False, "max_paths": 1 << 23,
+            "pilot_paths": 1 << 14, **args}
+    key = box.view_key(**full)
+    monkeypatch.setattr(fastrender, "renderer_source_digest", lambda: "an edited kernel")
+    assert box.view_key(**full) != key
+
+
 def test_seeded_results_are_reproducible_and_angle_moves_are_exact():
     patch, wall = _model_materials()
     moved = FastNormbox()

@@ -19,10 +19,14 @@ Public API:
 
 from __future__ import annotations
 
+import functools
+import hashlib
+import json
 import time
 import zlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -60,6 +64,23 @@ class PredictConfig:
     @property
     def name(self) -> str:
         return self.key or f"{self.patch.name}@{self.angle_deg:g}"
+
+
+#: the modules whose source decides what `FastNormbox.render_view` returns
+RENDERER_MODULES = ("bandpath", "patchset", "fastrender", "guide", "streams", "kernel_safety",
+                    "scene", "materials", "render", "precision")
+
+
+@functools.lru_cache(maxsize=1)
+def renderer_source_digest() -> str:
+    """A hash of the renderer modules' source files (`RENDERER_MODULES`), part of every cache
+    key of a fast render: editing a kernel invalidates what it rendered before."""
+    h = hashlib.sha256()
+    here = Path(__file__).resolve().parent
+    for name in RENDERER_MODULES:
+        h.update(name.encode())
+        h.update((here / f"{name}.py").read_bytes())
+    return h.hexdigest()[:16]
 
 
 class FastNormbox:
@@ -199,16 +220,58 @@ class FastNormbox:
     def render_view(self, *, patch: Any, wall: Any, angle_deg: float, holder: Any = None,
                     lamp: Any = None, target_rel_se: float | None = DEFAULT_TARGET_SE,
                     n_paths: int | None = None, seed: int = 0, direct_only: bool = False,
-                    max_paths: int = 1 << 23, pilot_paths: int = 1 << 14) -> Any:
+                    max_paths: int = 1 << 23, pilot_paths: int = 1 << 14,
+                    cache_dir: str | Path | None = None) -> Any:
         """Like `render.render_view`: the radiance the radiometer sees, per band, with its MC
         standard error (`RenderResult`; `batches` holds the mean only, `info["n_paths"]`).
         A small `pilot_paths` makes the achieved error close to `target_rel_se` (the default
-        pilot already beats a loose target at small angles)."""
+        pilot already beats a loose target at small angles).
+
+        `cache_dir`: keep the result there (`render`'s .npz format) and return it from there
+        when everything it depends on is the same (`view_key`: the inputs, the seed, the
+        variant and the renderer's source code); None renders every time."""
         from normbox_lab.predict.materials import holder_material
-        from normbox_lab.predict.render import LAMP_GRID_NM, Lamp, RenderResult
+        from normbox_lab.predict.render import Lamp, _load_cached, _save_cached
 
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
+        args = {"patch": patch, "wall": wall, "holder": holder, "angle_deg": float(angle_deg),
+                "lamp": lamp, "target_rel_se": target_rel_se, "n_paths": n_paths,
+                "seed": int(seed), "direct_only": bool(direct_only), "max_paths": int(max_paths),
+                "pilot_paths": int(pilot_paths)}
+        if cache_dir is None:
+            return self._render_view(**args)
+        key = self.view_key(**args)
+        path = Path(cache_dir) / f"fast-{key}.npz"
+        hit = _load_cached(path)
+        if hit is not None:
+            return hit
+        result = self._render_view(**args)
+        result.key = key
+        _save_cached(path, result)
+        return result
+
+    def view_key(self, **args: Any) -> str:
+        """The cache key of a `render_view`: a hash of its arguments (materials by their
+        digest, the lamp by its parameters), the geometry, the band grid, the path depths, the
+        Mitsuba variant and the source code of the renderer's modules (`renderer_source_digest`:
+        a changed kernel never returns an old result)."""
+        from normbox_lab.predict.render import RENDER_VERSION
+
+        payload = {k: (v.digest() if k in ROLES else v.key() if k == "lamp" else v)
+                   for k, v in args.items()}
+        payload.update(renderer="fastrender", v=RENDER_VERSION, variant=self.variant,
+                       geometry=repr(self.geometry), max_depth=self.max_depth,
+                       rr_depth=self.rr_depth, chunk_paths=self.chunk_paths,
+                       grid=[self.grid.start_nm, self.grid.stop_nm, self.grid.step_nm],
+                       source=renderer_source_digest())
+        return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
+
+    def _render_view(self, *, patch: Any, wall: Any, holder: Any, angle_deg: float, lamp: Any,
+                     target_rel_se: float | None, n_paths: int | None, seed: int,
+                     direct_only: bool, max_paths: int, pilot_paths: int) -> Any:
+        from normbox_lab.predict.render import LAMP_GRID_NM, RenderResult
+
         tr = self.tracer(angle_deg, direct_only=direct_only)
         target = None if n_paths is not None else target_rel_se
         if tr.separable(patch):
