@@ -252,6 +252,52 @@ def test_command_line_builds_the_console_without_importing_textual_early(lab_env
                     "scale": 0.0, "store": "c.sqlite"}
 
 
+def test_the_lab_config_is_read_after_the_first_paint(lab_env, capsys):
+    """Its checks import the drivers and the protocols (numpy with them, 0.3 s of CPU): the
+    console paints first.  Nothing of the acquisition is imported before the first paint;
+    then the config is read."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from normbox_lab.tui import app as A\n"
+            "seen = {}\n"
+            "def paint(self):\n"
+            "    seen.update(mods=[m for m in ('numpy', 'normbox_lab.acquire.config', "
+            "'normbox_lab.drivers', 'normbox_lab.acquire.engine', 'serial') "
+            "if m in sys.modules])\n"
+            "    self.exit()\n"
+            "A.NormboxConsole._first_paint = paint\n"
+            "A.NormboxConsole.run = lambda self: A.App.run(self, headless=True)\n"
+            "from normbox_lab.cli import main\n"
+            f"main(['tui', '--store', {str(lab_env / 'fp.sqlite')!r}])\n"
+            "print('imported before the first paint:', seen['mods'])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, cwd=lab_env).stdout
+    assert "imported before the first paint: []" in out, out
+
+
+def test_a_lab_config_the_console_cannot_use_ends_it_with_one_line(lab_env, monkeypatch,
+                                                                   capsys):
+    """Read after the first paint, a bad lab config still ends the console at once with one
+    line naming file, line and field, exit 2 (as `run` refuses it)."""
+    from textual.app import App
+
+    from normbox_lab.cli import main
+
+    bad = lab_env / "bad.toml"
+    bad.write_text(SIM_CONFIG_TEMPLATE.replace('port = "sim://cs1000a"',
+                                               'port = "sim://cs1000a?faults=garble@٣"'))
+    monkeypatch.setattr(NormboxConsole, "run", lambda self: App.run(self, headless=True))
+    capsys.readouterr()
+    assert main(["tui", "--lab", str(bad), "--store", str(lab_env / "b.sqlite")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"normbox-lab: error: {bad}:") and err.count("\n") == 1, err
+    assert "instruments.radiometer.port: faults 'garble@٣'" in err
+    assert main(["tui", "--lab", str(lab_env / "none.toml")]) == 2
+    assert "no such file" in capsys.readouterr().err
+
+
 def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
     """Virtual operator (prompts answered by the simulation): q while a reading is being
     stored ends the segment right after it; the run is resumable."""

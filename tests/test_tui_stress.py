@@ -25,7 +25,8 @@ PASTE = 2000
 async def _burst_s(pilot, app, keys: list[str]) -> float:
     """Post `keys` as the terminal would deliver a paste without brackets (all queued at
     once), then a marker behind them: seconds until the marker runs, i.e. until the screen
-    has answered everything queued and takes the next key."""
+    has answered everything queued and takes the next key (printed, not asserted: wall time
+    on a shared machine is the scheduler's)."""
     done: list[float] = []
     t0 = time.monotonic()
     for key in keys:
@@ -35,26 +36,52 @@ async def _burst_s(pilot, app, keys: list[str]) -> float:
     return done[0] - t0
 
 
-def test_a_paste_of_2000_x_into_a_field_is_text_and_a_held_x_is_one_stop(lab_env, capsys):
-    app = NormboxConsole(new_session(lab_env))
+def test_a_paste_of_2000_x_into_a_field_is_text_and_a_held_x_is_one_stop(lab_env, capsys,
+                                                                         monkeypatch):
+    """What kept the screen from answering is counted, not timed: a bracketed paste is one
+    event and one check of the form; 2000 keys into a field are text and one check (the form
+    is checked 0.15 s after the last key; every key parsed every field); 2000 x outside a
+    field are one emergency stop (one worker, one toast) on the console's injected clock,
+    which stands still, so the burst window never closes between two queued presses."""
+    from normbox_lab.core.clock import VirtualClock
+    from normbox_lab.tui.tabs import RunPane
+
+    app = NormboxConsole(new_session(lab_env), clock=VirtualClock())
     timings: dict[str, float] = {}
+    pastes: list[int] = []
+    on_paste = Input._on_paste
+
+    def counted(self, event):
+        pastes.append(len(event.text))
+        return on_paste(self, event)
+    monkeypatch.setattr(Input, "_on_paste", counted)
 
     async def scenario() -> None:
         async with app.run_test(size=(80, 24)) as pilot:
             await until(pilot, lambda: app.lab_ready, "the lab")
+            pane = app.pane(RunPane)
             field = app.query_one("#param-radiometer", Input)
             field.focus()
             await pilot.pause(0.1)
             field.value, field.cursor_position = "", 0
-            # a bracketed paste (what a terminal sends for a paste) …
+            await until(pilot, lambda: pane.form_checks > 0, "the form checked")
+            checks = pane.form_checks
+            # a bracketed paste (what a terminal sends for a paste): one event, one check
             t0 = time.monotonic()
             field.post_message(events.Paste("x" * PASTE))
             await until(pilot, lambda: len(field.value) == PASTE, "the pasted text")
             timings["bracketed paste into the field"] = time.monotonic() - t0
-            # … and the same as 2000 keys (tmux send-keys, a paste without brackets)
+            await until(pilot, lambda: pane.form_checks > checks, "the form checked")
+            await pilot.pause(2 * pane.FORM_CHECK_S)
+            assert pastes == [PASTE] and pane.form_checks == checks + 1
+            # … and the same as 2000 keys (tmux send-keys, a paste without brackets): text,
+            # no stop, one check of the form after the last key
             field.value, field.cursor_position = "", 0
+            await pilot.pause(2 * pane.FORM_CHECK_S)
+            checks = pane.form_checks
             timings["2000 x keys into the field"] = await _burst_s(pilot, app, ["x"] * PASTE)
-            assert field.value == "x" * PASTE
+            await pilot.pause(2 * pane.FORM_CHECK_S)
+            assert field.value == "x" * PASTE and pane.form_checks == checks + 1
             assert app.estops_started == 0 and not any("EMERGENCY" in t
                                                        for t in app.toasts_shown)
             app.set_focus(None)
@@ -65,14 +92,11 @@ def test_a_paste_of_2000_x_into_a_field_is_text_and_a_held_x_is_one_stop(lab_env
             await until(pilot, lambda: not app._estop_running, "the stop")
             assert app.estops_started == 1 and app.estops_coalesced == PASTE - 1
             assert sum("EMERGENCY STOP" in t for t in app.toasts_shown) == 1
-            assert app.query_one(TabbedContent).active == "spectrum"
+            assert app.query_one(TabbedContent).active == "spectrum"     # the next key: 3
     asyncio.run(scenario())
     app.session.close()
     with capsys.disabled():
         print("\n" + " · ".join(f"{k} {v * 1000:.0f} ms" for k, v in timings.items()))
-    assert timings["the next key after them"] < 0.1
-    # the whole burst is handled faster than a person can look (the stops used to take 65 s)
-    assert timings["2000 x keys outside a field"] < 5.0
 
 
 def test_a_stop_after_the_burst_is_a_new_stop(lab_env):

@@ -57,10 +57,14 @@ def _tui(args: argparse.Namespace) -> int:
     from normbox_lab.tui.app import NormboxConsole
     from normbox_lab.tui.controller import Session
 
-    config = _load_config(args.lab)
-    # the store (numpy) and the lab (its world) are opened after the first paint
-    session = Session(config, args.store or DEFAULT_STORE, world=args.world,
-                      virtual_operator=args.virtual_operator, time_scale=args.time_scale)
+    # the lab config (its checks import the drivers and the protocols), the store (numpy) and
+    # the lab (its world) are read and opened after the first paint; a config the console
+    # cannot use ends it with one line and exit 2, as before it painted
+    if args.lab and not Path(args.lab).is_file():
+        _load_config(args.lab)            # the one line: no such file
+    session = Session(None, args.store or DEFAULT_STORE, world=args.world,
+                      virtual_operator=args.virtual_operator, time_scale=args.time_scale,
+                      load_config=lambda: _load_config(args.lab))
     prefill = {}
     for item in args.param:
         key, sep, value = item.partition("=")
@@ -73,6 +77,8 @@ def _tui(args: argparse.Namespace) -> int:
                          offer_resume=not args.no_resume_offer, protocol=args.protocol,
                          prefill=prefill)
     app.run()
+    if app.startup_error is not None:
+        raise app.startup_error
     if args.exit_after_first_paint:
         print(f"first-paint-wall-time {app.first_paint_wall_s:.6f} "
               f"mitsuba-imported {'mitsuba' in sys.modules} "

@@ -22,6 +22,7 @@ from textual.widget import Widget
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.core.clock import Clock, RealClock
+from normbox_lab.core.errors import ConfigError
 from normbox_lab.tui.controller import Session, fault_text
 from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
@@ -119,6 +120,9 @@ class NormboxConsole(App):
         self.events_seen: list[str] = []
         self.toasts_shown: list[str] = []
         self.lab_error = ""                   # why the lab could not be assembled
+        #: a lab config the console cannot use (read after the first paint): the console
+        #: ends and the command line says it in one line, exit 2
+        self.startup_error: ConfigError | None = None
         self.dry: Any = None                  # the latest dry run
         self._paint_tries = 0                 # refreshes waited for the footer's keys
         self._status_text = ""                # the top line's lab part
@@ -186,6 +190,12 @@ class NormboxConsole(App):
         self.first_paint_cpu_s = time.process_time()
         if self.exit_after_paint:
             self.exit()
+            return
+        try:
+            self.session.read_config()           # now, after the first paint
+        except ConfigError as exc:
+            self.startup_error = exc
+            self.exit(return_code=2)
             return
         names = _protocol_names()
         if self.protocol not in names:

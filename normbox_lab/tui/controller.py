@@ -137,10 +137,18 @@ class Session:
 
     def __init__(self, config: Any, store_path: str | Path, *, world: str = "normbox",
                  virtual_operator: bool = False, time_scale: float | None = None,
-                 post: Callable[[Any], None] | None = None) -> None:
-        self.config = config
+                 post: Callable[[Any], None] | None = None,
+                 load_config: Callable[[], Any] | None = None) -> None:
+        """`config`: the lab config, or None with `load_config`, which reads it when it is
+        first needed: the console paints before the config is read (its checks import the
+        drivers and the protocols, numpy with them: 0.3 s of CPU before the first paint)."""
+        if config is None and load_config is None:
+            raise ValueError("Session needs a config or a load_config")
+        self._config = config
+        self._load_config = load_config
+        self._config_lock = threading.Lock()
+        self._world = world
         self.store_path = Path(store_path)
-        self.world_kind = world if config.simulated else "none"
         self.virtual_operator = virtual_operator
         self.time_scale = time_scale
         self.post = post or (lambda ev: None)
@@ -162,6 +170,22 @@ class Session:
         self._lock = threading.Lock()
         #: the manual action under way (a worker thread): a run does not start meanwhile
         self.manual_action = ""
+
+    @property
+    def config(self) -> Any:
+        """The lab config (read now if it was not: a `ConfigError` names file, line, field)."""
+        return self.read_config()
+
+    def read_config(self) -> Any:
+        if self._config is None:
+            with self._config_lock:
+                if self._config is None and self._load_config is not None:
+                    self._config = self._load_config()
+        return self._config
+
+    @property
+    def world_kind(self) -> str:
+        return self._world if self.config.simulated else "none"
 
     # --- setup (call from a worker thread: the world may take seconds) -------------------------
     def open_store(self) -> Any:

@@ -232,6 +232,8 @@ class RunPane(TabPane):
     #: seconds after the last key before the form is checked (checked per key, 2000 keys of
     #: a paste took 17 s: every key parsed every field)
     FORM_CHECK_S = 0.15
+    #: checks of the whole form so far (tests: a paste, or a burst of keys, is one check)
+    form_checks = 0
 
     def on_input_changed(self, event: Input.Changed) -> None:
         if str(event.input.id or "").startswith("param-"):
@@ -264,6 +266,7 @@ class RunPane(TabPane):
         it expects, shown under the form ("" when all do)."""
         from normbox_lab.acquire.plan import PlanError
 
+        self.form_checks += 1
         message = ""
         for inp in self.query("#params Input").results(Input):
             key = str(inp.id).removeprefix("param-")
