@@ -44,6 +44,19 @@ def test_quick_demo_closes_through_the_instruments(tmp_path, capsys):
         assert ref.status == "done"
         n = len(list(store.readings(ref.id)))
     assert n == len(QUICK_PATCHES) * len(QUICK_ANGLES)
+    # the truth's render noise as achieved, stored with the sweep for the budget's render term:
+    # every configuration, its worst band at the world's quick target (2 %) or below
+    from normbox_lab.acquire.queries import reference_data
+    from normbox_lab.analyze.budget_store import truth_se_of_run
+
+    ref_run = result.runs["reference-sweep"]
+    with Store(result.store) as store:
+        ref_data = reference_data(store, ref_run)
+        truth_se = truth_se_of_run(store, ref_run, list(ref_data.patches), ref_data.angle_deg,
+                                   ref_data.radiance, ref_data.wavelength_nm)
+    assert truth_se is not None
+    worst = np.max(truth_se / ref_data.radiance, axis=-1)
+    assert np.all((worst > 0) & (worst <= 0.021)), worst
     assert [line.split(":")[0] for line in lines] == [
         "set-up", "brdf-inplane", "fit", "light-map", "reference-sweep", "predict", "compare",
         "images", "report"]
