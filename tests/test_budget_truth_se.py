@@ -118,3 +118,19 @@ def test_the_stored_record_reads_back_aligned_and_old_stores_read_as_not_recorde
         holey[0, 1] = np.nan
         record_truth_se(store, other.id, PATCHES, ANGLES, wl, holey)
         assert truth_se_of_run(store, other.id, PATCHES, ANGLES, reference, wl) is None
+
+
+def test_the_budget_says_where_the_truths_render_noise_came_from():
+    from normbox_lab.analyze.budget import truth_noise_source
+
+    wl = np.arange(380.0, 781.0, 1.0)
+    ref = np.ones((len(PATCHES), ANGLES.size, wl.size))
+    x = BudgetInputs(wl, ANGLES, list(PATCHES), ref, ref, 0.001 * ref, truth_rel_se=0.0015)
+    off = parse_error_spec("off")
+    assert truth_noise_source(x, off).startswith("the stated target, worst band 0.15 %")
+    x.truth_se = 0.0005 * ref
+    assert truth_noise_source(x, off) == "as achieved (recorded with the sweep)"
+    b = compute_budget(x, off, sources=("render",), n_draws=8, significance_draws=8)
+    assert b.truth_noise == "as achieved (recorded with the sweep)"
+    x.truth_se, x.truth_rel_se = None, 0.0
+    assert truth_noise_source(x, off) == "none (a measured truth)"

@@ -116,6 +116,8 @@ class BudgetResult:
     significant_delta_e00: np.ndarray
     angle_offsets: Any = None         # analyze.angles.AngleOffsets
     timings_s: dict[str, float] = field(default_factory=dict)
+    #: where the `render` term's truth noise came from (`truth_noise_source`)
+    truth_noise: str = ""
 
     def share_by_angle(self) -> np.ndarray:
         """[source, angle]: each source's share of the total NRMSE² (mean over patches)."""
@@ -143,7 +145,8 @@ class BudgetResult:
         return store.add_artifact(
             kind="error-budget", name=name, arrays=self.to_arrays(),
             metadata={"sources": list(self.sources), "spec": self.spec,
-                      "timings_s": dict(self.timings_s)}, run_ref=run_ref)
+                      "timings_s": dict(self.timings_s), "truth_noise": self.truth_noise},
+            run_ref=run_ref)
 
     def table(self) -> str:
         """Per angle: each source's NRMSE contribution (%, RMS over patches), the total, the
@@ -359,6 +362,19 @@ SIGNIFICANCE_DRAWS = 1024
 SIGNIFICANCE_CHUNK = 64
 
 
+def truth_noise_source(x: BudgetInputs, errors: ErrorSources) -> str:
+    """In words, the truth's Monte-Carlo noise the `render` term propagates (the branches of
+    `perturbations("render", …)`)."""
+    if x.shared_noise and not errors.render_rel_se:
+        return "none (the truth shares the prediction's random numbers)"
+    if x.truth_se is not None:
+        return "as achieved (recorded with the sweep)"
+    stated = errors.render_rel_se or (0.0 if x.shared_noise else x.truth_rel_se)
+    if stated:
+        return f"the stated target, worst band {100 * stated:.3g} % (achieved not recorded)"
+    return "none (a measured truth)"
+
+
 def compute_budget(x: BudgetInputs, errors: ErrorSources, *,
                    sources: Sequence[str] = BUDGET_SOURCES, n_draws: int = 64,
                    seed: int = 0, angle_offsets: Any = None,
@@ -407,7 +423,8 @@ def compute_budget(x: BudgetInputs, errors: ErrorSources, *,
     return BudgetResult(names, errors.spec(), x.angle_deg, list(x.patches), nrmse, de,
                         np.array(c_nse) if c_nse else np.zeros((0,) + R.shape[1:]), total,
                         observed, ci_nrmse, observed_de, ci_de, p95_n, p95_d,
-                        observed > p95_n, observed_de > p95_d, angle_offsets)
+                        observed > p95_n, observed_de > p95_d, angle_offsets,
+                        truth_noise=truth_noise_source(x, errors))
 
 
 def _significance_draws(x: BudgetInputs, errors: ErrorSources, names: Sequence[str],

@@ -53,6 +53,7 @@ def _budget(args: argparse.Namespace) -> int:
                        n_draws=args.draws, renderer=args.renderer)
     print(f"error budget of run {args.run}: {len(r.patches)} patches × {r.angle_deg.size} "
           f"angles; sources: {r.spec}")
+    print(f"the truth's render noise in the render term: {r.truth_noise}")
     print("NRMSE contribution per source and angle (%, RMS over patches):")
     print(r.table())
     print("sample-angle offset per sweep angle (deg, 95 % interval, * significant):")
