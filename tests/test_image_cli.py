@@ -23,8 +23,12 @@ def test_metamer_reproduces_its_colours_and_writes_csv(tmp_path, capsys):
 
 
 def test_bad_arguments_are_refused_with_a_reason(capsys):
-    assert main(["image", "metamer", "12,300,4"]) == 1
-    assert "three values 0–255" in capsys.readouterr().err
+    assert main(["image", "metamer", "12,300,4"]) == 2          # a refusal of user input
+    assert "colour '12,300,4': 300 is above 255" in capsys.readouterr().err
+    for text in ("٣,4,5", "1,2", "9" * 5000 + ",1,2", "ggg000", "1,,2"):
+        assert main(["image", "metamer", text]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith("normbox-lab: error: colour ") and err.count("\n") == 1, err
     with pytest.raises(SystemExit):
         main(["image", "camera", "--size", "big"])
     assert "WIDTHxHEIGHT" in capsys.readouterr().err

@@ -280,23 +280,21 @@ def _figure1(args: argparse.Namespace) -> int:
 
 
 def _parse_colour(text: str) -> tuple[int, int, int]:
+    """#rrggbb, rrggbb or r,g,b (0–255): the numbers through the one parser (digits 0-9
+    only, length checked first); a refusal is a `ParameterError` (one line, exit 2)."""
+    from normbox_lab.acquire.params import Number, ParameterError, parse_items, read
+
     t = text.strip().lstrip("#")
-    try:
-        if "," in t:
-            rgb = tuple(int(v) for v in t.split(","))
-        elif len(t) == 6:
-            rgb = tuple(int(t[i:i + 2], 16) for i in (0, 2, 4))
-        else:
-            raise ValueError
-    except ValueError:
-        from normbox_lab.core.errors import NormboxError
-
-        raise NormboxError(f"colour {text!r}: use #rrggbb, rrggbb or r,g,b (0–255)") from None
-    if len(rgb) != 3 or not all(0 <= v <= 255 for v in rgb):
-        from normbox_lab.core.errors import NormboxError
-
-        raise NormboxError(f"colour {text!r}: three values 0–255")
-    return rgb  # type: ignore[return-value]
+    field = f"colour {text[:24]!r}"
+    if "," in t:
+        items = parse_items(t, field)
+        if len(items) != 3:
+            raise ParameterError(f"{field}: three values 0–255")
+        channel = Number(0, 255, whole=True)
+        return tuple(int(read(v, channel, field)) for v in items)  # type: ignore[return-value]
+    if len(t) == 6 and all(c in "0123456789abcdefABCDEF" for c in t):
+        return tuple(int(t[i:i + 2], 16) for i in (0, 2, 4))  # type: ignore[return-value]
+    raise ParameterError(f"{field}: use #rrggbb, rrggbb or r,g,b (0–255)")
 
 
 def _metamer(args: argparse.Namespace) -> int:
