@@ -34,6 +34,11 @@ window.addEventListener('load', () => {
   const W = window.innerWidth;
   const imgs = [...document.images];
   const broken = imgs.filter(i => !(i.complete && i.naturalWidth > 0)).map(i => i.alt);
+  // a figure the browser shows narrower than its own width: its text below its points
+  const scaled = imgs.filter(i => i.getAttribute('width')
+      && i.getBoundingClientRect().width < parseFloat(i.getAttribute('width')) - 1)
+    .map(i => i.alt.slice(0, 40) + ' ' + Math.round(i.getBoundingClientRect().width) + '/'
+         + i.getAttribute('width'));
   const sticking = [];
   for (const el of document.body.querySelectorAll('*')) {
     if (el.closest('.scroll') && !el.classList.contains('scroll')) continue;
@@ -56,7 +61,8 @@ window.addEventListener('load', () => {
   });
   document.body.setAttribute('data-check', JSON.stringify({
     width: W, scrollWidth: document.documentElement.scrollWidth, images: imgs.length,
-    broken, sticking: sticking.slice(0, 10), scrolling, minFont, minWhere, sections}));
+    broken, scaled, sticking: sticking.slice(0, 10), scrolling, minFont, minWhere,
+    sections}));
 });
 """
 
@@ -150,6 +156,7 @@ def test_report_reads_well_in_headless_chromium(report_html: Path, tmp_path: Pat
     figures = text.count("<figure id=")
     assert check["images"] == figures > 5
     assert check["broken"] == [], f"figures that do not decode: {check['broken']}"
+    assert check["scaled"] == [], f"figures shown below their own size: {check['scaled']}"
     assert check["scrollWidth"] <= width_px, check["sticking"]
     assert check["sticking"] == [], check["sticking"]
     assert check["scrolling"] == [], f"tables wider than the page: {check['scrolling']}"
