@@ -14,8 +14,9 @@ each campaign on seeds of its own (the world's through the error sources' `seed`
 prediction's base), and the budget of those two with the truth's achieved standard error
 (`truth_relative_se`, as the demo now stores it) and, for comparison, with the stated target
 only.  Configurations are independent (one render each), so the marks of all campaigns at one
-angle are binomial; the test asks each angle's Clopper-Pearson 95 % interval to reach down to
-5 % and prints the table of docs/error-budget.md:
+angle are binomial; the test asks each angle's count to be consistent with 5 % (at most the
+binomial quantile a 5 % rate exceeds with probability 1 %/13), the pooled Clopper-Pearson 95 %
+interval to reach down to 5 %, and prints the table of docs/error-budget.md:
 
     NORMBOX_MARKS_NULL_CAMPAIGNS=16 .venv/bin/python -m pytest -m slow -s \\
         tests/test_budget_marks_null.py
@@ -83,7 +84,7 @@ def null_campaign(k: int, boxes: dict) -> tuple[BudgetInputs, BudgetInputs]:
 
 
 def test_marks_at_the_demos_noise_are_5_percent_at_every_angle():
-    from scipy.stats import binomtest
+    from scipy.stats import binom, binomtest
 
     t0 = time.perf_counter()
     boxes: dict = {}
@@ -114,8 +115,11 @@ def test_marks_at_the_demos_noise_are_5_percent_at_every_angle():
     ratio = np.concatenate(ratio_rows, axis=0)
     print("| observed / p95 NRMSE, median | " + " | ".join(
         f"{v:.2f}" for v in np.median(ratio, axis=0)) + " | |")
-    # every angle's rate consistent with at most 5 % (its interval reaches down to 5 %)
+    # every angle's count consistent with at most 5 %: at most the binomial quantile that a
+    # 5 % rate exceeds with probability 1 % / 13 (13 angles: a correct budget fails 1 % of the
+    # time, not the 10-20 % of 13 separate 95 % intervals); pooled, the interval reaches 5 %
+    limit = binom.ppf(1.0 - 0.01 / len(ANGLES), n, 0.05)
     for m in range(2):
         row = marks[0, m]
-        assert all(binomtest(int(c), n).proportion_ci(0.95).low <= 0.05 for c in row), row
+        assert np.all(row <= limit), (row, limit)
         assert binomtest(int(row.sum()), n * len(ANGLES)).proportion_ci(0.95).low <= 0.05
