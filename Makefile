@@ -51,7 +51,7 @@ demo: $(STAMP)
 # On a machine with an NVIDIA GPU: the fast renderer's tests and `bench predict` in Mitsuba's
 # cuda_ad_mono variant (the bench runs twice: the second finds Dr.Jit's kernel cache warm).
 bench-gpu: $(STAMP)
-	NORMBOX_FAST_VARIANT=cuda_ad_mono $(PY) -m pytest -q -m '' tests/test_fastrender.py tests/test_executors.py
+	NORMBOX_FAST_VARIANT=cuda_ad_mono $(PY) -m pytest -q -m '' tests/predict/test_fastrender.py tests/predict/test_executors.py
 	NORMBOX_FAST_VARIANT=cuda_ad_mono $(VENV)/bin/normbox-lab bench predict
 	NORMBOX_FAST_VARIANT=cuda_ad_mono $(VENV)/bin/normbox-lab bench predict
 

@@ -6,7 +6,7 @@ to this module is written from it by
 
     python -m normbox_lab.sim.colour_tables --write
 
-and ``tests/test_sim_startup.py`` regenerates the tables with the installed colour-science and
+and ``tests/sim/test_sim_startup.py`` regenerates the tables with the installed colour-science and
 checks them against the shipped file (``--check`` does the same from the command line).
 
 What the file holds, all on 380–780 nm at 1 nm (401 values) unless said otherwise:

@@ -1,10 +1,18 @@
 """Many tests open drivers on ``sim://`` ports directly, without building a simulated lab
 (which is what registers the emulators' transports in the product): register them once here.
 `test_transport.py` checks, in fresh interpreters, that a real lab never loads the simulator
-and that a simulated lab registers its transports by itself."""
+and that a simulated lab registers its transports by itself.
+
+The tests sit in one folder per room (instruments, sim, acquire, predict, analyze, images, tui,
+campaign, core, project); the helpers they share (`wire`, `served`, `pilot`, `engine_fakes`,
+`fuzz`, `report_fixtures`, `kernel_paths`) stay here, on the import path of every folder."""
+
+import sys
+from pathlib import Path
 
 from normbox_lab.sim.transport import register_url_scheme
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 register_url_scheme()
 
 

@@ -1,4 +1,4 @@
-"""Seeded byte mutation and a one-shot fake port for parser fuzzing (tests/test_fuzz.py).
+"""Seeded byte mutation and a one-shot fake port for parser fuzzing (tests/instruments/test_fuzz.py).
 
 `mutate(rng, data)` applies one to three of: bit flips, deletions, insertions of random or
 "interesting" bytes (separators, signs, exponents, NaN/inf spellings, non-ASCII), duplicated

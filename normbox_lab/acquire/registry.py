@@ -13,7 +13,7 @@ its ``__init__``; each with the TOML type its annotation names (``int``, ``float
 ``str``; ``float | None`` is a float).  Parameters of any other type (callables, objects) and
 those an entry lists as `internal` are the program's, not the config's.  So a keyword added
 to a driver is a config option at once, and a keyword removed is refused at once
-(tests/test_lab.py checks every entry).
+(tests/acquire/test_lab.py checks every entry).
 
 Each entry also declares how `normbox-lab lab discover` may ask the instrument who it is
 (`Identification`): the exact bytes of its identification exchanges, the baud rates to try, and

@@ -30,8 +30,8 @@ of the angle-to-angle *misadjustment* (what the paper saw by eye), not of a comm
   the resulting offsets (a fixed source's bias included) is the second part.
 
 `significant()`: |offset| beyond the half-width.  The false-alarm rate of this test is
-measured by a null test (tests/test_angle_offsets.py fast, on synthetic campaigns;
-tests/test_budget_null.py over independent virtual campaigns, docs/error-budget.md).
+measured by a null test (tests/analyze/test_angle_offsets.py fast, on synthetic campaigns;
+tests/analyze/test_budget_null.py over independent virtual campaigns, docs/error-budget.md).
 """
 
 from __future__ import annotations

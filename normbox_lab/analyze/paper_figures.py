@@ -6,7 +6,7 @@ Data for Predictive Rendering of Rough Surfaces* (Computer Graphics Forum, EGSR 
 
 Each entry carries where the paper says it (section, figure or table), its unit, its sign
 convention, the numbers, and `quote`: the one text that a table cell or a sentence prints for
-it.  `tests/test_report_paper_figures.py` reads every quotation of the docs, the report and the
+it.  `tests/analyze/test_report_paper_figures.py` reads every quotation of the docs, the report and the
 budget against this table.
 
 Sign conventions of the paper (Sec. 4.5.1, Figs. 13/14): NSE = (reference − predicted) /

@@ -30,7 +30,7 @@ RATING_TEXT = ("#ffffff", "#000000", "#000000", "#ffffff")
 #: a sequential map for scalar images (ΔE00 maps, weights)
 SEQUENTIAL_CMAP = "magma"
 #: figure text sizes in points (a figure is shown at its physical size: 1 pt ≈ 1.33 CSS px)
-#: nothing smaller than MIN_FONT_PT at the figure's own size (tests/test_report_figures.py)
+#: nothing smaller than MIN_FONT_PT at the figure's own size (tests/analyze/test_report_figures.py)
 FONT_PT = {"base": 10.0, "tick": 9.0, "label": 10.0, "title": 11.0, "legend": 9.0,
            "annotation": 9.0}
 MIN_FONT_PT = 9.0

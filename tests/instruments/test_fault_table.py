@@ -14,7 +14,7 @@ from normbox_lab.acquire.registry import driver_class, drivers_for
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import InstrumentTimeout, ProtocolError
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 def _table_rows() -> list[tuple[str, str, str, str]]:

@@ -6,7 +6,7 @@ decorators left out, nested functions and docstrings counted in.  A longer funct
 unless it is listed in `EXCEPTIONS` with its reason; an exception that names no function any
 more, or a function back under the limit, fails too, so the list only shrinks.
 
-    python tests/test_function_size.py      # the 15 longest functions, with their lengths
+    python tests/project/test_function_size.py      # the 15 longest functions, with their lengths
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import pytest
 
-HERE = Path(__file__).resolve().parent
+HERE = Path(__file__).resolve().parents[1]          # tests/: the shared helpers
 
 
 def child(store_path: str, lab_kind: str) -> int:

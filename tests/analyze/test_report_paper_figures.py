@@ -17,7 +17,7 @@ from report_fixtures import synthetic_report_data
 
 from normbox_lab.analyze import paper_figures as pf
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DOCS = sorted((ROOT / "docs").glob("*.md")) + [ROOT / "README.md"]
 NUMBER = re.compile(r"[−-]?\d+(?:\.\d+)?")
 

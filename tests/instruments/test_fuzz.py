@@ -8,7 +8,7 @@ file:line:field with a line > 0, DataError naming file and location).  Anything 
 struct.error, OverflowError, UnicodeDecodeError, IndexError, a raw ValueError — is a defect.
 
 Counts per parser are printed (``-s``):  nice -n 10 .venv/bin/python -m pytest -s -m slow
-tests/test_fuzz.py
+tests/instruments/test_fuzz.py
 """
 
 from __future__ import annotations

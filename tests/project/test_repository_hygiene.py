@@ -14,7 +14,7 @@ import re
 import subprocess
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 
 #: what a machine path or a private reference path looks like (written with character
 #: classes, so that this file does not itself contain the paths it forbids)

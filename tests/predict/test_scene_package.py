@@ -31,7 +31,7 @@ ANGLES = (30.0, 60.0)
 def _campaign(tmp_path: Path, patches=PATCHES, angles=ANGLES) -> tuple[Path, int, int]:
     """A small stored campaign (truth = the fit model, no instrument): gonio run, fits,
     reference run, our prediction (the fast renderer, as the demo)."""
-    sys.path.insert(0, str(Path(__file__).parent))
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "analyze"))
     import test_pipeline as tp
 
     from normbox_lab.analyze.pipeline import fit_run, predict_run

@@ -11,7 +11,7 @@ After every key it checks that
   prompt's text;
 and at the end that Ctrl+Q leaves within 2 s.  Each scenario is reproduced from its seed:
 
-    NORMBOX_RANDOM_OPERATOR_SEED=17 python -m pytest -q tests/test_tui_random_operator.py -s
+    NORMBOX_RANDOM_OPERATOR_SEED=17 python -m pytest -q tests/tui/test_tui_random_operator.py -s
 """
 
 from __future__ import annotations

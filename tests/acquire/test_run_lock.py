@@ -125,7 +125,7 @@ def test_a_run_whose_process_died_in_the_warm_up_is_never_shown_running(tmp_path
 
     path = tmp_path / "s.sqlite"
     child = subprocess.run([sys.executable, "-c", KILLED_IN_WARM_UP, str(path),
-                            str(Path(__file__).parent)], capture_output=True, text=True,
+                            str(Path(__file__).resolve().parents[1])], capture_output=True, text=True,
                            timeout=120, check=False)
     assert child.returncode == -signal.SIGKILL, child.stderr
     with Store(path) as store:

@@ -9,7 +9,7 @@
 - `normbox-lab --help` imports no command module and nothing heavy.
 
 Bounds are generous (a loaded 2-core machine must pass); the figures themselves come from
-``python tests/test_sim_startup.py``, which prints wall and CPU seconds per emulator (the table
+``python tests/sim/test_sim_startup.py``, which prints wall and CPU seconds per emulator (the table
 in docs/simulation-testing.md).  No test sleeps: every wait is a blocking read with a deadline.
 """
 
@@ -270,7 +270,7 @@ def test_the_shipped_tables_equal_colour_science():
 def test_a_normal_install_carries_the_tables(tmp_path):
     """setuptools' build_py (what a wheel and a normal install contain) copies the data file
     into normbox_lab/sim/data/, and the installed module finds it there."""
-    root = Path(__file__).resolve().parents[1]
+    root = Path(__file__).resolve().parents[2]
     src = tmp_path / "src"
     src.mkdir()
     for name in ("setup.py", "pyproject.toml", "README.md"):
@@ -395,7 +395,7 @@ def test_a_misspelt_command_is_still_refused_with_the_choices(capsys):
     assert "invalid choice: 'simm'" in err and "'sim'" in err
 
 
-# --- the figures (python tests/test_sim_startup.py) ------------------------------------------
+# --- the figures (python tests/sim/test_sim_startup.py) ------------------------------------------
 
 def _help_figures(n: int = 5) -> tuple[float, float]:
     """Median wall and CPU seconds of `python -m normbox_lab --help` over n runs."""

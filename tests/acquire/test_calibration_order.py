@@ -13,7 +13,7 @@ from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.drivers.rotator_zaber import ZaberRotationStage
 from normbox_lab.sim import core
 from normbox_lab.sim import qepro as sim_qepro
-from tests.test_gonio import LobeWorld, lamp
+from tests.instruments.test_gonio import LobeWorld, lamp
 
 
 def cold_gonio(**options) -> tuple[Gonioreflectometer, sim_qepro.SimulatedQEProDevice,

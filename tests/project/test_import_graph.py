@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 #: source folder → the package it installs as (setup.py's MAPPED_FOLDERS, plus the package)
 FOLDERS = {"normbox_lab": "normbox_lab", "drivers": "normbox_lab.drivers",
            "sim": "normbox_lab.sim", "protocols": "normbox_lab.protocols"}

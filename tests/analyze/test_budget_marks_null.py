@@ -19,7 +19,7 @@ binomial quantile a 5 % rate exceeds with probability 1 %/13), the pooled Cloppe
 interval to reach down to 5 %, and prints the table of docs/error-budget.md:
 
     NORMBOX_MARKS_NULL_CAMPAIGNS=16 .venv/bin/python -m pytest -m slow -s \\
-        tests/test_budget_marks_null.py
+        tests/analyze/test_budget_marks_null.py
 """
 
 from __future__ import annotations

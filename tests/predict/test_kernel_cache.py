@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pytest
 
-SCRIPT = Path(__file__).with_name("kernel_paths.py")
+SCRIPT = Path(__file__).resolve().parents[1] / "kernel_paths.py"
 ROOT = SCRIPT.parent.parent
 PATHS = ("radiometer_view", "all_patches", "dispersive_truth", "camera_cornell", "camera_box")
 

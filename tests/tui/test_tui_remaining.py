@@ -7,7 +7,7 @@ clock would read at time scale S: S × lab time + the person's own time (6 s to 
 patch, and one 100 s pause after the 6th reading).  `RunProgress` is fed the engine's events
 exactly as the app feeds it; each estimate is compared with the time the run then really took.
 
-    python tests/test_tui_remaining.py        # the table in docs/tui.md
+    python tests/tui/test_tui_remaining.py        # the table in docs/tui.md
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import re
 from collections import Counter
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 #: the source roots of the distribution (drivers/, sim/, protocols/ install as normbox_lab.*)
 SOURCE_ROOTS = ("normbox_lab", "drivers", "sim", "protocols")
 

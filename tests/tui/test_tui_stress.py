@@ -1,7 +1,7 @@
 """The console under stress: a paste of 2000 `x`, a held E-STOP key, random
 text into every field and dialog, stale states, the keys during a prompt.
 
-    python -m pytest -q tests/test_tui_stress.py -s     # prints the paste timings
+    python -m pytest -q tests/tui/test_tui_stress.py -s     # prints the paste timings
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ floor; an import sideways (another room on the same floor) or upwards fails, unl
 in `EXCEPTIONS` with its reason.  An exception that no longer matches any import fails too, so
 the list only shrinks.
 
-    python tests/test_layers.py      # prints the floors and the room graph (edges, counts)
+    python tests/project/test_layers.py      # prints the floors and the room graph (edges, counts)
 """
 
 from __future__ import annotations

@@ -20,7 +20,7 @@ import pytest
 
 from normbox_lab.core.errors import RenderError
 
-SCRIPT = Path(__file__).with_name("kernel_paths.py")
+SCRIPT = Path(__file__).resolve().parents[1] / "kernel_paths.py"
 ROOT = SCRIPT.parent.parent
 
 

@@ -66,7 +66,7 @@ print(json.dumps({"simulated": config.simulated, "operator": lab.operator is not
 
 def test_a_real_lab_loads_no_module_of_the_simulator():
     out = subprocess.run([sys.executable, "-c", SCRIPT], check=False, input=REAL_LAB, text=True,
-                         capture_output=True, timeout=120, cwd=Path(__file__).parent)
+                         capture_output=True, timeout=120, cwd=Path(__file__).resolve().parents[1])
     assert out.returncode == 0, out.stderr
     result = json.loads(out.stdout.strip().splitlines()[-1])
     assert result["simulated"] is False and result["operator"] is False
@@ -89,7 +89,7 @@ print(json.dumps({"n": len(reading.wavelength_nm), "qepro_simulated": spec.simul
                   "white": spec.white_standard() is not None}))
 """
     out = subprocess.run([sys.executable, "-c", script], check=False, text=True, capture_output=True,
-                         timeout=300, cwd=Path(__file__).parent)
+                         timeout=300, cwd=Path(__file__).resolve().parents[1])
     assert out.returncode == 0, out.stderr
     assert json.loads(out.stdout.strip().splitlines()[-1]) == \
         {"n": 401, "qepro_simulated": True, "white": True}
@@ -116,7 +116,7 @@ def test_drivers_import_the_neutral_transport_and_never_the_simulator():
               "print(json.dumps(sorted(m for m in sys.modules if m == 'normbox_lab.sim' "
               "or m.startswith('normbox_lab.sim.'))))\n")
     out = subprocess.run([sys.executable, "-c", script], check=False, text=True,
-                         capture_output=True, timeout=120, cwd=Path(__file__).parent)
+                         capture_output=True, timeout=120, cwd=Path(__file__).resolve().parents[1])
     assert out.returncode == 0, out.stderr
     assert len(names) >= 7 and json.loads(out.stdout.strip().splitlines()[-1]) == []
     for name in names:
