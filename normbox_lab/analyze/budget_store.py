@@ -203,44 +203,60 @@ def budget_run(store: Store, ref_run: int | str, *, sources: str | None = None,
 def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str, str]]:
     """(observation, the paper's value, ours) for the paper-scenario table of
     docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
-    from normbox_lab.acquire.queries import latest_fits, latest_run
+    from normbox_lab.acquire.queries import latest_fits
     from normbox_lab.analyze.compare import ComparisonResult
-    from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
-    from normbox_lab.analyze.paper_figures import OBSERVATIONS, nse_paper_sign, quote, signed
-
-    def paper(label: str) -> str:
-        # the paper's column reads from the one table of the paper's figures
-        return quote(OBSERVATIONS[label])
 
     run = store.get_run(ref_run)
     c = ComparisonResult.from_artifact(store.latest_artifact("comparison", f"ref-run-{run.id}"))
+    fits = latest_fits(store)
+    return (_nrmse_rows(c) + _correlation_rows(c) + _fit_rows(fits) + _delta_e_rows(c)
+            + _wall_nse_rows(store, c, fits) + _neighbour_rows(c) + _offset_rows(store, run.id))
+
+
+def _paper(label: str) -> str:
+    """The paper's column, read from the one table of the paper's figures."""
+    from normbox_lab.analyze.paper_figures import OBSERVATIONS, quote
+
+    return quote(OBSERVATIONS[label])
+
+
+def _nrmse_rows(c: Any) -> list[tuple[str, str, str]]:
+    """NRMSE at 30–60° against the paper's [2, 5] %, and NRMSE by angle."""
     ang = c.angle_deg
     small = (ang >= 30) & (ang <= 60)
     nr = 100 * c.nrmse
-    rows = []
+    label = "NRMSE at 30–60° within [2, 5] %"
     if np.any(small):
         in_band = np.mean((nr[:, small] >= 2) & (nr[:, small] <= 5))
-        label = "NRMSE at 30–60° within [2, 5] %"
-        rows.append((label, paper(label),
-                     (f"{100 * in_band:.0f} % of configurations "
-                      f"(median {np.median(nr[:, small]):.1f} %)")))
+        rows = [(label, _paper(label), (f"{100 * in_band:.0f} % of configurations "
+                                        f"(median {np.median(nr[:, small]):.1f} %)"))]
     else:
-        label = "NRMSE at 30–60° within [2, 5] %"
-        rows.append((label, paper(label), "not measured"))
+        rows = [(label, _paper(label), "not measured")]
     by = np.mean(nr, axis=0)
     label = "NRMSE by angle, mean over patches (%)"
-    rows.append((label, paper(label), ", ".join(f"{a:g}° {v:.1f}" for a, v in zip(ang, by))))
+    rows.append((label, _paper(label), ", ".join(f"{a:g}° {v:.1f}" for a, v in zip(ang, by))))
+    return rows
+
+
+def _correlation_rows(c: Any) -> list[tuple[str, str, str]]:
+    """The correlations of radiance with the NRMSE and the RMSE."""
+    from normbox_lab.analyze.paper_figures import signed
+
     cr = c.correlations
 
     def r(key: str, sign: str = "") -> str:
         value = float(cr.get(key, float("nan")))
         return signed(value, 2, plus=bool(sign)) if np.isfinite(value) else "not measured"
-    label = "r(radiance, NRMSE) 65–90°"
-    rows.append((label, paper(label), r("radiance_nrmse_large", "+")))
-    label = "r(radiance, RMSE) 30–60° / 65–90°"
-    rows.append((label, paper(label),
-                 f"{r('radiance_rmse_small')} / {r('radiance_rmse_large')}"))
-    fits = latest_fits(store)
+
+    label_nrmse = "r(radiance, NRMSE) 65–90°"
+    label_rmse = "r(radiance, RMSE) 30–60° / 65–90°"
+    return [(label_nrmse, _paper(label_nrmse), r("radiance_nrmse_large", "+")),
+            (label_rmse, _paper(label_rmse),
+             f"{r('radiance_rmse_small')} / {r('radiance_rmse_large')}")]
+
+
+def _fit_rows(fits: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The BRDF fit errors: the patches' spread, patch 18 and the wall."""
     errs = {k: float(v.fit_error_pct) for k, v in fits.items()
             if np.isfinite(float(v.fit_error_pct))}
     patch_errs = [v for k, v in errs.items() if k.startswith("p") and k != "p18"]
@@ -251,49 +267,77 @@ def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str,
         return f"{errs[name]:.1f} %" if name in errs else "not measured"
     spread = (f"{min(patch_errs):.1f}–{max(patch_errs):.1f} %" if patch_errs
               else "patches not measured")
-    rows.append(("BRDF fit errors", paper("BRDF fit errors"),
-                 f"{spread}, patch 18 {fit_error('p18')}, wall {fit_error('wall')}"))
+    return [("BRDF fit errors", _paper("BRDF fit errors"),
+             f"{spread}, patch 18 {fit_error('p18')}, wall {fit_error('wall')}")]
+
+
+def _delta_e_rows(c: Any) -> list[tuple[str, str, str]]:
+    """ΔE00: the share below 2 (and 1), the maximum and the patches above 2."""
     de = c.delta_e00
     above2 = sorted({int(c.patch_names[p].split()[0]) for p, _ in zip(*np.nonzero(de > 2))})
-    rows.append(("ΔE00", paper("ΔE00"),
-                 (f"{100 * np.mean(de < 2):.0f} % < 2 ({100 * np.mean(de < 1):.0f} % < 1), "
-                  f"max {np.max(de):.2f}; > 2: "
-                  f"{', '.join(map(str, above2)) or 'none'}")))
+    return [("ΔE00", _paper("ΔE00"),
+             (f"{100 * np.mean(de < 2):.0f} % < 2 ({100 * np.mean(de < 1):.0f} % < 1), "
+              f"max {np.max(de):.2f}; > 2: {', '.join(map(str, above2)) or 'none'}"))]
+
+
+def _wall_nse_rows(store: Store, c: Any, fits: dict[str, Any]) -> list[tuple[str, str, str]]:
+    """The NSE at 90° (paper's sign) against the wall's fit error at (−70°, 80°), over λ."""
+    from normbox_lab.acquire.queries import latest_run
+    from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
+    from normbox_lab.analyze.paper_figures import nse_paper_sign, signed
+
+    ang = c.angle_deg
     brdf = latest_run(store, "brdf-inplane")
-    if brdf is not None and "wall" in fits:
-        data = data_from_store_run(store, brdf.id)
-        if "wall" in data and np.any(np.isclose(ang, 90.0)):
-            e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
-            e = np.interp(c.wavelength_nm, data["wall"].wavelength_nm, e)
-            # the paper's NSE sign (reference − prediction); the fit error (fit − measured)
-            nse90 = nse_paper_sign(np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :],
-                                              axis=0))
-            ok = np.isfinite(nse90) & np.isfinite(e)
-            r = float(np.corrcoef(nse90[ok], e[ok])[0, 1])
-            label = "NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ"
-            rows.append((label, paper(label),
-                         (f"{signed(r, 2)} (NSE 450 / 700 nm: "
-                          f"{signed(100 * np.interp(450, c.wavelength_nm, nse90), 1)} / "
-                          f"{signed(100 * np.interp(700, c.wavelength_nm, nse90), 1)} %)")))
+    if brdf is None or "wall" not in fits:
+        return []
+    data = data_from_store_run(store, brdf.id)
+    if "wall" not in data or not np.any(np.isclose(ang, 90.0)):
+        return []
+    e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)
+    e = np.interp(c.wavelength_nm, data["wall"].wavelength_nm, e)
+    # the paper's NSE sign (reference − prediction); the fit error (fit − measured)
+    nse90 = nse_paper_sign(np.nanmean(c.nse[:, int(np.argmin(np.abs(ang - 90))), :], axis=0))
+    ok = np.isfinite(nse90) & np.isfinite(e)
+    r = float(np.corrcoef(nse90[ok], e[ok])[0, 1])
+    label = "NSE (paper's sign) at 90° vs wall fit error at (−70°, 80°), r over λ"
+    return [(label, _paper(label),
+             (f"{signed(r, 2)} (NSE 450 / 700 nm: "
+              f"{signed(100 * np.interp(450, c.wavelength_nm, nse90), 1)} / "
+              f"{signed(100 * np.interp(700, c.wavelength_nm, nse90), 1)} %)"))]
+
+
+def _neighbour_rows(c: Any) -> list[tuple[str, str, str]]:
+    """The NSE at 65° and 80° minus its neighbours' mean (the paper's sign)."""
+    from normbox_lab.analyze.paper_figures import nse_paper_sign, signed
+
+    ang = c.angle_deg
     # in the paper's sign: its NSE is (reference − prediction) / reference, ours the opposite
     nse_mean = 100 * nse_paper_sign(np.nanmean(c.nse, axis=(0, 2)))
+    rows = []
     for a in (65.0, 80.0):
         i = int(np.argmin(np.abs(ang - a)))
         if 0 < i < ang.size - 1 and abs(ang[i] - a) < 1e-6:
             dev = nse_mean[i] - 0.5 * (nse_mean[i - 1] + nse_mean[i + 1])
             label = f"NSE (paper's sign) at {a:g}° minus its neighbours' mean"
-            rows.append((label, paper(label),
+            rows.append((label, _paper(label),
                          (f"{signed(dev, 1)} % (patches with the sign of the mean: "
                           f"{_same_sign(c.nse, i):.0f} %)")))
-    budgets = store.artifacts("error-budget", f"ref-run-{run.id}")
-    if budgets and "angle_offset_deg" in budgets[-1].arrays:
-        arr = budgets[-1].arrays
-        label = "estimated angle offsets (budget)"
-        rows.append((label, paper(label), ", ".join(
-            f"{a:g}° {signed(o, 2)} ± {ci:.2f}" for a, o, ci in zip(
-                arr["angle_offset_angle_deg"], arr["angle_offset_deg"],
-                arr["angle_offset_ci95_deg"]) if a in (60, 65, 70, 75, 80, 85))))
     return rows
+
+
+def _offset_rows(store: Store, run_id: int) -> list[tuple[str, str, str]]:
+    """The angle offsets the latest error budget of the run estimated, 60–85°."""
+    from normbox_lab.analyze.paper_figures import signed
+
+    budgets = store.artifacts("error-budget", f"ref-run-{run_id}")
+    if not budgets or "angle_offset_deg" not in budgets[-1].arrays:
+        return []
+    arr = budgets[-1].arrays
+    label = "estimated angle offsets (budget)"
+    return [(label, _paper(label), ", ".join(
+        f"{a:g}° {signed(o, 2)} ± {ci:.2f}" for a, o, ci in zip(
+            arr["angle_offset_angle_deg"], arr["angle_offset_deg"],
+            arr["angle_offset_ci95_deg"]) if a in (60, 65, 70, 75, 80, 85)))]
 
 
 def _same_sign(nse: np.ndarray, i: int) -> float:

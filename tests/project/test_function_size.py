@@ -22,15 +22,11 @@ MAX_LINES = 80
 EXCEPTIONS: dict[str, str] = {
     "normbox_lab.predict.patchset.PatchSetTracer._trace_patches": (
         "a Dr.Jit kernel body: everything it does is traced into one kernel, and it reads as "
-        "that kernel, top to bottom (lane setup, the loop, the per-lane sums); the kernel "
-        "rewrite under way owns its shape"),
+        "that kernel, top to bottom (lane setup, the first vertex's QMC draws, the loop, the "
+        "per-lane sums)"),
     "normbox_lab.predict.bandpath.BandPathTracer._path_loop": (
         "a Dr.Jit kernel body: the bounce closure and the dr.while_loop over its state are one "
-        "recorded loop and read best together; the kernel rewrite under way owns its shape"),
-    "normbox_lab.analyze.budget_store.paper_observations": (
-        "pending: it holds several steps (the comparison's rows, the fits' rows, the wall fit "
-        "against the 90° NSE, the budget's offsets) and splits with the error-budget room's "
-        "rework under way; drop this line then"),
+        "recorded loop (with the band loop inside it) and read best together"),
 }
 
 
