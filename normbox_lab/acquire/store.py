@@ -73,7 +73,7 @@ from normbox_lab.acquire.store_file import (
     read_only_problem,
     refusal,
 )
-from normbox_lab.core.errors import StoreError
+from normbox_lab.core.errors import StoreError, UnknownRun
 from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
 
 DEFAULT_STORE = "normbox.sqlite"
@@ -609,7 +609,7 @@ class Store:
                     (len(prefix), prefix)).fetchall() if r not in rows]
         if len(rows) != 1:
             what = "no run" if not rows else "more than one run"
-            raise StoreError(f"{what} matches {run_ref!r} in {self.path}")
+            raise UnknownRun(f"{what} matches {run_ref!r} in {self.path}")
         return self._run_row(rows[0])
 
     def runs(self) -> list[RunRecord]:

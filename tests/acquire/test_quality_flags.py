@@ -332,7 +332,7 @@ def test_qa_of_an_unknown_run_names_it(tmp_path, capsys):
     with Store(tmp_path / "s.sqlite") as store:
         store.create_run("x")
     rc = main(["qa", "nope", "--store", str(tmp_path / "s.sqlite")])
-    assert rc == 1
+    assert rc == 2                       # a refusal of what was typed; 1 is for error flags
     assert "no run matches 'nope'" in capsys.readouterr().err
 
 

@@ -53,7 +53,7 @@ def test_init_runs_export_import(tmp_path, capsys, monkeypatch):
     assert line[4] == "1/1"
     assert main(["export", "1", "--format", "csv", "-o", "o.csv"]) == 0
     assert (tmp_path / "o.csv").read_text().count("\n") == 2      # header + one reading
-    assert main(["export", "7", "--format", "json"]) == 1
+    assert main(["export", "7", "--format", "json"]) == 2
     assert "no run matches" in capsys.readouterr().err
 
 
@@ -217,9 +217,9 @@ def test_export_and_qa_of_an_impossible_run_id_are_one_typed_line(tmp_path, caps
     store = tmp_path / "s.sqlite"
     _store_with_a_run(store)
     out = tmp_path / "o.json"
-    assert main(["export", ref, "--format", "json", "-o", str(out), "--store", str(store)]) == 1
+    assert main(["export", ref, "--format", "json", "-o", str(out), "--store", str(store)]) == 2
     assert "no run matches" in _one_error_line(capsys) and not out.exists()
-    assert main(["qa", ref, "--store", str(store)]) == 1
+    assert main(["qa", ref, "--store", str(store)]) == 2
     assert "no run matches" in _one_error_line(capsys)
 
 
