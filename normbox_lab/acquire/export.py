@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from normbox_lab.acquire.store import Store, StoredReading
-from normbox_lab.core.errors import StoreError
+from normbox_lab.core.errors import BadPath, StoreError
 
 FORMATS = ("netcdf", "csv", "json")
 SUFFIX = {"netcdf": ".nc", "csv": ".csv", "json": ".json"}
@@ -258,7 +258,7 @@ def export_run(store: Store, run_ref: int | str, fmt: str, path: str | Path | No
         raise StoreError(f"{store.path}: the store is damaged ({problems[0]}); nothing exported")
     out = Path(path) if path else Path(f"run-{run.id}-{run.protocol}{SUFFIX[fmt]}")
     if out.is_dir():
-        raise StoreError(f"cannot write {out}: it is a directory")
+        raise BadPath(f"cannot write {out}: it is a directory")
     tmp = out.with_name(f".{out.stem}.partial{out.suffix}")
     try:
         exported = {"netcdf": export_netcdf, "csv": export_csv,

@@ -22,7 +22,7 @@ import time
 from pathlib import Path
 from typing import Any, Self
 
-from normbox_lab.core.errors import StoreError
+from normbox_lab.core.errors import BadPath, StoreError
 
 #: PRAGMA application_id of a normbox-lab store: "NBOX" as a big-endian 32-bit integer
 APPLICATION_ID = 0x4E424F58
@@ -249,7 +249,7 @@ def preflight(path: Path, newest: int) -> bool:
     import stat
 
     if not stat.S_ISREG(st.st_mode):
-        raise StoreError(f"{path}: not a file")
+        raise BadPath(f"{path}: not a file")
     if st.st_size == 0:
         return False
     try:

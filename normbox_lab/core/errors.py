@@ -10,7 +10,8 @@
     ├── ConfigError             a lab config problem; names file, line and field
     ├── DataError               an imported data file is malformed; names file and location
     ├── StoreError              the measurement store cannot do what was asked
-    │   └── UnknownRun          a run reference names no run, or several (exit 2)
+    │   ├── UnknownRun          a run reference names no run, or several (exit 2)
+    │   └── BadPath             a store or output path that cannot be one (exit 2)
     ├── PlanError               a protocol's plan cannot be built (acquire.steps)
     │   └── ParameterError      a value outside its kind or limits (acquire.params; exit 2)
     └── OperatorAbort           the operator (or an abort request) stopped the run
@@ -94,6 +95,13 @@ class UnknownRun(StoreError):
     """A run reference (id or uuid prefix) that names no run of the store, or more than one: a
     refusal of what a person typed, so the command line exits 2 (1 stays for what a command
     found, such as `qa`'s error flags)."""
+
+    exit_code = 2
+
+
+class BadPath(StoreError):
+    """A path a person gave for the store or an output that cannot be one (a directory, not a
+    regular file): a refusal of what was typed, exit 2."""
 
     exit_code = 2
 

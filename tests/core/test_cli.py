@@ -288,3 +288,13 @@ def test_help_texts_say_percent_once_and_name_the_run_arguments(capsys):
             main(argv)
         out = " ".join(capsys.readouterr().out.split())
         assert expect in out and "%%" not in out, out
+
+
+def test_a_directory_given_as_the_store_or_the_output_is_refused_with_exit_2(tmp_path, capsys):
+    store = tmp_path / "s.sqlite"
+    _store_with_a_run(store)
+    assert main(["qa", "1", "--store", str(tmp_path)]) == 2
+    assert "not a file" in _one_error_line(capsys)
+    assert main(["export", "1", "--format", "json", "-o", str(tmp_path), "--store",
+                 str(store)]) == 2
+    assert "it is a directory" in _one_error_line(capsys)
