@@ -243,53 +243,76 @@ class CameraTracer(BandPathTracer):
         each pixel's spp paths: (8·B + 2, n_pixels) float32 (the radiance summed as its own
         per-path value, so a render with and without layers gives the same radiance bits);
         without `layers`, radiance, radiance² and the luminance terms only: (2·B + 2, n_pixels).
-
-        The one kernel of the camera that is written band by band (straight-line code): its
-        8·B outputs are the images themselves, and kernel outputs are plain vector stores where
-        a band loop would scatter them (2.5× the time of this step).  It is small per band (the
-        first hit's factors from its λ-independent terms, then sums and products)."""
+        One kernel of band loops (the band mean of the incoming light, then the images) writing
+        rows of one flat array."""
         dr, m = self.dr, self.m
         n_b = self.grid.n_bands
+        n_img = 8 if layers else 2
         lane = dr.arange(m.UInt32, int(n))
         n_lanes = dr.opaque(m.UInt32, int(n))
+        n_bands = dr.opaque(m.UInt32, n_b)
         lookup = self._lookup(tab, fh.k, fh.frac)
-        vx = self._vertex(tab, lookup, fh.delta, fh.slot, None, fh.surf)
-        le = lookup(tab["le"], m.UInt32(0), m.Bool(True), 2)[0]
-        acc_b = [dr.gather(m.Float, acc, b * n_lanes + lane) for b in range(n_b)]
-        lam = [(float(self.grid.centres_nm[b]) - 550.0) + fh.delta for b in range(n_b)]
-        kb = vx.kb if vx.kb is not None else [None] * n_b
-        nd = [self._diffuse_factor(fh.nee, vx.kd[b]) for b in range(n_b)]
-        gd = [self._diffuse_factor(fh.smp, vx.kd[b]) for b in range(n_b)]
-        ns = [self._angular_factor(vx, fh.nee, vx.ks[b], kb[b], lam[b]) for b in range(n_b)]
-        gs = [self._angular_factor(vx, fh.smp, vx.ks[b], kb[b], lam[b]) for b in range(n_b)]
-        nee = [nd[b] + ns[b] for b in range(n_b)]
-        g = [gd[b] + gs[b] for b in range(n_b)]
-        ybar = self._luminance_weights()
-        inv_b = 1.0 / n_b
-        emission, diffuse, specular, indirect, cwni, nwci, rad, rad2 = ([] for _ in range(8))
-        y = m.Float(0.0)
+        vx = self._vertex(tab, lookup, fh.delta, fh.slot, None, fh.surf, spectra=False)
+        ybar = jit_table(m.Float, self._luminance_weights())
+
+        def band(b: Any) -> SimpleNamespace:
+            """Band b of one path: the lamp, the continuation and the first hit's factors."""
+            kd, ks, kb = self._band_spectra(tab, lookup, vx, b)
+            lam = self._band_lam(b, fh.delta)
+            nd, gd = self._diffuse_factor(fh.nee, kd), self._diffuse_factor(fh.smp, kd)
+            ns = self._angular_factor(vx, fh.nee, ks, kb, lam)
+            gs = self._angular_factor(vx, fh.smp, ks, kb, lam)
+            le = lookup.band(tab["le"], m.UInt32(0), m.Bool(True), 2, b)[0]
+            acc_b = dr.gather(m.Float, acc, b * n_lanes + lane)
+            return SimpleNamespace(le=le, acc=acc_b, nd=nd, ns=ns, gd=gd, gs=gs, nee=nd + ns,
+                                   g=gd + gs, inc=(e1 + acc_b) * le)
+
+        names = ("le", "acc", "nd", "ns", "gd", "gs")
+        avg = None
         if layers:
-            inc = [(e1 + acc_b[b]) * le[b] for b in range(n_b)]
-            avg_le, avg_inc = _sum(le) * inv_b, _sum(inc) * inv_b
-            avg_nee, avg_g = _sum(nee) * inv_b, _sum(g) * inv_b
-        for b in range(n_b):
-            # the radiance in one form for both modes (identical materials, identical bits)
-            rad_b = (nee[b] + dr.fma(g[b], e1 + acc_b[b], fh.e0)) * le[b]
+            # pass 1: the band means of the incoming light, the NEE and the BSDF sample; each
+            # band's values wait in per-lane local arrays for pass 2
+            kept = [dr.alloc_local(m.Float, n_b) for _ in names]
+
+            def sums(b: Any, s_le: Any, s_inc: Any, s_nee: Any, s_g: Any,
+                     *kept: Any) -> tuple[Any, ...]:
+                x = band(b)
+                for name, local in zip(names, kept, strict=True):
+                    local.write(getattr(x, name), b)
+                return (b + 1, s_le + x.le, s_inc + x.inc, s_nee + x.nee, s_g + x.g, *kept)
+
+            zero = m.Float(0.0)
+            totals = dr.while_loop((m.UInt32(0), zero, zero, zero, zero, *kept),
+                                   lambda b, *_: b < n_bands, sums, label="band means")
+            avg = [t * (1.0 / n_b) for t in totals[1:5]]
+            kept = totals[5:]
+        out = dr.empty(m.Float, (n_img * n_b + 2) * int(n))
+
+        def images(b: Any, y: Any, *kept: Any) -> tuple[Any, ...]:
             if layers:
-                emission.append(fh.e0 * le[b])
-                diffuse.append(dr.fma(gd[b], e1, nd[b]) * le[b])
-                specular.append(dr.fma(gs[b], e1, ns[b]) * le[b])
-                indirect.append(g[b] * acc_b[b] * le[b])
-                cwni.append(dr.fma(avg_le, nee[b], g[b] * avg_inc))
-                nwci.append(dr.fma(avg_nee, le[b], avg_g * inc[b]))
-            rad.append(rad_b)
-            rad2.append(rad_b * rad_b)
-            y = dr.fma(float(ybar[b]), rad_b, y)
-        outputs = (emission + diffuse + specular + indirect + cwni + nwci if layers else []) \
-            + rad + rad2 + [y, y * y]
-        dr.eval(outputs)                  # one kernel (block_sum would launch one per output)
-        sums = dr.block_sum(outputs, int(spp), mode="evaluated")
-        return require_finite(np.stack([np.asarray(s, dtype=np.float32) for s in sums]),
+                x = SimpleNamespace(**{k: v.read(b) for k, v in zip(names, kept, strict=True)})
+                x.nee, x.g, x.inc = x.nd + x.ns, x.gd + x.gs, (e1 + x.acc) * x.le
+            else:
+                x = band(b)
+            # the radiance in one form for both modes (identical materials, identical bits)
+            rad = (x.nee + dr.fma(x.g, e1 + x.acc, fh.e0)) * x.le
+            rows = []
+            if layers:
+                avg_le, avg_inc, avg_nee, avg_g = avg
+                rows = [fh.e0 * x.le, dr.fma(x.gd, e1, x.nd) * x.le,
+                        dr.fma(x.gs, e1, x.ns) * x.le, x.g * x.acc * x.le,
+                        dr.fma(avg_le, x.nee, x.g * avg_inc), dr.fma(avg_nee, x.le, avg_g * x.inc)]
+            for r, value in enumerate(rows + [rad, rad * rad]):
+                dr.scatter(out, value, (b + r * n_b) * n_lanes + lane)
+            return (b + 1, dr.fma(dr.gather(m.Float, ybar, b), rad, y), *kept)
+
+        y = dr.while_loop((m.UInt32(0), m.Float(0.0), *(kept if layers else ())),
+                          lambda b, *_: b < n_bands, images, label="images")[1]
+        dr.scatter(out, y, n_img * n_b * n_lanes + lane)
+        dr.scatter(out, y * y, (n_img * n_b + 1) * n_lanes + lane)
+        dr.eval(out)                  # one kernel
+        sums = dr.block_sum(out, int(spp), mode="evaluated")
+        return require_finite(np.asarray(sums, dtype=np.float32).reshape(n_img * n_b + 2, -1),
                               f"camera tracer ({self.variant})")
 
     def _luminance_weights(self) -> np.ndarray:
@@ -379,13 +402,6 @@ class CameraTracer(BandPathTracer):
                   "rr_depth": self.rr_depth, "n_paths": n_pix * spp}, **f32)
         image.info["median_rel_se_luminance"] = _median_rel_se(image)
         return image
-
-
-def _sum(values: Sequence[Any]) -> Any:
-    total = values[0]
-    for v in values[1:]:
-        total = total + v
-    return total
 
 
 def _seed_state(seed: int) -> int:
