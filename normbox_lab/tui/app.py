@@ -755,6 +755,11 @@ class NormboxConsole(App):
                 self._update_run_info()
                 tab = screen.look_tab
                 if tab is not None:
+                    # the tabs' screen gives the focus it had back when it resumes (the Runs
+                    # table, if the prompt came over the Runs tab), and Textual shows the
+                    # pane that holds the focus: focus the asked tab's widget first, so
+                    # however late the resume comes it cannot switch back
+                    self._focus_tab_widget(tab)
                     self.call_after_refresh(self.action_tab, tab)
                 return
             self.waiting_prompt = None
@@ -840,19 +845,7 @@ class NormboxConsole(App):
     @on(TabbedContent.TabActivated)
     def _tab_activated(self, event: TabbedContent.TabActivated) -> None:
         pane = event.pane.id
-        target = {"instruments": "#inst-table", "runs": "#runs-table",
-                  "results": "#heatmap"}.get(str(pane))
-        # the tabs' own screen (a prompt may be above it: its focus stays the prompt's, or a
-        # table below would take the prompt's Enter)
-        base = self.screen_stack[0]
-        if target is not None:
-            # at once (Widget.focus() is deferred: two deferred focuses in different panes
-            # would switch the tabs back and forth for ever)
-            base.set_focus(base.query_one(target))
-        elif base.focused is not None and not self._in_pane(base.focused, str(pane)):
-            # focus must not stay in the pane just hidden: Textual's TabbedContent would
-            # switch back to the pane that holds the focused widget (the Runs-tab trap)
-            base.set_focus(None)
+        self._focus_tab_widget(str(pane))
         if pane == "results":
             self._refresh_results()
         elif pane == "images":
@@ -861,6 +854,23 @@ class NormboxConsole(App):
             self._runs_dirty = True
         elif pane == "spectrum":
             self.pane(SpectrumPane).dirty = self.latest is not None
+
+    def _focus_tab_widget(self, pane: str) -> None:
+        """Give the focus of the tabs' own screen to the widget of tab `pane` (its table), or
+        to none when the focus sits in another pane."""
+        target = {"instruments": "#inst-table", "runs": "#runs-table",
+                  "results": "#heatmap"}.get(pane)
+        # the tabs' own screen (a prompt may be above it: its focus stays the prompt's, or a
+        # table below would take the prompt's Enter)
+        base = self.screen_stack[0]
+        if target is not None:
+            # at once (Widget.focus() is deferred: two deferred focuses in different panes
+            # would switch the tabs back and forth for ever)
+            base.set_focus(base.query_one(target))
+        elif base.focused is not None and not self._in_pane(base.focused, pane):
+            # focus must not stay in the pane just hidden: Textual's TabbedContent would
+            # switch back to the pane that holds the focused widget (the Runs-tab trap)
+            base.set_focus(None)
 
     def _in_pane(self, widget: Any, pane_id: str) -> bool:
         return any(node.id == pane_id for node in widget.ancestors if isinstance(node, Widget))
