@@ -5,8 +5,9 @@ A newcomer's first `make demo` pays for compiling every Dr.Jit kernel (10-25 s e
 `normbox-lab demo` twice in child processes that share one Dr.Jit cache directory: the first
 with an empty one (cold, unless ``--warm`` keeps the machine's own ``~/.drjit``), the second
 with what the first left, both into one output folder as a user's second `make demo` (whose
-render cache holds the virtual Normbox's truth renders of the first).  It prints the machine first (CPU, vector ISA, cores, load), then per
-stage the wall time, the compile time and the kernels compiled, for both runs, then the goals:
+render cache holds the virtual Normbox's truth renders of the first).  It prints the machine
+first (CPU, vector ISA, cores, load), then per stage the wall time, the compile time and the
+kernels compiled, for both runs, then the goals:
 
 - kernel compilation on a cold cache ≤ 60 s;
 - a second run ≤ 120 s (full campaign) and 0 kernels compiled;
