@@ -73,9 +73,12 @@ RENDERER_MODULES = ("bandpath", "patchset", "fastrender", "guide", "streams", "k
 
 @functools.lru_cache(maxsize=1)
 def renderer_source_digest() -> str:
-    """A hash of the renderer modules' source files (`RENDERER_MODULES`), part of every cache
-    key of a fast render: editing a kernel invalidates what it rendered before."""
-    h = hashlib.sha256()
+    """A hash of the renderer modules' source files (`RENDERER_MODULES`) and of the Mitsuba and
+    Dr.Jit versions, part of every cache key of a fast render: editing a kernel, or another
+    Mitsuba, invalidates what was rendered before."""
+    from importlib.metadata import version
+
+    h = hashlib.sha256(f"mitsuba {version('mitsuba')} drjit {version('drjit')}".encode())
     here = Path(__file__).resolve().parent
     for name in RENDERER_MODULES:
         h.update(name.encode())
