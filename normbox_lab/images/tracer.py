@@ -218,12 +218,6 @@ class CameraTracer(BandPathTracer):
         return dr.while_loop((m.UInt32(0), m.Float(0.0)), lambda b, _: b < n_bands, body,
                              label="probe")[1]
 
-    def _band_lam(self, b: Any, delta: Any) -> Any:
-        """λ_b + δ − 550 nm of band b (UInt32)."""
-        dr, m = self.dr, self.m
-        lam0 = float(self.grid.centres_nm[0]) - 550.0
-        return dr.fma(m.Float(b), float(self.grid.step_nm), lam0) + delta
-
     def _continue(self, tab: Mapping[str, Any], c: SimpleNamespace,
                   fh: SimpleNamespace, n: int) -> tuple[Any, Any]:
         """`BandPathTracer._path_loop` from the continuation rays with throughput 1: (acc as

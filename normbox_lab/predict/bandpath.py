@@ -447,6 +447,13 @@ class BandPathTracer:
             deta=dr.gather(m.Float, tab["deta"], slot, active) if dispersive else None,
             delta=delta, slot=slot, mask=active, has_kb=has_kb, dispersive=dispersive)
 
+    def _band_lam(self, b: Any, delta: Any) -> Any:
+        """λ_b + δ − 550 nm (the dispersive η's argument) of band b, a UInt32 band-loop
+        counter."""
+        dr, m = self.dr, self.m
+        lam0 = float(self.grid.centres_nm[0]) - 550.0
+        return dr.fma(m.Float(b), float(self.grid.step_nm), lam0) + delta
+
     def _band_spectra(self, tab: Mapping[str, Any], lookup: BandLookup, vx: SimpleNamespace,
                       b: Any) -> tuple[Any, Any, Any]:
         """kd, ks and kb (None without a backscatter lobe) of band b (UInt32) at vertex `vx`."""
@@ -568,8 +575,6 @@ class BandPathTracer:
         n_b = self.grid.n_bands
         pp = patches
         none = 0xFFFFFFFF
-        lam0 = float(self.grid.centres_nm[0]) - 550.0
-        step = float(self.grid.step_nm)
         # opaque: with a literal trip count LLVM unrolls the band loop 81 times and compiles
         # as long as without the loop
         n_bands = dr.opaque(m.UInt32, n_b)
@@ -583,7 +588,7 @@ class BandPathTracer:
 
             def body(b: Any, probe: Any, thr: Any, acc: Any, late: Any) -> tuple[Any, ...]:
                 kd, ks, kb = self._band_spectra(tab, lookup, vx, b)
-                lam = dr.fma(m.Float(b), step, lam0) + delta
+                lam = self._band_lam(b, delta)
                 t = thr.read(b)
                 fn = self._band_factor(vx, nee, kd, ks, kb, lam)
                 if pp is not None:
