@@ -64,7 +64,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(handler=_run)
 
 
-def _load_lab_config(args: argparse.Namespace):
+def _load_lab_config(args: argparse.Namespace, notes: list[str]):
+    """The lab config of the run; what it says about the choice (the simulated template, an
+    ignored option) goes to `notes`, printed once the run is accepted (a refusal is one
+    line)."""
     from dataclasses import replace
 
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
@@ -74,12 +77,12 @@ def _load_lab_config(args: argparse.Namespace):
     elif Path("lab.toml").exists():
         config = load_config("lab.toml")
     else:
-        print("no --lab and no ./lab.toml: using the simulated lab template "
-              "(normbox-lab init lab.toml --sim writes it)", file=sys.stderr)
+        notes.append("no --lab and no ./lab.toml: using the simulated lab template "
+                     "(normbox-lab init lab.toml --sim writes it)")
         config = parse_config(SIM_CONFIG_TEMPLATE, "<simulated template>")
     if args.time_scale is not None:
         if not config.simulated:
-            print("--time-scale applies to simulated labs only; ignored", file=sys.stderr)
+            notes.append("--time-scale applies to simulated labs only; ignored")
         else:
             config = replace(config, time_scale=args.time_scale)
     return config
@@ -127,7 +130,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ParameterError("name a PROTOCOL (reference-sweep, brdf-inplane, light-map, "
                         "repeatability, or a .py file), or --resume RUN_ID")
     overrides = _parse_overrides(args.protocol, args.param)
-    config = _load_lab_config(args)
+    notes: list[str] = []
+    config = _load_lab_config(args, notes)
     progress_ref: dict = {}
 
     def terminal_operator(lab):
@@ -140,20 +144,31 @@ def _run(args: argparse.Namespace) -> int:
         return TerminalOperator(before=before, world=lab.world)
 
     if args.protocol and args.protocol.endswith(".py"):
-        print(f"protocol file {args.protocol}: Python code, run with your rights because you "
-              "named it here (shipped protocols and files named on the command line are the "
-              "only protocols normbox-lab runs)", file=sys.stderr)
+        notes.append(f"protocol file {args.protocol}: Python code, run with your rights "
+                     "because you named it here (shipped protocols and files named on the "
+                     "command line are the only protocols normbox-lab runs)")
     from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import NormboxError
 
     store_path = args.store or DEFAULT_STORE
     # a dry run only reads: it never creates or changes the store
     store = Store(store_path, read_only=True) if args.dry_run else store_path
     from normbox_lab.sim.labsim import build_lab
 
-    with open_run(args.protocol, store=store, config=config, make_lab=build_lab,
-                  params=overrides, resume=args.resume, world=args.world,
-                  virtual_operator=args.virtual_operator, fault_policy=args.fault_policy,
-                  make_operator=terminal_operator, force=args.force) as opened:
+    try:
+        opened = open_run(args.protocol, store=store, config=config, make_lab=build_lab,
+                          params=overrides, resume=args.resume, world=args.world,
+                          virtual_operator=args.virtual_operator,
+                          fault_policy=args.fault_policy, make_operator=terminal_operator,
+                          force=args.force)
+    except NormboxError as exc:
+        # a refusal of what was typed (exit 2) is its one line; any other failure comes
+        # after the notes, which may explain it (the simulated template, the file)
+        if exc.exit_code != 2:
+            _print_notes(notes)
+        raise
+    _print_notes(notes)                 # the run is accepted: the notes, then the run
+    with opened:
         if args.dry_run:
             for line in opened.dry_run().lines():
                 print(line)
@@ -161,6 +176,11 @@ def _run(args: argparse.Namespace) -> int:
             return 0
         return _execute(opened.engine, opened.lab, opened.store, opened.resume, args,
                         progress_ref, signal)
+
+
+def _print_notes(notes: list[str]) -> None:
+    for note in notes:
+        print(note, file=sys.stderr, flush=True)
 
 
 def _execute(engine, lab, store, run_ref, args, progress_ref, signal) -> int:

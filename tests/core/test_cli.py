@@ -298,3 +298,40 @@ def test_a_directory_given_as_the_store_or_the_output_is_refused_with_exit_2(tmp
     assert main(["export", "1", "--format", "json", "-o", str(tmp_path), "--store",
                  str(store)]) == 2
     assert "it is a directory" in _one_error_line(capsys)
+
+
+RANGE_REFUSAL = "angles_deg: 100° is outside 0…95° (the rotator's range, lab config)"
+
+
+def test_a_refusal_is_one_line_even_where_the_run_would_print_notes(tmp_path, capsys,
+                                                                    monkeypatch):
+    """A protocol file and no lab config: the run prints two notes (the file is Python code
+    run with your rights; the simulated template is used), but a refused --param is its one
+    error line, exit 2, with no note before it; the notes come once the run is accepted."""
+    import shutil
+    from pathlib import Path
+
+    from normbox_lab import protocols
+
+    monkeypatch.chdir(tmp_path)
+    mine = tmp_path / "mine.py"
+    shutil.copy(Path(protocols.__file__).parent / "reference_sweep.py", mine)
+    common = ["--dry-run", "--world", "analytic", "--store", str(tmp_path / "s.sqlite")]
+    capsys.readouterr()
+    assert main(["run", "mine.py", *common, "--param", "angles_deg=[100]"]) == 2
+    out = capsys.readouterr()
+    assert out.err == f"normbox-lab: error: protocol file {mine}: {RANGE_REFUSAL}\n", out.err
+    assert out.out == ""
+    assert main(["run", "reference-sweep", *common, "--param", "angles_deg=[100]"]) == 2
+    out = capsys.readouterr()
+    assert out.err == f"normbox-lab: error: {RANGE_REFUSAL}\n" and out.out == "", out.err
+    # accepted: both notes, then the plan
+    assert main(["run", "mine.py", *common, "--param", "angles_deg=[30]"]) == 0
+    out = capsys.readouterr()
+    template = ("no --lab and no ./lab.toml: using the simulated lab template (normbox-lab "
+                "init lab.toml --sim writes it)")
+    python = ("protocol file mine.py: Python code, run with your rights because you named it "
+              "here (shipped protocols and files named on the command line are the only "
+              "protocols normbox-lab runs)")
+    assert out.err.splitlines() == [template, python], out.err
+    assert out.out.startswith(f"protocol {mine}: ")
