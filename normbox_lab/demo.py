@@ -68,6 +68,16 @@ class DemoResult:
     kernels: dict[str, KernelStats] = field(default_factory=dict)
 
 
+def sweep_patches(opts: DemoOptions) -> list[int]:
+    """The patches of the campaign's BRDF runs and reference sweep."""
+    return QUICK_PATCHES if opts.quick else list(range(1, 25))
+
+
+def sweep_angles(opts: DemoOptions) -> list[int]:
+    """The reference sweep's sample angles (degrees)."""
+    return QUICK_ANGLES if opts.quick else FULL_ANGLES
+
+
 def error_spec(opts: DemoOptions) -> str | None:
     """The error-source spec of the campaign: `--errors`, on top of the paper's set for
     `--truth paper`; None when neither asks for one (the emulators' own noise only)."""
@@ -154,7 +164,8 @@ def make_world(config: Any, opts: DemoOptions, quality: str, *,
         return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
                                 lamp=lamp, target_rel_se=target, direct_only=direct_only,
                                 seed=config_seed(PREDICTION_SEED,
-                                                 f"{config_name(patch.name)}@{float(angle_deg):g}"))
+                                                 f"{config_name(patch.name)}@{float(angle_deg):g}"),
+                                cache_dir=world.cache_dir)
     return world, render
 
 
@@ -168,9 +179,10 @@ def config_name(fit_name: str) -> str:
     return fit_name
 
 
-def start_prewarm(opts: DemoOptions) -> Any:
+def start_prewarm(opts: DemoOptions, config_path: Path) -> Any:
     """The kernel prewarm child (`demo_prewarm`), at the lowest CPU priority, or None (stock
-    renderer, or `opts.prewarm` off)."""
+    renderer, or `opts.prewarm` off).  After the kernels it renders the sweep's truth ahead,
+    from the sweep's end, into the lab config's render cache (`--ahead`)."""
     import os
     import subprocess
     import sys
@@ -181,7 +193,9 @@ def start_prewarm(opts: DemoOptions) -> Any:
     stats.unlink(missing_ok=True)
     child = subprocess.Popen(
         [sys.executable, "-m", "normbox_lab.demo_prewarm", "--truth", opts.truth,
-         "--nice", "--stats-json", str(stats)], stdout=subprocess.DEVNULL,
+         "--nice", "--stats-json", str(stats), "--ahead", str(config_path),
+         "--patches", ",".join(str(p) for p in sweep_patches(opts)),
+         "--angles", ",".join(f"{a:g}" for a in sweep_angles(opts))], stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL, env=dict(os.environ))
     child.stats_json = stats
     return child
@@ -246,7 +260,7 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     config = parse_config(config_path.read_text(), str(config_path))
     stages = _Stages(log)
     stages.kernel_log.start()
-    prewarm = start_prewarm(opts)
+    prewarm = start_prewarm(opts, config_path)
     world, render = stages.timed("set-up", lambda: make_world(config, opts, quality))
     lab = build_lab(config, world=world)
     store = Store(store_path)
@@ -329,8 +343,7 @@ def _campaign(stages: _Stages, sc: _Scene, opts: DemoOptions,
     )
 
     timed, store, lab, out = stages.timed, sc.store, sc.lab, sc.out
-    patches = QUICK_PATCHES if opts.quick else list(range(1, 25))
-    angles = QUICK_ANGLES if opts.quick else FULL_ANGLES
+    patches, angles = sweep_patches(opts), sweep_angles(opts)
     runs: dict[str, int] = {}
     brdf = timed("brdf-inplane", lambda: run_protocol(
         lab, store, "brdf-inplane", {"materials": [*patches, "wall"]}, progress))

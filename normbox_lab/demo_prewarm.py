@@ -20,6 +20,16 @@ materials of the same families:
 
 It changes nothing but the cache; a kernel the stage needs before the child compiled it is
 compiled by the stage itself, as without it.  With a warm cache it finishes in seconds.
+
+With ``--ahead LAB_TOML``, the child then renders the reference sweep's truth ahead
+(`render_truth_ahead`): the virtual Normbox of that lab config, every patch × angle of the
+sweep, in the reverse of the sweep's order, into the lab config's render cache.  The sweep
+renders from its start and the child from its end; they meet in between.  Each render is
+traced once: the cache's per-render lock (`render.cached_render`) makes the one that comes
+second wait and read what the other saved, and both compute the same thing (the same world,
+the same per-configuration seeds), so the campaign's numbers do not depend on which process
+traced a configuration.  The sweep's renders are small and mostly single-threaded, and the
+BRDF runs and the fits keep one core only: the child fills the other.
 """
 
 from __future__ import annotations
@@ -73,12 +83,46 @@ def prewarm_kernels(truth: str = "default", *, camera: bool = True,
     return done
 
 
+def render_truth_ahead(config_path: str | Path, patches: list[int], angles_deg: list[float],
+                       on_step: Callable[[str, float], None] | None = None) -> int:
+    """Render the sweep's truth (`patches` × `angles_deg`) of the lab config's virtual Normbox
+    into its render cache, last configuration first; the renders done.  Nothing when the
+    config names no render cache, or when error sources are on (their sample-angle errors
+    move the rendered angles, which only the sweep itself knows)."""
+    from normbox_lab.acquire.config import parse_config
+    from normbox_lab.sim.fast_world import FastVirtualNormbox
+
+    config = parse_config(Path(config_path).read_text(), str(config_path))
+    world = FastVirtualNormbox(config=config)
+    if world.cache_dir is None or world.errors.spec() != "off":
+        return 0
+    done = 0
+    for angle in reversed(angles_deg):
+        t0 = time.perf_counter()
+        for patch in reversed(patches):
+            world.render(patch, angle)
+            done += 1
+        if on_step is not None:
+            on_step(f"truth ahead at {angle:g}°", time.perf_counter() - t0)
+    return done
+
+
+def _numbers(text: str) -> list[float]:
+    return [float(x) for x in text.split(",") if x.strip()]
+
+
 def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m normbox_lab.demo_prewarm",
                                 description=__doc__.split("\n\n")[0])
     p.add_argument("--truth", choices=("default", "model", "paper"), default="default")
     p.add_argument("--no-camera", action="store_true", help="the radiometer views only")
     p.add_argument("--nice", action="store_true", help="run at the lowest CPU priority")
+    p.add_argument("--ahead", metavar="LAB_TOML",
+                   help="then render the sweep's truth of this lab config ahead, last first")
+    p.add_argument("--patches", type=_numbers, default=[],
+                   help="the sweep's patches, comma-separated (with --ahead)")
+    p.add_argument("--angles", type=_numbers, default=[],
+                   help="the sweep's angles in degrees, comma-separated (with --ahead)")
     p.add_argument("--stats-json", metavar="FILE",
                    help="write the kernels compiled and their compile time as JSON")
     args = p.parse_args(argv)
@@ -102,6 +146,9 @@ def main(argv: list[str] | None = None) -> int:
             tmp.replace(args.stats_json)          # whole, even if the demo ends us now
 
     prewarm_kernels(args.truth, camera=not args.no_camera, on_step=report)
+    if args.ahead:
+        render_truth_ahead(args.ahead, [int(p) for p in args.patches], args.angles,
+                           on_step=report)
     log.stop()
     return 0
 

@@ -234,7 +234,7 @@ class FastNormbox:
         when everything it depends on is the same (`view_key`: the inputs, the seed, the
         variant and the renderer's source code); None renders every time."""
         from normbox_lab.predict.materials import holder_material
-        from normbox_lab.predict.render import Lamp, _load_cached, _save_cached
+        from normbox_lab.predict.render import Lamp, cached_render
 
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
@@ -245,14 +245,12 @@ class FastNormbox:
         if cache_dir is None:
             return self._render_view(**args)
         key = self.view_key(**args)
-        path = Path(cache_dir) / f"fast-{key}.npz"
-        hit = _load_cached(path)
-        if hit is not None:
-            return hit
-        result = self._render_view(**args)
-        result.key = key
-        _save_cached(path, result)
-        return result
+
+        def compute() -> Any:
+            result = self._render_view(**args)
+            result.key = key
+            return result
+        return cached_render(Path(cache_dir) / f"fast-{key}.npz", compute)
 
     def view_key(self, **args: Any) -> str:
         """The cache key of a `render_view`: a hash of its arguments (materials by their

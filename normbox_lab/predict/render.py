@@ -220,6 +220,25 @@ def _load_cached(path: Path) -> RenderResult | None:
         return None
 
 
+def cached_render(path: Path, compute: Any) -> RenderResult:
+    """The render kept at `path` (`render`'s .npz format), or `compute()`'s result, saved
+    there.  The look-up and the render hold an exclusive lock on ``<path>.lock``: two
+    processes that want the same render (the demo and its ahead-rendering child,
+    `demo_prewarm`) trace it once, and the second one reads what the first one saved.  The
+    lock goes with its process (a killed renderer never blocks the other)."""
+    import fcntl
+
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path.with_suffix(".lock"), "a+b") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        hit = _load_cached(path)
+        if hit is not None:
+            return hit
+        result = compute()
+        _save_cached(path, result)
+        return result
+
+
 def _save_cached(path: Path, r: RenderResult) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
@@ -326,15 +345,11 @@ def render_view(geometry: Any = None, *, patch: Material, wall: Material,
     key = render_key(g, patch, wall, holder, angle_deg, lamp, q, max_depth, seed)
     path = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     path = path / f"{key}.npz"
-    if cache:
-        hit = _load_cached(path)
-        if hit is not None:
-            return hit.scaled(lamp.relative_output) if lamp.relative_output != 1.0 else hit
-    with _LOCK:
-        result = _render(g, patch, wall, holder, angle_deg, lamp, q, max_depth, seed, key,
-                         variant)
-    if cache:
-        _save_cached(path, result)
+    def compute() -> RenderResult:
+        with _LOCK:
+            return _render(g, patch, wall, holder, angle_deg, lamp, q, max_depth, seed, key,
+                           variant)
+    result = cached_render(path, compute) if cache else compute()
     return result.scaled(lamp.relative_output) if lamp.relative_output != 1.0 else result
 
 

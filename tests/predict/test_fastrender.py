@@ -143,6 +143,40 @@ def test_a_kept_view_is_read_back_and_any_change_renders_again(tmp_path, monkeyp
     assert box.view_key(**full) != key
 
 
+def test_a_kept_render_is_traced_once_and_its_lock_is_held_while_it_traces(tmp_path):
+    """`render.cached_render`: while one caller traces a render, the render's lock file is held
+    (another process that wants it waits, then reads it: the demo and its ahead-rendering
+    child); the next call reads the file without tracing."""
+    import fcntl
+
+    from normbox_lab.predict.render import RenderResult, cached_render
+
+    path = tmp_path / "cache" / "fast-abc.npz"
+    held: list[bool] = []
+
+    def compute() -> RenderResult:
+        with open(path.with_suffix(".lock"), "a+b") as other:     # another open file: another process
+            try:
+                fcntl.flock(other, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                held.append(True)
+            else:
+                held.append(False)
+        wl = np.array([380.0, 385.0])
+        return RenderResult(wl, np.array([1.0, 2.0]), np.array([0.1, 0.2]),
+                            np.array([[1.0, 2.0]]), 0.5, "llvm_ad_mono", "abc", info={"n": 1})
+
+    first = cached_render(path, compute)
+    assert held == [True] and not first.cached
+    again = cached_render(path, compute)
+    assert held == [True] and again.cached          # read, not traced
+    np.testing.assert_array_equal(again.radiance, first.radiance)
+    assert again.info == {"n": 1}
+    # the lock is free once the call returns
+    with open(path.with_suffix(".lock"), "a+b") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
+
+
 def test_seeded_results_are_reproducible_and_angle_moves_are_exact():
     patch, wall = _model_materials()
     moved = FastNormbox()
