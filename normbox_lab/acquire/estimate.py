@@ -120,21 +120,12 @@ def dry_run(plan: Plan, est: EstimateContext,
 def prompts_left(plan: Plan, committed: Iterable[str]) -> int:
     """Operator prompts the readings still to take will ask: a prompt counts when a reading it
     serves (up to the next prompt that sets the same state) is not committed.  A reference
-    sweep asks one per reading, a BRDF run one per material, repeatability one in all."""
-    done = set(committed)
-    steps = plan.steps
-    count = 0
-    for i, s in enumerate(steps):
-        if s.kind != "prompt":
-            continue
-        sets = set(s.sets)
-        for later in steps[i + 1:]:
-            if later.kind == "prompt" and sets & set(later.sets):
-                break
-            if later.commits and later.key not in done:
-                count += 1
-                break
-    return count
+    sweep asks one per reading, a BRDF run one per material, repeatability one in all.
+
+    Called after every reading: the keys each prompt serves are the plan's
+    (`Plan.prompt_serves`, found once), so a call is one set test per prompt."""
+    done = committed if isinstance(committed, (set, frozenset)) else set(committed)
+    return sum(1 for keys in plan.prompt_serves if not keys <= done)
 
 
 class RemainingTime:

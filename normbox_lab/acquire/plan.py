@@ -58,6 +58,20 @@ class Plan:
         #: index of the last reading; state steps after it (e.g. return home) run at the end
         self.last_commit_index: int = max(
             (i for i, s in enumerate(self.steps) if s.commits), default=-1)
+        #: per prompt step, in plan order: the keys of the readings it serves (those after it,
+        #: up to the next prompt that sets one of its variables); `estimate.prompts_left`
+        self.prompt_serves: list[frozenset[str]] = [
+            self._served_by(i) for i, s in enumerate(self.steps) if s.kind == "prompt"]
+
+    def _served_by(self, i: int) -> frozenset[str]:
+        sets = set(self.steps[i].sets)
+        keys: list[str] = []
+        for later in self.steps[i + 1:]:
+            if later.kind == "prompt" and sets & set(later.sets):
+                break
+            if later.commits:
+                keys.append(later.key)
+        return frozenset(keys)
 
     def __len__(self) -> int:
         return len(self.steps)
