@@ -89,6 +89,7 @@ class VirtualNormbox(WorldState):
         #: the radiometer grid (`truth_relative_se`; the demo stores it with the sweep, and
         #: the error budget's `render` term takes it instead of the stated target)
         self.achieved_rel_se: dict[tuple[int | None, float], np.ndarray] = {}
+        self._gonio_truth_memo: tuple[tuple[Any, ...], Material] | None = None
 
     # --- what the operator changes (the rest: `WorldState`) -------------------------------------
     def mount_gonio_material(self, name: str | int) -> None:
@@ -153,6 +154,16 @@ class VirtualNormbox(WorldState):
                     out[i, j] = se
         return out
 
+    def _gonio_truth(self, name: str | int) -> Material:
+        """The mounted sample's truth material, built once per (name, truth, wall L*): the
+        gonio asks for it at every spectrum (3 per BRDF reading), and building it reads the
+        ColorChecker table from disk."""
+        key = (name, self.truth, self.geometry.wall_lightness_L)
+        if self._gonio_truth_memo is None or self._gonio_truth_memo[0] != key:
+            self._gonio_truth_memo = (key, truth_material(name, self.truth,
+                                                          self.geometry.wall_lightness_L))
+        return self._gonio_truth_memo[1]
+
     def luminance_cd_m2(self, patch: int | None, angle_deg: float) -> float:
         r = self.render(patch, angle_deg)
         return luminance_cd_m2(r.wavelength_nm, r.radiance) * self.relative_output()
@@ -162,8 +173,7 @@ class VirtualNormbox(WorldState):
         from normbox_lab.predict.materials import truth_brdf_inplane
 
         material = (self.holder if self.gonio_material is None
-                    else truth_material(self.gonio_material, self.truth,
-                                        self.geometry.wall_lightness_L))
+                    else self._gonio_truth(self.gonio_material))
         f = truth_brdf_inplane(material, theta_i_deg, theta_o_deg, wavelength_nm, tilt_deg)
         if self.gonio_material is None:
             return f
