@@ -370,7 +370,8 @@ def _campaign(stages: _Stages, sc: _Scene, opts: DemoOptions,
     images = timed("images", lambda: camera_figures_run(
         store, ref.run_id, patch=CAMERA_PATCH, angle_deg=CAMERA_ANGLE_DEG, truth=opts.truth,
         lamp=lamp, geometry=sc.config.geometry, width=camera_size[0], height=camera_size[1],
-        spp=camera_size[2], seed=opts.seed, out_dir=out / "images"))
+        spp=camera_size[2], seed=opts.seed, out_dir=out / "images",
+        cache_dir=sc.config.render.get("cache_dir")))
     notes = [(f"Virtual campaign: truth={opts.truth}, instrument noise "
               f"{'on' if opts.noise else 'off'}, renderer {opts.renderer}, "
               f"quality {sc.quality}, error sources {error_spec(opts) or 'off'}."),

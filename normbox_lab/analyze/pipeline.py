@@ -345,7 +345,8 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
                        angle_deg: float = 45.0, truth: str = "default", lamp: Any = None,
                        geometry: Any = None, width: int = 320, height: int = 240,
                        spp: int | None = None, seed: int = 1, w: float = 2.0,
-                       out_dir: str | Path = "images", exr: bool = True) -> CameraFigures:
+                       out_dir: str | Path = "images", exr: bool = True,
+                       cache_dir: str | Path | None = None) -> CameraFigures:
     """The box seen from its open side with the truth materials and with the fitted ones (the
     paper's Fig. 1), the per-pixel ΔE00 map, and the Wilkie–Weidlich white balance of both
     previews; stored as ``image-figure`` artifacts of the reference run (``fig-camera``,
@@ -355,7 +356,8 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
     Both images use one lamp (`lamp`, e.g. from the light map) and the same seed (common
     random numbers), so the map shows the materials' fit, not the lamp or the noise.  Both
     previews get the Bradford adaptation of the *truth* image's W&W estimate, so they stay
-    comparable."""
+    comparable.  `cache_dir`: keep the renders there and read them back when nothing they
+    depend on changed (`figure1.rendered_view`; the demo's render cache)."""
     from normbox_lab.images import figure1, normbox_view, whitebalance
     from normbox_lab.images.color import XYZ_to_srgb
 
@@ -364,7 +366,8 @@ def camera_figures_run(store: Store, ref_run: int | str, *, patch: int = 7,
     t0 = time.perf_counter()
     fig = figure1.figure1(truth_mats, fitted_mats, float(angle_deg), lamp=lamp, geometry=geometry,
                          width=width, height=height,
-                         spp=spp if spp is not None else normbox_view.NORMBOX_DEFAULT_SPP, seed=seed)
+                         spp=spp if spp is not None else normbox_view.NORMBOX_DEFAULT_SPP, seed=seed,
+                         cache_dir=cache_dir)
     render_s = time.perf_counter() - t0
     wl = fig.truth.wavelength_nm
     est = whitebalance.estimate_illuminant(fig.truth.cwni, fig.truth.nwci, w, wavelength_nm=wl)

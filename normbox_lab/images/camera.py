@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -154,6 +155,48 @@ class SpectralImage:
                    slot_names=list(first.slot_names), camera=first.camera,
                    spp=first.spp * k, time_s=float(sum(im.time_s for im in images)),
                    info=info)
+
+    #: the array fields, in `save`'s file (those that are None are left out)
+    ARRAYS = ("wavelength_nm", "radiance", *LAYERS, "cwni", "nwci", "std_error",
+              "luminance_se_cd_m2", "depth_m", "normal", "slot_id")
+
+    def save(self, path: Path, **extra: np.ndarray) -> None:
+        """Write the image, and `extra` arrays, to `path` (.npz, uncompressed float32: a
+        320×240 image with its layers is about 200 MB), whole or not at all."""
+        import json
+        import os
+        import tempfile
+        from dataclasses import asdict
+
+        meta = {"slot_names": list(self.slot_names), "camera": asdict(self.camera),
+                "spp": int(self.spp), "time_s": float(self.time_s), "info": self.info}
+        arrays = {k: getattr(self, k) for k in self.ARRAYS if getattr(self, k) is not None}
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, meta=json.dumps(meta), **arrays, **{f"extra_{k}": v
+                                                            for k, v in extra.items()})
+        os.replace(tmp, path)
+
+    @classmethod
+    def load(cls, path: Path) -> tuple[SpectralImage, dict[str, np.ndarray]] | None:
+        """What `save` wrote: (image, extra arrays), or None when `path` is missing or
+        unreadable."""
+        import json
+
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                meta = json.loads(str(z["meta"]))
+                fields = {k: (z[k] if k in z.files else None) for k in cls.ARRAYS}
+                extra = {k[len("extra_"):]: z[k] for k in z.files if k.startswith("extra_")}
+        except (OSError, KeyError, ValueError):
+            return None
+        cam = meta["camera"]
+        camera = PinholeCamera(**{k: tuple(v) if isinstance(v, list) else v
+                                  for k, v in cam.items()})
+        return cls(**fields, slot_names=list(meta["slot_names"]), camera=camera,
+                   spp=int(meta["spp"]), time_s=float(meta["time_s"]),
+                   info=dict(meta["info"])), extra
 
     @property
     def shape(self) -> tuple[int, int]:

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -150,6 +151,65 @@ def converged_maps(truth_XYZ: np.ndarray, fitted_XYZ: np.ndarray, noise_XYZ: np.
     return result
 
 
+#: the camera's modules, part of a kept view's key with the radiometer renderer's
+CAMERA_MODULES = ("tracer", "camera", "normbox_view", "color")
+
+
+def rendered_view(nc: Any, mats: Mapping[str, Any], *, layers: bool, seeds: tuple[int, ...],
+                  kw: Mapping[str, Any], cache_dir: str | Path | None = None
+                  ) -> tuple[SpectralImage, np.ndarray]:
+    """The view of `mats` rendered once per seed (`NormboxCamera.render` with `kw`): the mean
+    image of the renders and each render's XYZ, (seed, H, W, 3).  With `cache_dir`, kept there
+    under a key of everything it depends on (materials, lamp, view, seeds, the scene, the
+    Mitsuba and Dr.Jit versions and the renderers' source code) and read back bit for bit;
+    one process traces it while another that wants it waits (`render.cached_render`)."""
+    def compute() -> tuple[SpectralImage, np.ndarray]:
+        parts = [nc.render(patch=mats["patch"], wall=mats["wall"], holder=mats.get("holder"),
+                           seed=s, layers=layers, **kw) for s in seeds]
+        return SpectralImage.mean_of(parts), np.stack([p.XYZ() for p in parts])
+
+    if cache_dir is None:
+        return compute()
+    from normbox_lab.predict.render import cached_render
+
+    def load(path: Path) -> tuple[SpectralImage, np.ndarray] | None:
+        kept = SpectralImage.load(path)
+        return None if kept is None or "xyz_parts" not in kept[1] else (kept[0],
+                                                                        kept[1]["xyz_parts"])
+
+    def save(path: Path, value: tuple[SpectralImage, np.ndarray]) -> None:
+        value[0].save(path, xyz_parts=value[1])
+
+    key = view_key(nc, mats, layers=layers, seeds=seeds, kw=kw)
+    return cached_render(Path(cache_dir) / f"camera-{key}.npz", compute, load, save)
+
+
+def view_key(nc: Any, mats: Mapping[str, Any], *, layers: bool, seeds: tuple[int, ...],
+             kw: Mapping[str, Any]) -> str:
+    """The key of a `rendered_view`: a hash of its inputs and of the code that renders it."""
+    import hashlib
+    import json
+
+    from normbox_lab.predict.fastrender import renderer_source_digest
+    from normbox_lab.predict.materials import holder_material
+
+    box = nc.box
+    here = Path(__file__).resolve().parent
+    source = hashlib.sha256(renderer_source_digest().encode())
+    for name in CAMERA_MODULES:
+        source.update((here / f"{name}.py").read_bytes())
+    lamp = kw.get("lamp")
+    payload = {"materials": {k: mats[k].digest() for k in ("patch", "wall")},
+               "holder": (mats.get("holder") or holder_material()).digest(),
+               "layers": bool(layers), "seeds": [int(s) for s in seeds],
+               "view": {k: v for k, v in kw.items() if k != "lamp"},
+               "lamp": lamp.key() if lamp is not None else None,
+               "geometry": repr(box.geometry), "variant": box.variant,
+               "max_depth": box.max_depth, "rr_depth": box.rr_depth,
+               "chunk_paths": nc.chunk_paths, "source": source.hexdigest()}
+    return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
+
+
 def _white_patch_like(patch: Any) -> Any:
     """The truth world's white patch (19) of the same truth kind as `patch` ("default" unless
     its metadata says "model")."""
@@ -163,7 +223,7 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
             lamp: Any = None, geometry: Any = None, width: int = 320, height: int = 240,
             spp: int = NORMBOX_DEFAULT_SPP, seed: int = 0, white_XYZ: Any = None,
             white_patch: Any = None, noise_floor: bool = True,
-            target_noise_delta_e: float = 0.3) -> Figure1:
+            target_noise_delta_e: float = 0.3, cache_dir: str | Path | None = None) -> Figure1:
     """The Normbox paper's Fig. 1, virtually: the box with the truth materials and with the
     fitted ones (`{"patch": Material, "wall": Material, "holder": Material (optional)}` each),
     rendered with the same seed, and the per-pixel ΔE00 between them.
@@ -177,7 +237,10 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
     balance: the 3100 K lamp shows warm).
 
     With `noise_floor` the truth is rendered once more with an independent seed and the
-    converged region maps are made (see the module docstring, `converged_maps`)."""
+    converged region maps are made (see the module docstring, `converged_maps`).
+
+    `cache_dir`: keep the renders there (`rendered_view`) and read them back when everything
+    they depend on is the same (the demo's second run); None renders every time."""
     from normbox_lab.images.color import XYZ_to_srgb, delta_e00_map
 
     nc = normbox_camera_renderer(geometry)
@@ -186,20 +249,15 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
           "spp": int(spp) // 2 if halves else int(spp)}
     seeds = (int(seed), int(seed) + 7919) if halves else (int(seed),)
 
-    def render(mats: Mapping[str, Any], layers: bool) -> list[SpectralImage]:
-        return [nc.render(patch=mats["patch"], wall=mats["wall"], holder=mats.get("holder"),
-                          seed=s, layers=layers, **kw) for s in seeds]
-
-    parts_t = render(truth, True)
-    parts_f = render(fitted, False)
-    img_t = SpectralImage.mean_of(parts_t)
-    img_f = SpectralImage.mean_of(parts_f)
+    img_t, xyz_parts = rendered_view(nc, truth, layers=True, seeds=seeds, kw=kw,
+                                     cache_dir=cache_dir)
+    img_f, _ = rendered_view(nc, fitted, layers=False, seeds=seeds, kw=kw, cache_dir=cache_dir)
     if white_XYZ is None:
         if white_patch is None:
             white_patch = truth.get("white") or _white_patch_like(truth["patch"])
         white = white_reference_XYZ(truth["wall"], white_patch=white_patch,
                                     holder=truth.get("holder"), lamp=lamp, geometry=geometry,
-                                    seed=seed)
+                                    seed=seed, cache_dir=cache_dir)
         source = "radiometer: white patch at 30° in the truth world"
     else:
         white = np.asarray(white_XYZ, dtype=np.float64)
@@ -214,7 +272,7 @@ def figure1(truth: Mapping[str, Any], fitted: Mapping[str, Any], angle_deg: floa
                   target_noise_delta_e=float(target_noise_delta_e))
     if noise_floor:
         if halves:            # the second truth from the halves (module docstring)
-            xyz_n = xyz_t + (parts_t[0].XYZ() - parts_t[1].XYZ()) / np.sqrt(2.0)
+            xyz_n = xyz_t + (xyz_parts[0] - xyz_parts[1]) / np.sqrt(2.0)
         else:
             xyz_n = nc.render(patch=truth["patch"], wall=truth["wall"],
                               holder=truth.get("holder"), seed=int(seed) + 7919, layers=False,

@@ -125,15 +125,17 @@ def render_normbox_camera(patch: Any, wall: Any, angle_deg: float, *, holder: An
 
 def white_reference_XYZ(wall: Any, *, white_patch: Any = None, holder: Any = None,
                         lamp: Any = None, geometry: Any = None, angle_deg: float = 30.0,
-                        target_rel_se: float = DEFAULT_TARGET_SE, seed: int = 0) -> np.ndarray:
+                        target_rel_se: float = DEFAULT_TARGET_SE, seed: int = 0,
+                        cache_dir: Any = None) -> np.ndarray:
     """Absolute XYZ of the white reference of `normbox_lab.analyze.compare`: the white ColorChecker
     patch (default: `materials.truth_patch(19)`) at 30° seen by the radiometer in the world
-    with `wall` (same scene as the camera: the radiometer of `FastNormbox`)."""
+    with `wall` (same scene as the camera: the radiometer of `FastNormbox`; kept in
+    `cache_dir` when given, as `FastNormbox.render_view`)."""
     from normbox_lab.images.color import spectral_to_XYZ
     from normbox_lab.predict.materials import truth_patch
 
     white = white_patch if white_patch is not None else truth_patch(19)
     box = normbox_camera_renderer(geometry).box
     r = box.render_view(patch=white, wall=wall, angle_deg=angle_deg, holder=holder, lamp=lamp,
-                        target_rel_se=target_rel_se, seed=seed)
+                        target_rel_se=target_rel_se, seed=seed, cache_dir=cache_dir)
     return spectral_to_XYZ(r.wavelength_nm, r.radiance)

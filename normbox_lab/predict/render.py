@@ -220,22 +220,25 @@ def _load_cached(path: Path) -> RenderResult | None:
         return None
 
 
-def cached_render(path: Path, compute: Any) -> RenderResult:
-    """The render kept at `path` (`render`'s .npz format), or `compute()`'s result, saved
-    there.  The look-up and the render hold an exclusive lock on ``<path>.lock``: two
+def cached_render(path: Path, compute: Any, load: Any = None, save: Any = None) -> Any:
+    """The render kept at `path`, or `compute()`'s result, saved there (`load(path)` → the
+    result or None, `save(path, result)`: by default a `RenderResult` in `render`'s .npz
+    format).  The look-up and the render hold an exclusive lock on ``<path>.lock``: two
     processes that want the same render (the demo and its ahead-rendering child,
     `demo_prewarm`) trace it once, and the second one reads what the first one saved.  The
     lock goes with its process (a killed renderer never blocks the other)."""
     import fcntl
 
+    load = load if load is not None else _load_cached
+    save = save if save is not None else _save_cached
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path.with_suffix(".lock"), "a+b") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
-        hit = _load_cached(path)
+        hit = load(path)
         if hit is not None:
             return hit
         result = compute()
-        _save_cached(path, result)
+        save(path, result)
         return result
 
 

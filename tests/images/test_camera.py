@@ -191,6 +191,37 @@ def test_normbox_view_frames_the_box_and_figure1_of_identical_materials_is_zero(
     assert np.isfinite(fig.noise_floor_blocks[on]).all() and np.isnan(fig.noise_floor_blocks[~on]).all()
 
 
+def test_a_kept_figure1_is_read_back_bit_for_bit_and_another_material_renders_again(
+        tmp_path, monkeypatch):
+    """figure1(cache_dir=...): the second identical call reads its views (and the white
+    reference) from the cache without tracing, and every image, map and noise floor is the
+    same bits; another fitted material is another key (only its view renders again)."""
+    from normbox_lab.predict import materials as mats
+
+    truth = {"patch": mats.truth_patch(7, "model"), "wall": mats.truth_wall("model")}
+    fitted = {"patch": mats.truth_patch(13, "model"), "wall": mats.truth_wall("model")}
+    args = {"width": 24, "height": 18, "spp": 4, "seed": 2, "cache_dir": tmp_path}
+    first = figure1(truth, fitted, 45.0, **args)
+    assert len(list(tmp_path.glob("camera-*.npz"))) == 2          # the truth's, the fit's
+    nc = normbox_view.normbox_camera_renderer()
+    traced: list[str] = []
+    render = nc.render
+    monkeypatch.setattr(nc, "render", lambda **kw: traced.append(kw["patch"].name) or render(**kw))
+    again = figure1(truth, fitted, 45.0, **args)
+    assert traced == []
+    for name in ("radiance", "emission", "diffuse", "specular", "indirect", "cwni", "nwci",
+                 "std_error", "depth_m", "normal", "slot_id"):
+        np.testing.assert_array_equal(getattr(again.truth, name), getattr(first.truth, name))
+    assert again.truth.camera == first.truth.camera and again.truth.info == first.truth.info
+    np.testing.assert_array_equal(again.fitted.radiance, first.fitted.radiance)
+    np.testing.assert_array_equal(again.delta_e00, first.delta_e00)
+    np.testing.assert_array_equal(again.noise_floor_blocks, first.noise_floor_blocks)
+    np.testing.assert_array_equal(again.white_XYZ, first.white_XYZ)
+    other = {**fitted, "patch": mats.truth_patch(5, "model")}
+    figure1(truth, other, 45.0, **args)
+    assert traced == [other["patch"].name] * 2                      # both seeds (halves)
+
+
 def test_region_block_means_average_within_one_block_and_one_material():
     from normbox_lab.images.figure1 import region_block_means
 
