@@ -173,10 +173,14 @@ class SpectralImage:
         arrays = {k: getattr(self, k) for k in self.ARRAYS if getattr(self, k) is not None}
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, meta=json.dumps(meta), **arrays, **{f"extra_{k}": v
-                                                            for k, v in extra.items()})
-        os.replace(tmp, path)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                np.savez(f, meta=json.dumps(meta), **arrays, **{f"extra_{k}": v
+                                                                for k, v in extra.items()})
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
 
     @classmethod
     def load(cls, path: Path) -> tuple[SpectralImage, dict[str, np.ndarray]] | None:

@@ -178,7 +178,10 @@ def rendered_view(nc: Any, mats: Mapping[str, Any], *, layers: bool, seeds: tupl
                                                                         kept[1]["xyz_parts"])
 
     def save(path: Path, value: tuple[SpectralImage, np.ndarray]) -> None:
-        value[0].save(path, xyz_parts=value[1])
+        try:
+            value[0].save(path, xyz_parts=value[1])
+        except OSError:               # a full disk: render again next time
+            pass
 
     key = view_key(nc, mats, layers=layers, seeds=seeds, kw=kw)
     return cached_render(Path(cache_dir) / f"camera-{key}.npz", compute, load, save)

@@ -231,8 +231,13 @@ def cached_render(path: Path, compute: Any, load: Any = None, save: Any = None) 
 
     load = load if load is not None else _load_cached
     save = save if save is not None else _save_cached
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with open(path.with_suffix(".lock"), "a+b") as lock:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        lock = open(path.with_suffix(".lock"), "a+b")  # noqa: SIM115 - closed by the with below
+    except OSError:                   # a read-only cache: read what it has, keep nothing
+        hit = load(path)
+        return hit if hit is not None else compute()
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)
         hit = load(path)
         if hit is not None:
@@ -246,14 +251,17 @@ def _save_cached(path: Path, r: RenderResult) -> None:
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    except OSError:
+        return                                # a read-only cache: render again next time
+    try:
         with os.fdopen(fd, "wb") as f:
             np.savez(f, wavelength_nm=r.wavelength_nm, radiance=r.radiance,
                      std_error=r.std_error, batches=r.batches,
                      render_time_s=r.render_time_s, variant=r.variant, key=r.key,
                      info=json.dumps(r.info))
         os.replace(tmp, path)
-    except OSError:
-        pass                                  # a read-only cache: render again next time
+    except OSError:                           # a full disk: no partial file is left
+        Path(tmp).unlink(missing_ok=True)
 
 
 # --- rendering ----------------------------------------------------------------------------------

@@ -177,6 +177,26 @@ def test_a_kept_render_is_traced_once_and_its_lock_is_held_while_it_traces(tmp_p
         fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
 
 
+def test_a_cache_that_cannot_be_written_renders_and_keeps_nothing(tmp_path):
+    """A cache folder that cannot hold a lock or a file (here a path under a plain file: every
+    write fails) never fails a render: it is computed, returned, and nothing is kept."""
+    from normbox_lab.predict.render import RenderResult, cached_render
+
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("x")
+    calls: list[int] = []
+
+    def compute() -> RenderResult:
+        calls.append(1)
+        return RenderResult(np.array([380.0]), np.array([1.0]), np.array([0.1]),
+                            np.array([[1.0]]), 0.1, "llvm_ad_mono", "k")
+
+    path = blocker / "cache" / "fast-k.npz"
+    assert cached_render(path, compute).radiance[0] == 1.0
+    assert cached_render(path, compute).radiance[0] == 1.0
+    assert calls == [1, 1] and blocker.read_text() == "x"
+
+
 def test_seeded_results_are_reproducible_and_angle_moves_are_exact():
     patch, wall = _model_materials()
     moved = FastNormbox()
