@@ -7,8 +7,6 @@ import argparse
 import sys
 from pathlib import Path
 
-from normbox_lab.acquire.params import TIME_SCALE, option
-
 DEFAULT_STORE = "normbox.sqlite"     # = normbox_lab.acquire.store.DEFAULT_STORE, without importing numpy
 
 
@@ -26,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--world", choices=("normbox", "analytic", "none"), default="normbox",
                    help="simulated labs: the virtual Normbox (Mitsuba, loaded after the first "
                         "paint), the closed-form analytic world, or none")
-    p.add_argument("--time-scale", type=option(TIME_SCALE, "--time-scale"),
+    p.add_argument("--time-scale", type=_time_scale,
                    default=None, metavar="S",
                    help="simulated labs: override the lab's time scale (0 = instant)")
     p.add_argument("--virtual-operator", action="store_true",
@@ -41,6 +39,17 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--exit-after-first-paint", action="store_true",
                    help=argparse.SUPPRESS)   # startup measurement (docs/tui.md)
     p.set_defaults(handler=_tui)
+
+
+def _time_scale(text: str) -> float:
+    """--time-scale through the one parser (imported when the option is given: its module
+    is no part of the console's start, measured to its first paint)."""
+    from normbox_lab.acquire.params import TIME_SCALE, option
+
+    return option(TIME_SCALE, "--time-scale")(text)
+
+
+_time_scale.__name__ = "number"
 
 
 def _load_config(lab: str | None):

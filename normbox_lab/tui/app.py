@@ -191,6 +191,7 @@ class NormboxConsole(App):
         if self.exit_after_paint:
             self.exit()
             return
+        self.pane(RunPane).build()               # the event log, before anything is logged
         try:
             self.session.read_config()           # now, after the first paint
         except ConfigError as exc:

@@ -479,3 +479,67 @@ def test_images_tab_shows_the_latest_image_figure_as_half_blocks(lab_env):
             assert 30 <= len(block.plain.split("\n")[0]) <= 40
     asyncio.run(scenario())
     session.close()
+
+
+def _cells(svg: str, row: int) -> list[tuple[str, str, str]]:
+    """One row of a Textual SVG screenshot as (character, colour, background) per column
+    (80 columns)."""
+    import html
+    import re
+
+    fills = dict(re.findall(r"\.terminal-\d+-(r\d+) \{ fill: (#[0-9a-f]+)", svg))
+    cells = [(" ", "", "")] * 80
+    for x, y, w, colour in ((float(m[2]), float(m[3]), float(m[4]), m[1]) for m in re.finditer(
+            r'<rect fill="(#[0-9a-f]+)" x="([\d.]+)" y="([\d.]+)" width="([\d.]+)"', svg)):
+        if round((y - 1.5) / 24.4) == row:
+            for col in range(round(x / 12.2), round((x + w) / 12.2)):
+                cells[col] = (cells[col][0], cells[col][1], colour)
+    for m in re.finditer(r'<text class="terminal-\d+-(r\d+)" x="([\d.]+)" y="([\d.]+)"[^>]*>'
+                         r"([^<]*)</text>", svg):
+        if round((float(m[3]) - 20) / 24.4) == row:
+            for k, ch in enumerate(html.unescape(m[4]).replace("\xa0", " ")):
+                col = min(round(float(m[2]) / 12.2) + k, 79)
+                # a blank's colour is not seen
+                cells[col] = (ch, fills[m[1]] if ch != " " else "", cells[col][2])
+    return cells
+
+
+def test_the_first_paint_draws_the_protocol_list_and_the_log_as_they_are_drawn_after(lab_env):
+    """Before the first paint the Run tab has faces in place of the protocol Select (its
+    option list, hidden until opened) and of the empty event log; right after the paint the
+    widgets take their places.  The first screen is drawn as the widgets draw it: the
+    protocol line cell by cell (character, colour, background), the log's background and its
+    scroll bar."""
+    from textual.widgets import Footer, OptionList, RichLog, Select
+
+    app = NormboxConsole(new_session(lab_env))
+    first: dict = {}
+    paint = NormboxConsole._first_paint
+
+    def first_paint(self) -> None:
+        if self.query_one(Footer).children and not first:
+            first.update(svg=self.export_screenshot(),
+                         widgets=[type(w).__name__ for w in self.screen.walk_children()])
+        paint(self)
+
+    app._first_paint = first_paint.__get__(app)
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            select = app.query_one("#protocol", Select)
+            assert select.value == "reference-sweep"
+            first["after"] = app.export_screenshot()
+            assert not app.query("#protocol-face") and not app.query("#events-face")
+            log = app.query_one("#events", RichLog)
+            assert log.show_vertical_scrollbar and log.region.bottom == 23
+    asyncio.run(scenario())
+    app.session.close()
+    assert "RichLog" not in first["widgets"]
+    assert "SelectOverlay" not in first["widgets"] and OptionList.__name__ not in first["widgets"]
+    before, after = _cells(first["svg"], 3), _cells(first["after"], 3)
+    assert "".join(c for c, _, _ in before[:26]) == "reference-sweep         ▼ "
+    assert before[:26] == after[:26], (before[:26], after[:26])
+    # the log's rows (row 22: the last, empty after the start too): background, scroll bar
+    assert _cells(first["svg"], 22) == _cells(first["after"], 22)
+    assert _cells(first["svg"], 22)[0][2] != _cells(first["svg"], 22)[79][2]   # a bar is drawn

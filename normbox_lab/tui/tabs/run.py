@@ -171,6 +171,11 @@ class RunPane(TabPane):
     #progress { height: 1; padding: 0 1; }
     #progress Bar { width: 1fr; }
     #events { height: 1fr; }
+    /* the faces of the protocol Select and of the empty log until they are mounted right
+       after the first paint, drawn as they draw (a layout: Textual draws a scroll bar only
+       for a widget with a layout or children) */
+    #protocol-face { width: 26; padding: 0 1 0 0; background: $surface; }
+    #events-face { height: 1fr; background: $surface; overflow-y: scroll; layout: vertical; }
     """
 
     def __init__(self, protocol: str) -> None:
@@ -182,9 +187,11 @@ class RunPane(TabPane):
 
     def compose(self) -> ComposeResult:
         with Horizontal(id="run-top"):
-            # the protocol list (engine import) and parameters load after first paint
-            yield Select([(self.protocol, self.protocol)], value=self.protocol,
-                         allow_blank=False, compact=True, type_to_search=False, id="protocol")
+            # the protocol as the compact Select shows it: the Select (with its option list, a
+            # scroll view of its own styles, hidden until opened: about a fifth of the CPU
+            # from the start of the app to its first frame) is mounted with the protocol list
+            # (engine import) after the first paint, as are the parameters
+            yield Static(self.face(self.protocol), id="protocol-face")
             yield Label("  parameters: JSON values · s start · d dry-run", id="run-hint")
         params = VerticalScroll(id="params")
         params.can_focus = False           # no invisible Tab stop before the first field
@@ -193,12 +200,43 @@ class RunPane(TabPane):
         yield Static("idle", id="run-info")
         with Horizontal(id="progress"):
             yield ProgressBar(total=1, show_eta=False, id="bar")
-        yield RichLog(id="events", max_lines=500, wrap=True, markup=True)
+        # the event log is empty before the first paint: its face (the same background and
+        # scroll bar) until `build` mounts it right after the paint
+        yield Static("", id="events-face")
+
+    def build(self) -> None:
+        """The event log in place of its face (right after the first paint, before anything
+        is logged)."""
+        for face in self.query("#events-face"):
+            self.mount(RichLog(id="events", max_lines=500, wrap=True, markup=True),
+                       before=face)
+            face.remove()
+
+    @staticmethod
+    def face(protocol: str) -> str:
+        """The protocol's name as the compact Select draws it: the name, the arrow at the
+        Select's 25th column."""
+        from textual.markup import escape
+
+        name = protocol if len(protocol) <= 23 else protocol[:22] + "…"
+        return f"{escape(f'{name:<24}')}[$foreground 50%]▼[/]"
 
     def set_protocols(self, names: list[str], current: str) -> None:
+        """The protocol list: the Select takes the place of its face (the first call, right
+        after the first paint), or gets the new list and value."""
+        options = [(n, n) for n in names]
+        for face in self.query("#protocol-face"):
+            self.query_one("#run-top", Horizontal).mount(
+                Select(options, value=current, allow_blank=False, compact=True,
+                       type_to_search=False, id="protocol"), before=face)
+            face.remove()
+            return
         select = self.query_one("#protocol", Select)
+        if not select.is_mounted:           # mounted by the call before, not composed yet
+            self.call_after_refresh(self.set_protocols, names, current)
+            return
         with select.prevent(Select.Changed):
-            select.set_options([(n, n) for n in names])
+            select.set_options(options)
             select.value = current
 
     def show_params(self, params: dict[str, Any] | Exception,
