@@ -178,39 +178,81 @@ class FitProblem:
         t = self.y + c
         kd, ks = _nnls2((s2 * a * a).sum(0), (s2 * a * b).sum(0), (s2 * b * b).sum(0),
                         (s2 * a * t).sum(0), (s2 * b * t).sum(0))
-        # (2) projected Gauss-Newton on the exact log residuals
-        cost = self._cost_per_wl(kd, ks, b, c)
+        # (2) projected Gauss-Newton on the exact log residuals; each cost evaluation keeps
+        # its q = 1 + μf and residuals, which the next step's Jacobian uses (no second log)
+        cost, q, r = self._cost_q_r(kd, ks, b, c)
+        mm = self.m * self.mu
         for _ in range(max_iter):
-            f = kd * a + ks * b - c
-            q = np.maximum(1.0 + self.mu * f, 1e-12)
-            r = self.m * (np.log(q) - self.g_hat)
-            j0 = self.m * self.mu * a / q
-            j1 = self.m * self.mu * b / q
+            j0 = mm * a / q
+            j1 = mm * b / q
             jx = j0 * kd + j1 * ks - r          # target of the step problem in x' = x + δ
             n_kd, n_ks = _nnls2((j0 * j0).sum(0), (j0 * j1).sum(0), (j1 * j1).sum(0),
                                 (j0 * jx).sum(0), (j1 * jx).sum(0))
-            new_cost = self._cost_per_wl(n_kd, n_ks, b, c)
-            for _halve in range(8):             # damp steps that raise the cost
-                worse = new_cost > cost
-                if not worse.any():
-                    break
-                n_kd = np.where(worse, 0.5 * (kd + n_kd), n_kd)
-                n_ks = np.where(worse, 0.5 * (ks + n_ks), n_ks)
-                new_cost = self._cost_per_wl(n_kd, n_ks, b, c)
-            accept = new_cost <= cost
+            new_cost, n_q, n_r = self._cost_q_r(n_kd, n_ks, b, c)
             step = np.maximum(np.abs(n_kd - kd), np.abs(n_ks - ks))
             scale = np.maximum(np.abs(kd) + np.abs(ks), 1e-12)
-            kd = np.where(accept, n_kd, kd)
-            ks = np.where(accept, n_ks, ks)
-            cost = np.where(accept, new_cost, cost)
+            # damp steps that raise the cost, but not a step already below the tolerance: it
+            # raises the cost by rounding at the optimum and is refused as it is (halving it
+            # 8 times, as was done, moved kd, ks by less than the tolerance)
+            worse = np.flatnonzero((new_cost > cost) & (step > tol * scale))
+            if worse.size:
+                self._halve(kd, ks, n_kd, n_ks, new_cost, cost, worse, b, c)
+                n_q[:, worse], n_r[:, worse] = self._q_r(n_kd[worse], n_ks[worse], b, c,
+                                                         worse)
+                step = np.maximum(np.abs(n_kd - kd), np.abs(n_ks - ks))
+            accept = new_cost <= cost
+            if accept.all():
+                kd, ks, cost, q, r = n_kd, n_ks, new_cost, n_q, n_r
+            else:
+                kd = np.where(accept, n_kd, kd)
+                ks = np.where(accept, n_ks, ks)
+                cost = np.where(accept, new_cost, cost)
+                q = np.where(accept, n_q, q)
+                r = np.where(accept, n_r, r)
             if np.all((step <= tol * scale) | ~accept):
                 break
         return kd, ks
 
-    def _cost_per_wl(self, kd, ks, b, c) -> np.ndarray:
+    def _halve(self, kd, ks, n_kd, n_ks, new_cost, cost, worse, b, c) -> None:
+        """The wavelengths `worse` (steps that raised the cost): their step halved until the
+        cost is no longer higher, at most 8 times (`n_kd`, `n_ks`, `new_cost` updated in
+        place).  Near the optimum a few wavelengths' steps raise the cost by rounding and are
+        halved all 8 times: the 8 halvings are evaluated at once, for those wavelengths only,
+        and the first that does not raise the cost is taken (else the 8th), as halving one at
+        a time would."""
+        k_kd, k_ks = kd[worse], ks[worse]
+        h_kd, h_ks = np.empty((8, worse.size)), np.empty((8, worse.size))
+        x_kd, x_ks = n_kd[worse], n_ks[worse]
+        for h in range(8):
+            x_kd = 0.5 * (k_kd + x_kd)
+            x_ks = 0.5 * (k_ks + x_ks)
+            h_kd[h], h_ks[h] = x_kd, x_ks
+        costs = self._cost_per_wl(h_kd.ravel(), h_ks.ravel(), b, c,
+                                  np.tile(worse, 8)).reshape(8, worse.size)
+        ok = ~(costs > cost[worse])
+        level = np.where(ok.any(axis=0), ok.argmax(axis=0), 7)
+        pick = np.arange(worse.size)
+        n_kd[worse], n_ks[worse] = h_kd[level, pick], h_ks[level, pick]
+        new_cost[worse] = costs[level, pick]
+
+    def _q_r(self, kd, ks, b, c, columns: np.ndarray | None = None
+             ) -> tuple[np.ndarray, np.ndarray]:
+        """q = 1 + μf (at least 1e-12) and the log residuals; `columns`: only those
+        wavelengths (kd, ks theirs)."""
+        m, g_hat = (self.m, self.g_hat) if columns is None else \
+            (self.m[:, columns], self.g_hat[:, columns])
         f = kd * _INV_PI + ks * b - c
         q = np.maximum(1.0 + self.mu * f, 1e-12)
-        return np.sum((self.m * (np.log(q) - self.g_hat)) ** 2, axis=0)
+        return q, m * (np.log(q) - g_hat)
+
+    def _cost_q_r(self, kd, ks, b, c) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The log cost per wavelength, with `_q_r`'s q and residuals."""
+        q, r = self._q_r(kd, ks, b, c)
+        return np.sum(r ** 2, axis=0), q, r
+
+    def _cost_per_wl(self, kd, ks, b, c, columns: np.ndarray | None = None) -> np.ndarray:
+        """The log cost per wavelength; `columns`: only those wavelengths (kd, ks theirs)."""
+        return np.sum(self._q_r(kd, ks, b, c, columns)[1] ** 2, axis=0)
 
     def _solved(self, p: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
         key = tuple(float(v) for v in p)
