@@ -64,6 +64,6 @@ def test_inner_optimum_is_not_beaten_by_any_nearby_feasible_point():
         other = p._cost_per_wl(np.maximum(kd + dkd, 0.0), np.maximum(ks + dks, 0.0), b, 0.0)
         assert np.all(other >= best * (1.0 - 1e-12))
     # the cost kept with q and the residuals is the cost computed afresh
-    cost, q, r = p._cost_q_r(kd, ks, b, 0.0)
+    cost, _q, r = p._cost_q_r(kd, ks, b, 0.0)
     np.testing.assert_array_equal(cost, best)
     np.testing.assert_array_equal(r, p.residuals(kd, ks, 0.3, 1.5, 0.0))
