@@ -47,7 +47,7 @@ def fit_run(store: Store, brdf_run: int | str, w: float = 2.0,
     fits).  A run with error flags is refused unless `accept_flagged` (then recorded in each
     fit's provenance)."""
     from normbox_lab.analyze import qa
-    from normbox_lab.analyze.fit import data_from_store_run, fit_material
+    from normbox_lab.analyze.fit import data_from_store_run, fit_materials
 
     accepted = qa.require_clean(store, run=brdf_run, accept_flagged=accept_flagged, step="fit")
     data = data_from_store_run(store, brdf_run)
@@ -59,13 +59,18 @@ def fit_run(store: Store, brdf_run: int | str, w: float = 2.0,
             raise DataError(str(store.path), f"run {brdf_run}",
                             f"no BRDF readings for {', '.join(missing)}")
         data = {m: data[m] for m in materials}
-    fits = {}
-    for k, name in enumerate(sorted(data)):
-        progress("fit", k, len(data))
-        fit = fit_material(data[name], w)
+    progress("fit", 0, len(data))
+    done: list[str] = []
+
+    def stored(name: str, fit: Any) -> None:        # in name order, as each is ready
         fit.metadata.update(qa.provenance(accepted))
         fit.store(store, run_ref=brdf_run)
-        fits[name] = fit
+        done.append(name)
+        if len(done) < len(data):
+            progress("fit", len(done), len(data))
+
+    # the materials on as many processes as this machine gives (the same fits, bit for bit)
+    fits = fit_materials(data, w, on_fit=stored)
     from normbox_lab.predict.brdf_model import MaterialFit
 
     latest = {a.name: a for a in store.artifacts("fit", run_ref=brdf_run)}
