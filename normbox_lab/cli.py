@@ -65,7 +65,9 @@ class OneLineParser(argparse.ArgumentParser):
         return super()._get_values(action, arg_strings)
 
     def error(self, message: str) -> typing.NoReturn:
-        flat = " ".join(str(message).split())
+        from normbox_lab.core.errors import one_line
+
+        flat = one_line(" ".join(str(message).split()))
         self.exit(2, f"normbox-lab: error: {self.prog.removeprefix('normbox-lab ')}: {flat}\n"
                   if self.prog != "normbox-lab" else f"normbox-lab: error: {flat}\n")
 
@@ -100,7 +102,7 @@ def build_parser(argv: Sequence[str] | None = None) -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from normbox_lab.core.errors import NormboxError
+    from normbox_lab.core.errors import NormboxError, one_line
 
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser(argv)
@@ -111,7 +113,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.handler(args) or 0)
     except NormboxError as exc:
-        print(f"normbox-lab: error: {exc}", file=sys.stderr)
+        print(f"normbox-lab: error: {one_line(str(exc))}", file=sys.stderr)
         return exc.exit_code
     except KeyboardInterrupt:
         print("normbox-lab: interrupted", file=sys.stderr)

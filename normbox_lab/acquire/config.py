@@ -254,14 +254,31 @@ def _check_protocol_limits(name: str, shipped: dict[str, Any] | None,
             raise err(f"protocols.{name}", key, str(exc).removeprefix(f"{key}: ")) from None
 
 
+#: the largest lab config read (a generated one with every calibration is a few kB)
+MAX_CONFIG_BYTES = 1 << 20
+
+
 def load_config(path: str | Path) -> LabConfig:
+    """The lab config of a file: a regular file of at most `MAX_CONFIG_BYTES` (a device such
+    as /dev/zero, a FIFO or a huge file is refused with one line, never read without end)."""
+    import stat
+
+    if not str(path).strip():
+        raise ConfigError(repr(str(path)), 0, "(file)", "an empty path names no file")
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        if not stat.S_ISREG(path.stat().st_mode):
+            raise ConfigError(str(path), 0, "(file)", "not a regular file")
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_CONFIG_BYTES + 1)
+        if len(data) > MAX_CONFIG_BYTES:
+            raise ConfigError(str(path), 0, "(file)", f"larger than {MAX_CONFIG_BYTES >> 20} "
+                              "MiB: not a lab config")
+        text = data.decode("utf-8")
     except FileNotFoundError:
         raise ConfigError(str(path), 0, "(file)", "no such file; create one with "
                           "`normbox-lab init LAB.toml --sim`") from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise ConfigError(str(path), 0, "(file)", f"cannot read: {exc}") from None
     return parse_config(text, str(path))
 

@@ -71,7 +71,7 @@ from normbox_lab.acquire.store_file import (
     describe,
     preflight,
     read_only_problem,
-    refusal,
+    refusal_error,
 )
 from normbox_lab.core.errors import StoreError, UnknownRun
 from normbox_lab.core.types import BrdfReading, Colorimetry, SpectralReading
@@ -438,9 +438,9 @@ class Store:
     def _recognise(self) -> None:
         """Refuse a file that is not a normbox-lab store, or one with a newer schema, before
         anything is written to it."""
-        why = refusal(self.path, *describe(self._db), SCHEMA_VERSION)
-        if why:
-            raise StoreError(why)
+        error = refusal_error(self.path, *describe(self._db), SCHEMA_VERSION)
+        if error is not None:
+            raise error
 
     def _migrate(self) -> None:
         with self._lock:
@@ -594,9 +594,10 @@ class Store:
         rows: list[tuple] = []
         with self._lock:
             # ASCII digits only: str.isdigit() is true for "١" (Arabic-Indic one), and int()
-            # reads it as 1; an id beyond SQLite's integers names no run
+            # reads it as 1; an id beyond SQLite's integers names no run (more than 19 digits
+            # are not converted: 5000 digits would hit Python's 4300-digit limit)
             digits = isinstance(run_ref, int) or (isinstance(run_ref, str) and run_ref.isascii()
-                                                  and run_ref.isdigit())
+                                                  and run_ref.isdigit() and len(run_ref) <= 19)
             if digits and 0 <= int(run_ref) <= _SQLITE_MAX_INT:
                 rows += self._db.execute(self._RUN_SELECT + " WHERE r.id=?",
                                          (int(run_ref),)).fetchall()

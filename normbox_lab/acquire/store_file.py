@@ -228,6 +228,17 @@ def refusal(path: Path, app_id: int, version: int, tables: set[str], newest: int
     return ""
 
 
+def refusal_error(path: Path, app_id: int, version: int, tables: set[str],
+                  newest: int) -> StoreError | None:
+    """`refusal` as the error to raise: a file that is not a store is a path a person gave
+    that cannot be one (`BadPath`, exit 2); a newer schema asks for a newer program."""
+    why = refusal(path, app_id, version, tables, newest)
+    if not why:
+        return None
+    not_a_store = why.startswith(f"{path}: not a normbox-lab store")
+    return BadPath(why) if not_a_store else StoreError(why)
+
+
 def describe(db: sqlite3.Connection) -> tuple[int, int, set[str]]:
     app_id = int(db.execute("PRAGMA application_id").fetchone()[0])
     version = int(db.execute("PRAGMA user_version").fetchone()[0])
@@ -244,8 +255,8 @@ def preflight(path: Path, newest: int) -> bool:
         st = path.stat()
     except FileNotFoundError:
         return False
-    except OSError as exc:
-        raise StoreError(f"{path}: cannot read ({exc})") from None
+    except (OSError, ValueError) as exc:       # a name too long, a NUL byte: a typed path
+        raise BadPath(f"{path}: cannot be a store ({exc})") from None
     import stat
 
     if not stat.S_ISREG(st.st_mode):
@@ -258,24 +269,25 @@ def preflight(path: Path, newest: int) -> bool:
     except OSError as exc:
         raise StoreError(f"{path}: cannot read ({exc})") from None
     if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
-        raise StoreError(f"{path}: not a normbox-lab store (not an SQLite file); refusing to "
-                         "touch it (the file was not changed)")
-    why = refusal(path, int.from_bytes(header[68:72], "big"),
-                   int.from_bytes(header[60:64], "big"), set(), newest)
-    if why:
-        raise StoreError(why)
+        raise BadPath(f"{path}: not a normbox-lab store (not an SQLite file); refusing to "
+                      "touch it (the file was not changed)")
+    error = refusal_error(path, int.from_bytes(header[68:72], "big"),
+                          int.from_bytes(header[60:64], "big"), set(), newest)
+    if error is not None:
+        raise error
     try:
         db = sqlite3.connect(uri(path, immutable="1"), uri=True)
         try:
-            why = refusal(path, *describe(db), newest)
+            error = refusal_error(path, *describe(db), newest)
         finally:
             db.close()
     except sqlite3.Error as exc:
         raise damaged(path, exc) from None
-    if why:
-        raise StoreError(why)
+    if error is not None:
+        raise error
     return True
 
 
 __all__ = ["APPLICATION_ID", "SIDE_SUFFIXES", "ReadView", "RunLock", "damaged", "describe",
-           "preflight", "read_only_problem", "read_only_uri", "refusal", "side_files", "uri"]
+           "preflight", "read_only_problem", "read_only_uri", "refusal", "refusal_error", "side_files",
+           "uri"]

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 from normbox_lab.acquire.params import Number, option
-from normbox_lab.commands.common import add_store_argument, require_store
+from normbox_lab.commands.common import add_store_argument, renderer_name, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -28,7 +28,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="paths per derivative render (default 16384)")
     p.add_argument("--draws", type=option(Number(2, 100_000, whole=True), "--draws"),
                    default=64, help="draws per source (default 64)")
-    p.add_argument("--renderer", metavar="NAME",
+    p.add_argument("--renderer", metavar="NAME", type=renderer_name,
                    help="the budget of an imported renderer's prediction (`normbox-lab import "
                         "prediction`; compare it first); default: ours")
     p.add_argument("--paper-table", action="store_true",

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from normbox_lab.commands.common import add_store_argument, require_store
+from normbox_lab.commands.common import add_store_argument, output_path, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -26,6 +26,8 @@ def _export(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.store import Store
 
     require_store(args.store)
+    if args.output is not None:
+        output_path(args.output, "-o")
     with Store(args.store, read_only=True) as store:
         out = export_run(store, args.run, args.format, args.output)
     print(f"wrote {out}")

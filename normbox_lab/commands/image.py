@@ -422,9 +422,21 @@ def _whitebalance(args: argparse.Namespace) -> int:
 
 
 def _exr_info(args: argparse.Namespace) -> int:
+    from normbox_lab.commands.common import input_path
+    from normbox_lab.core.errors import BadPath
     from normbox_lab.core.exr import read_spectral_exr
 
-    d = read_spectral_exr(args.path)
+    path = input_path(args.path, "PATH")
+    if not path.isascii():
+        try:
+            path.encode("utf-8")
+        except UnicodeEncodeError:           # bytes of another encoding in the name
+            raise BadPath(f"{path}: not a UTF-8 file name (Mitsuba opens EXR files by "
+                          "UTF-8 name)") from None
+    try:
+        d = read_spectral_exr(path)
+    except RuntimeError as exc:              # Mitsuba's Bitmap: not an EXR, or damaged
+        raise BadPath(f"{path}: not an EXR image ({exc})") from None
     wl = d["wavelength_nm"]
     if wl is not None and len(wl):
         print(f"wavelengths: {len(wl)} from {wl[0]:g} to {wl[-1]:g} nm")

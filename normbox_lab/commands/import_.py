@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 
 from normbox_lab.acquire.params import Number, option
-from normbox_lab.commands.common import add_store_argument, require_store
+from normbox_lab.commands.common import add_store_argument, input_path, require_store
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +31,7 @@ def _import_brdf(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.importers import load_brdf_json, store_brdf
     from normbox_lab.acquire.store import Store
 
-    data = load_brdf_json(args.file, args.material)
+    data = load_brdf_json(input_path(args.file, "FILE"), args.material)
     with Store(args.store) as store:
         run_id = store_brdf(store, data, tilt_deg=args.tilt_deg)
     print(f"imported {len(data.theta_i_deg)} geometries × {len(data.wavelength_nm)} wavelengths "
@@ -62,16 +62,19 @@ def _import_prediction(args: argparse.Namespace) -> int:
 
     from normbox_lab.acquire.importers import import_prediction
     from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import one_line
     from normbox_lab.predict.renderers import PredictionFileError
 
     require_store(args.store)
     with Store(args.store) as store:
+        input_path(args.file, "FILE", directory=True)      # after the store's own checks
         try:
             run_id, aid = import_prediction(store, args.file, args.ref_run, args.renderer,
                                             renderer_version=args.renderer_version)
         except PredictionFileError as exc:
             for line in exc.problems:
-                print(f"normbox-lab: {args.file}: {line} (nothing stored)", file=sys.stderr)
+                print(one_line(f"normbox-lab: {args.file}: {line} (nothing stored)"),
+                      file=sys.stderr)
             return exc.exit_code
     print(f"prediction of {args.renderer!r} for run {args.ref_run} stored as run {run_id} "
           f"(artifact {aid}); compare with `normbox-lab compare {args.ref_run} --renderer "

@@ -18,13 +18,14 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _init(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.config import load_config, write_sim_config
+    from normbox_lab.commands.common import output_path
 
     if not args.sim:
         print("normbox-lab: init writes simulated labs (--sim); for real instruments run "
               "`normbox-lab lab discover --write LAB.toml` (docs/first-contact.md)",
               file=sys.stderr)
         return 2
-    path = write_sim_config(args.path, overwrite=args.force)
+    path = write_sim_config(output_path(args.path, "PATH"), overwrite=args.force)
     cfg = load_config(path)  # what we write must load
     print(f"wrote {path}: {len(cfg.instruments)} simulated instruments "
           f"({', '.join(cfg.instruments)})")

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import sys
 
+from normbox_lab.acquire.params import Number, option
 from normbox_lab.commands.common import add_store_argument
 
 
@@ -36,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    choices=("cseabreeze", "pyseabreeze"), help="seabreeze backend")
     d.add_argument("--pyusb-backend", default=None, metavar="NAME",
                    help="pyseabreeze's pyusb backend (e.g. libusb1)")
-    d.add_argument("--timeout-s", type=float, default=0.3, metavar="S",
+    d.add_argument("--timeout-s", type=option(Number(0, 60, unit="s", above=True),
+                                              "--timeout-s"), default=0.3, metavar="S",
                    help="wait this long for each identification reply (default 0.3)")
     d.add_argument("--write", metavar="LAB.toml", help="write a lab config of what was found")
     d.add_argument("--force", action="store_true", help="overwrite the --write file")

@@ -6,7 +6,7 @@ import argparse
 import sys
 
 from normbox_lab.acquire.params import WORKERS, Number, option
-from normbox_lab.commands.common import add_store_argument, require_store
+from normbox_lab.commands.common import add_store_argument, renderer_name, require_store
 from normbox_lab.predict.precision import PRESETS, RENDERERS, STATISTIC, parse_target_se
 
 
@@ -54,7 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "also the error model.")
     c.add_argument("run", metavar="REFERENCE_RUN_ID")
     c.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run the fits came from")
-    c.add_argument("--renderer", metavar="NAME",
+    c.add_argument("--renderer", metavar="NAME", type=renderer_name,
                    help="compare another renderer's prediction (`normbox-lab import "
                         "prediction`) instead of ours")
     _accept_flagged(c)
@@ -66,7 +66,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="the reference sweep (id or uuid prefix) whose prediction was compared")
     r.add_argument("-o", "--output", metavar="PATH", help="default: report-run-ID.html")
     r.add_argument("--brdf-run", metavar="RUN_ID", help="the gonio run (for the BRDF figures)")
-    r.add_argument("--renderer", metavar="NAME",
+    r.add_argument("--renderer", metavar="NAME", type=renderer_name,
                    help="build the report on an imported renderer's comparison (default: "
                         "ours; every renderer's row is in the report either way)")
     _accept_flagged(r)
@@ -126,6 +126,7 @@ def _target_se(text: str) -> float:
 def _predict(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.queries import lamp_from_light_map
     from normbox_lab.analyze.pipeline import predict_run
+    from normbox_lab.core.errors import one_line
     from normbox_lab.predict.executors import make_executor
 
     if args.address and args.executor != "dask":
@@ -143,7 +144,7 @@ def _predict(args: argparse.Namespace) -> int:
             executor = (make_executor(args.executor, workers=args.workers,
                                       address=args.address) if args.executor else None)
         except (ImportError, OSError) as exc:       # no dask, or no scheduler at --address
-            print(f"normbox-lab predict: error: {exc}", file=sys.stderr)
+            print(f"normbox-lab predict: error: {one_line(str(exc))}", file=sys.stderr)
             return 2
         try:
             aid = predict_run(store, args.run, quality=args.quality,

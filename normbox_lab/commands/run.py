@@ -72,7 +72,7 @@ def _load_lab_config(args: argparse.Namespace, notes: list[str]):
 
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
 
-    if args.lab:
+    if args.lab is not None:              # --lab "" is a path that names no file, refused
         config = load_config(args.lab)
     elif Path("lab.toml").exists():
         config = load_config("lab.toml")

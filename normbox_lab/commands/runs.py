@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from normbox_lab.commands.common import add_store_argument
+from normbox_lab.commands.common import add_store_argument, store_exists
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -35,11 +35,9 @@ def format_run_line(run, flags=None, status: str | None = None) -> str:
 
 
 def _runs(args: argparse.Namespace) -> int:
-    from pathlib import Path
-
     from normbox_lab.acquire.store import Store
 
-    if not Path(args.store).exists():
+    if not store_exists(args.store):
         print(f"no store at {args.store} (nothing measured yet)")
         return 0
     with Store(args.store, read_only=True) as store:     # a listing never writes

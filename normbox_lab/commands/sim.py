@@ -134,7 +134,9 @@ def _add_campaign(simsub: argparse._SubParsersAction) -> None:
 
 
 def _fail(message: str) -> int:
-    print(f"normbox-lab: {message}", file=sys.stderr)
+    from normbox_lab.core.errors import one_line
+
+    print(f"normbox-lab: {one_line(message)}", file=sys.stderr)
     return 2
 
 

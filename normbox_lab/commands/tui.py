@@ -55,7 +55,7 @@ _time_scale.__name__ = "number"
 def _load_config(lab: str | None):
     from normbox_lab.acquire.config import SIM_CONFIG_TEMPLATE, load_config, parse_config
 
-    if lab:
+    if lab is not None:
         return load_config(lab)
     if Path("lab.toml").exists():
         return load_config("lab.toml")
@@ -69,7 +69,7 @@ def _tui(args: argparse.Namespace) -> int:
     # the lab config (its checks import the drivers and the protocols), the store (numpy) and
     # the lab (its world) are read and opened after the first paint; a config the console
     # cannot use ends it with one line and exit 2, as before it painted
-    if args.lab and not Path(args.lab).is_file():
+    if args.lab is not None and not Path(args.lab).is_file():
         _load_config(args.lab)            # the one line: no such file
     session = Session(None, args.store or DEFAULT_STORE, world=args.world,
                       virtual_operator=args.virtual_operator, time_scale=args.time_scale,

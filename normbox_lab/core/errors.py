@@ -20,6 +20,14 @@
 from __future__ import annotations
 
 
+def one_line(text: str) -> str:
+    """`text` as one printable line: line breaks, terminal escapes, other control and
+    invisible characters (and lone surrogates of undecodable bytes) written as escapes, so a
+    path or a name a person typed cannot break the one line of a refusal or drive the
+    terminal."""
+    return "".join(ch if ch == " " or ch.isprintable() else repr(ch)[1:-1] for ch in text)
+
+
 class NormboxError(Exception):
     """Base of every error normbox-lab raises on purpose."""
 
@@ -100,8 +108,9 @@ class UnknownRun(StoreError):
 
 
 class BadPath(StoreError):
-    """A path a person gave for the store or an output that cannot be one (a directory, not a
-    regular file): a refusal of what was typed, exit 2."""
+    """A path a person gave for the store, an input or an output that cannot be one (a
+    directory, not a regular file, not a store, a name the system refuses): a refusal of what
+    was typed, exit 2."""
 
     exit_code = 2
 

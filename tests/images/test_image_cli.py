@@ -38,8 +38,10 @@ def test_bad_arguments_are_refused_with_a_reason(capsys):
 
 
 def test_figure1_needs_a_store(tmp_path, capsys):
-    assert main(["image", "figure1", "--store", str(tmp_path / "none.sqlite")]) == 1
-    assert "no store" in capsys.readouterr().err
+    # the path names no store: a refusal of what was typed, one line, exit 2
+    assert main(["image", "figure1", "--store", str(tmp_path / "none.sqlite")]) == 2
+    err = capsys.readouterr().err
+    assert "no store" in err and err.count("\n") == 1
 
 
 def test_camera_writes_png_and_a_spectral_exr_whose_layers_sum(tmp_path, capsys):
