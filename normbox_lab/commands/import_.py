@@ -46,7 +46,7 @@ def _register_prediction(isub: argparse._SubParsersAction) -> None:
                     "(what a scene package's render_mitsuba.py writes), or a directory of "
                     "spectral EXRs pNN_s<angle>.exr. Checked against the reference run first "
                     "(configurations, wavelength grid in nm, finite non-negative radiance): "
-                    "each problem one line, nothing stored, exit 2. Then `normbox-lab compare "
+                    "every problem in one line, nothing stored, exit 2. Then `normbox-lab compare "
                     "REF_RUN --renderer NAME`.")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--ref-run", required=True, metavar="N")
@@ -72,9 +72,9 @@ def _import_prediction(args: argparse.Namespace) -> int:
             run_id, aid = import_prediction(store, args.file, args.ref_run, args.renderer,
                                             renderer_version=args.renderer_version)
         except PredictionFileError as exc:
-            for line in exc.problems:
-                print(one_line(f"normbox-lab: {args.file}: {line} (nothing stored)"),
-                      file=sys.stderr)
+            # every problem, in the one line of the refusal
+            print(one_line(f"normbox-lab: {args.file}: {'; '.join(exc.problems)} (nothing "
+                           "stored)"), file=sys.stderr)
             return exc.exit_code
     print(f"prediction of {args.renderer!r} for run {args.ref_run} stored as run {run_id} "
           f"(artifact {aid}); compare with `normbox-lab compare {args.ref_run} --renderer "
