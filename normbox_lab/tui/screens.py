@@ -255,13 +255,16 @@ class NumberScreen(ModalScreen[float | None]):
         self.query_one("#number", Input).focus()
 
     def on_input_submitted(self, event: Any) -> None:
+        from textual.content import Content
+
         from normbox_lab.acquire.params import Number, ParameterError, read
 
         try:
             value = float(read(str(event.value), Number(self.low, self.high), "value"))
         except ParameterError as exc:       # the same parser as --param and the form
+            # its text: the refusal quotes what was typed, which is no markup
             self.query_one("#number-error", Static).update(
-                str(exc).removeprefix("value: "))
+                Content(str(exc).removeprefix("value: ")))
             return
         self.dismiss(value)
 

@@ -18,6 +18,7 @@ from textual.widgets import Input, Static, TabbedContent
 from normbox_lab.acquire.params import ParameterError
 from normbox_lab.tui.app import NormboxConsole, PromptScreen
 from normbox_lab.tui.screens import NumberScreen
+from normbox_lab.tui.tabs import RunPane
 
 PASTE = 2000
 
@@ -272,3 +273,38 @@ def test_a_manual_go_to_shows_moving_and_s_waits_for_it(lab_env):
     asyncio.run(scenario())
     app.session.close()
     assert states == ["rotator moving to 30°"]
+
+
+MARKUP_TEXTS = ["30,[/b]", "30,[@click=app.quit]q[/]", "[b]x[/b],1", "30,[/]", "[$x]"]
+
+
+def test_a_refusal_that_quotes_markup_is_shown_as_typed(lab_env):
+    """The form's and the go-to dialog's refusal quote what was typed; shown as markup, a
+    typed ``[/b]`` ended the console with a MarkupError and ``[@click=app.quit]`` became a
+    link that quits.  Each refusal is shown as its text, and the console goes on."""
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            field = app.query_one("#param-angles_deg", Input)
+            for text in MARKUP_TEXTS:
+                field.value = text
+                message = app.pane(RunPane).check_parameters()
+                await pilot.pause(0.05)
+                shown = str(app.query_one("#param-error", Static).render())
+                assert message and " ".join(shown.split()) == " ".join(message.split()), (
+                    text, shown, message)
+            app.push_screen(NumberScreen("rotator: go to angle, degrees", 0.0, 95.0))
+            await until(pilot, lambda: isinstance(app.screen, NumberScreen)
+                        and bool(app.screen.query("#number")), "the dialog")
+            for text in MARKUP_TEXTS:
+                app.screen.query_one("#number", Input).value = text
+                await pilot.press("enter")
+                await pilot.pause(0.05)
+                shown = str(app.screen.query_one("#number-error", Static).render())
+                assert text.strip()[:3] in shown or "not a number" in shown, (text, shown)
+                assert isinstance(app.screen, NumberScreen)
+            assert app.is_running
+    asyncio.run(scenario())
+    app.session.close()

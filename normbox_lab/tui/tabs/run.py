@@ -8,6 +8,7 @@ from typing import Any
 
 from textual.app import ComposeResult
 from textual.containers import Horizontal, VerticalScroll
+from textual.content import Content
 from textual.widgets import Input, Label, ProgressBar, RichLog, Select, Static, TabPane
 
 from normbox_lab.core.clock import Clock
@@ -317,7 +318,7 @@ class RunPane(TabPane):
                 message = message or str(exc)     # the first bad field, named
                 inp.set_class(True, "-invalid")
         line = self.query_one("#param-error", Static)
-        line.update(message)
+        line.update(Content(message))        # its text: it quotes what was typed (no markup)
         line.display = bool(message)
         return message
 
