@@ -127,7 +127,7 @@ class ResumeScreen(ModalScreen[int | None]):
         self.runs = runs
 
     def compose(self) -> ComposeResult:
-        from normbox_lab.tui.tabs.common import RUN_COLUMNS
+        from normbox_lab.tui.tabs.common import RUN_COLUMNS, plain
         from normbox_lab.tui.views import run_row
 
         with Vertical():
@@ -135,7 +135,7 @@ class ResumeScreen(ModalScreen[int | None]):
             table: DataTable = DataTable(id="resume-table", cursor_type="row")
             table.add_columns(*RUN_COLUMNS)
             for r in reversed(self.runs):
-                table.add_row(*run_row(r), key=str(r.id))
+                table.add_row(*plain(run_row(r)), key=str(r.id))
             yield table
             yield Label("[dim]↑↓ pick · Enter resume · n / Esc not now[/dim]")
 

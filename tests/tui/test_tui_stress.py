@@ -308,3 +308,43 @@ def test_a_refusal_that_quotes_markup_is_shown_as_typed(lab_env):
             assert app.is_running
     asyncio.run(scenario())
     app.session.close()
+
+
+def _screen_text(app) -> str:
+    """The screen's text as drawn (a Textual SVG screenshot's text runs)."""
+    import html
+    import re
+
+    return html.unescape(" ".join(re.findall(r"<text[^>]*>([^<]*)</text>",
+                                             app.export_screenshot()))).replace("\xa0", " ")
+
+
+def test_a_run_whose_protocol_file_name_looks_like_markup_is_listed_as_named(lab_env):
+    """A DataTable reads a str cell as markup: the protocol file ``sweep[b]v2[i].py`` was
+    listed as "sweepv2.py" in bold italics.  Listed as named, in the resume offer and the Runs
+    tab."""
+    from textual.widgets import DataTable
+
+    from normbox_lab.acquire.store import Store
+    from normbox_lab.tui.screens import ResumeScreen
+
+    with Store(lab_env / "tui.sqlite") as store:
+        store.create_run(str(lab_env / "sweep[b]v2[i].py"), parameters={}, planned=2,
+                         status="paused")
+    app = NormboxConsole(new_session(lab_env))
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: isinstance(app.screen, ResumeScreen)
+                        and bool(app.screen.query("#resume-table")), "the resume offer")
+            await pilot.pause(0.1)
+            assert "sweep[b]v2[i].py" in _screen_text(app)
+            await pilot.press("n")
+            await until(pilot, lambda: not isinstance(app.screen, ResumeScreen), "not now")
+            await pilot.press("4")                          # the Runs tab lists it too
+            await pilot.pause(0.2)
+            assert app.query_one("#runs-table", DataTable).row_count >= 1
+            assert "sweep[b]v2[i].py" in _screen_text(app)
+            assert app.is_running
+    asyncio.run(scenario())
+    app.session.close()

@@ -10,6 +10,14 @@ from textual.widgets import DataTable, Input
 RUN_COLUMNS = ("id", "protocol", "status", "readings", "flags", "created")
 
 
+def plain(cells: Any) -> list[Any]:
+    """A table row's text cells as text (a DataTable reads a str cell as markup: the protocol
+    file ``sweep[b]v2[i].py`` was listed as "sweepv2.py" in bold italics)."""
+    from rich.text import Text
+
+    return [Text(c) if isinstance(c, str) else c for c in cells]
+
+
 def table(wid: str, columns: tuple[str, ...], **kw: Any) -> DataTable:
     """A DataTable with these columns."""
     t: DataTable = DataTable(id=wid, **kw)

@@ -9,7 +9,7 @@ from typing import Any
 from textual import on, work
 from textual.widgets import DataTable, TabPane
 
-from normbox_lab.tui.tabs.common import RUN_COLUMNS, table
+from normbox_lab.tui.tabs.common import RUN_COLUMNS, plain, table
 
 #: the Runs table's (and the resume offer's) columns: `views.run_row`
 
@@ -46,7 +46,7 @@ class RunsPane(TabPane):
         runs = self.app.session.runs()          # a run whose owner died: interrupted
         flags = qa.summaries_by_run(self.store)
         for r in runs:
-            tab.add_row(*run_row(r, flags.get(r.id)), key=str(r.id))
+            tab.add_row(*plain(run_row(r, flags.get(r.id))), key=str(r.id))
         if runs:
             ids = [r.id for r in runs]
             row = ids.index(selected) if selected in ids else len(ids) - 1
@@ -105,7 +105,7 @@ class RunsPane(TabPane):
             if f.key:
                 by_key.setdefault(f.key, []).append(f)
         for r in self.store.readings(run_id):
-            tab.add_row(*reading_row(r, by_key.get(r.key, ())), key=r.key)
+            tab.add_row(*plain(reading_row(r, by_key.get(r.key, ()))), key=r.key)
         self._readings_shown = (run_id, tab.row_count)
         self.shown_run_id = run_id
 
