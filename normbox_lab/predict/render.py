@@ -51,7 +51,7 @@ from normbox_lab.predict.scene import (
 )
 
 #: bump when the scene code changes what a render returns (invalidates every cache entry)
-RENDER_VERSION = 3
+RENDER_VERSION = 4
 BAND_CENTRES_NM = BAND_WAVELENGTHS_NM
 BAND_WIDTH_NM = 5.0
 LAMP_GRID_NM = np.arange(360.0, 831.0, 5.0)
@@ -62,7 +62,7 @@ KM_LM_W = 683.002
 class Quality:
     name: str
     spp: int            # samples per pixel per batch (10 × 10 pixels); a square number
-                        # (the stratified sampler uses a √spp × √spp grid)
+                        # (kept square: the counts of earlier stratified renders)
     batches: int
     pixels: int = 10
     # adaptive: after `batches`, keep adding batches (up to `max_batches`) until the worst

@@ -441,7 +441,7 @@ def _sensor_xml(sensor: dict[str, Any]) -> dict[str, str]:
                  '        <string name="fov_axis" value="x"/>\n'
                  '        <float name="near_clip" value="0.01"/>\n'
                  '        <float name="far_clip" value="10"/>\n' + sens_tr +
-                 '        <sampler type="stratified">\n'
+                 '        <sampler type="independent">\n'
                  '            <integer name="sample_count" value="64"/>\n'
                  '        </sampler>\n')
     bands = "".join(f'            <spectrum name="b{k:04d}" value="{_fmt(lam - BAND_WIDTH_NM)}:0,'
