@@ -358,39 +358,25 @@ def fit_material(data: BrdfData, w: float = 2.0, *,
     return fit
 
 
-def fit_workers() -> int:
-    """Processes `fit_materials` uses by default: the cores this process may run on that
-    are idle by the 1-minute load average (this process counts as one of the load), at
-    least 1; 1 in a daemonic process, which may not start children.  On a loaded machine a
-    second process only adds its start-up and the pickles (measured at load 4.5-5.8 on 2
-    cores: 33-37 s wall with two processes, 24-33 s with one)."""
-    import multiprocessing
-    import os
-
-    from normbox_lab.core.machine import usable_cores
-
-    if multiprocessing.current_process().daemon:
-        return 1
-    cores = usable_cores()
-    try:
-        busy = max(0.0, os.getloadavg()[0] - 1.0)
-    except OSError:                        # no load average here: take the cores as idle
-        busy = 0.0
-    return max(1, min(cores, int(cores - busy + 0.5)))
+def fit_job(payload: tuple[BrdfData, float]) -> MaterialFit:
+    """One material's fit, ``(data, w)`` → `fit_material` (the `offload` job)."""
+    data, w = payload
+    return fit_material(data, w)
 
 
 def fit_materials(data: Mapping[str, BrdfData], w: float = 2.0, *,
-                  workers: int | None = None,
+                  children: int | None = None,
                   on_fit: Callable[[str, MaterialFit], None] | None = None
                   ) -> dict[str, MaterialFit]:
-    """`fit_material` of every material, on `workers` processes (default `fit_workers()`):
-    this one and `workers − 1` children (`fit_worker`), each taking the next material as it
-    finishes one.  The materials are independent, so each fit is the one this process would
-    compute, bit for bit.  `on_fit(name, fit)` is called in name order, here (the store sees
-    the same artifacts in the same order).  Data that cannot be fitted raise their `DataError`
-    after the fits of the materials before it in name order, as fitting one after the other
-    would: each material's problem is built here first (milliseconds).  A child that fails
-    leaves its material to this process, which raises what the fit raises."""
+    """`fit_material` of every material, in this process and `children` child processes
+    (default `offload.idle_children()`), each taking the next material as it finishes one.
+    The materials are independent, so each fit is the one this process would compute, bit
+    for bit.  `on_fit(name, fit)` is called in name order, here (the store sees the same
+    artifacts in the same order).  Data that cannot be fitted raise their `DataError` after
+    the fits of the materials before it in name order, as fitting one after the other would:
+    each material's problem is built here first (milliseconds)."""
+    from normbox_lab.analyze.offload import Offload, idle_children
+
     names = sorted(data)
     todo, failure = names, None
     for k, name in enumerate(names):
@@ -400,114 +386,30 @@ def fit_materials(data: Mapping[str, BrdfData], w: float = 2.0, *,
         except DataError as exc:
             todo, failure = names[:k], exc
             break
-    n = min(fit_workers() if workers is None else int(workers), len(todo))
-    pending = _Pending(todo)
+    n = min(idle_children() if children is None else int(children), len(todo) - 1)
+    offload = Offload("normbox_lab.analyze.fit:fit_job", n)
     fits: dict[str, MaterialFit] = {}
-    delivered = 0
 
     def deliver() -> None:                 # the fits ready in name order, to on_fit
-        nonlocal delivered
-        while delivered < len(todo) and todo[delivered] in pending.done:
-            name = todo[delivered]
-            fits[name] = pending.done[name]
+        while len(fits) < len(todo) and offload.done(todo[len(fits)]):
+            name = todo[len(fits)]
+            fits[name] = offload.results[name]
             if on_fit is not None:
                 on_fit(name, fits[name])
-            delivered += 1
 
-    helpers = [_FitChild(pending, w, data) for _ in range(n - 1)]
     try:
-        while (name := pending.take()) is not None:
-            pending.finish(name, fit_material(data[name], w))
+        for name in todo:
+            offload.submit(name, (data[name], w))
+        while (item := offload.take()) is not None:
+            offload.finish(item[0], fit_job(item[1]))
             deliver()
-        for child in helpers:
-            child.join()
-        for name in pending.failed:        # a child's failure: fitted here (raises here)
-            pending.finish(name, fit_material(data[name], w))
+        offload.finish_here(fit_job)
     finally:
-        for child in helpers:
-            child.close()
+        offload.close()
     deliver()
     if failure is not None:
         raise failure
     return fits
-
-
-class _Pending:
-    """The materials still to fit, and the fits done, shared by this process's threads."""
-
-    def __init__(self, names: Sequence[str]) -> None:
-        import threading
-
-        self._lock = threading.Lock()
-        self._queue = list(names)
-        self.done: dict[str, MaterialFit] = {}
-        self.failed: list[str] = []
-
-    def take(self) -> str | None:
-        with self._lock:
-            return self._queue.pop(0) if self._queue else None
-
-    def finish(self, name: str, fit: MaterialFit) -> None:
-        with self._lock:
-            self.done[name] = fit
-
-    def fail(self, name: str) -> None:
-        with self._lock:
-            self.failed.append(name)
-
-
-class _FitChild:
-    """A child process (`python -m normbox_lab.analyze.fit_worker`) and the thread that feeds
-    it materials from `pending`, one at a time, over its stdin/stdout (pickles).  A plain
-    child, not multiprocessing's: those import the caller's ``__main__`` again."""
-
-    def __init__(self, pending: _Pending, w: float, data: Mapping[str, BrdfData]) -> None:
-        import subprocess
-        import sys
-        import threading
-
-        self.pending, self.w, self.data = pending, w, data
-        self.proc = subprocess.Popen([sys.executable, "-m", "normbox_lab.analyze.fit_worker"],
-                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE)
-        self.thread = threading.Thread(target=self._feed, name="fit-child", daemon=True)
-        self.thread.start()
-
-    def _feed(self) -> None:
-        import pickle
-
-        assert self.proc.stdin is not None and self.proc.stdout is not None
-        while (name := self.pending.take()) is not None:
-            try:
-                pickle.dump((self.data[name], self.w), self.proc.stdin)
-                self.proc.stdin.flush()
-                status, fit = pickle.load(self.proc.stdout)
-            except (OSError, EOFError, pickle.UnpicklingError):
-                status = "lost"
-            if status != "ok":
-                self.pending.fail(name)
-                if status == "lost":
-                    return
-                continue
-            self.pending.finish(name, fit)
-
-    def join(self) -> None:
-        self.thread.join()
-
-    def close(self) -> None:
-        import subprocess
-
-        if self.proc.stdin is not None:
-            try:
-                self.proc.stdin.close()        # the child ends at the end of its input
-            except OSError:
-                pass
-        try:
-            self.proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            self.proc.kill()
-            self.proc.wait()
-        if self.proc.stdout is not None:
-            self.proc.stdout.close()
 
 
 def fit_cost(fit: MaterialFit, data: BrdfData, w: float | None = None) -> float:

@@ -122,9 +122,18 @@ def _fmt(v: Any, digits: int = SIGNIFICANT_DIGITS) -> str:
 
 
 class _Doc:
-    """Collects sections, figures and tables with their human titles (for the contents)."""
+    """Collects sections, figures and tables with their human titles (for the contents).
 
-    def __init__(self) -> None:
+    A figure's SVG (most of a report's time: matplotlib lays it out and draws it) is made
+    when the page is assembled (`body`), by this process and `children` child processes
+    (`offload`), which start on the figures already collected while the rest are built; an
+    SVG is the same bytes wherever it is drawn."""
+
+    def __init__(self, children: int = 0) -> None:
+        self._children = children
+        self._offload: Any = None
+        #: index in `parts` → (figure id, title, caption, width px, height px), SVG to come
+        self._figures: dict[int, tuple[str, str, str, float, float]] = {}
         self.parts: list[str] = []
         self.sections: list[tuple[str, str, list[tuple[str, str]]]] = []
         self.figs: list[str] = []
@@ -141,15 +150,38 @@ class _Doc:
         self.parts.append(text)
 
     def figure(self, fid: str, title: str, fig: Any, caption: str) -> None:
-        from normbox_lab.analyze.report_style import svg_data_uri
+        from normbox_lab.analyze.offload import Offload
 
-        uri, w_px, h_px = svg_data_uri(fig)
-        self.parts.append(
-            f'<figure id="{fid}"><h3>{_esc(title)}</h3>'
-            f'<img alt="{_esc(title)}" width="{w_px:.0f}" height="{h_px:.0f}" src="{uri}">'
-            f"<figcaption>{_esc(caption)}</figcaption></figure>")
+        if self._offload is None:
+            self._offload = Offload("normbox_lab.analyze.report_style:svg_job",
+                                    self._children)
+        w_in, h_in = fig.get_size_inches()
+        self._figures[len(self.parts)] = (fid, title, caption, float(w_in) * 96.0,
+                                          float(h_in) * 96.0)
+        self._offload.submit(len(self.parts), (fig, np.get_printoptions()))
+        self.parts.append("")                 # the figure's HTML, when its SVG is drawn
         self.figs.append(fid)
         self.sections[-1][2].append((fid, title))
+
+    def _draw_figures(self) -> None:
+        """Every collected figure's SVG, into its place."""
+        from normbox_lab.analyze.report_style import svg_job
+
+        if self._offload is None:
+            return
+        uris = self._offload.finish_here(svg_job)
+        for at, (fid, title, caption, w_px, h_px) in self._figures.items():
+            self.parts[at] = (
+                f'<figure id="{fid}"><h3>{_esc(title)}</h3>'
+                f'<img alt="{_esc(title)}" width="{w_px:.0f}" height="{h_px:.0f}" '
+                f'src="{uris[at]}"><figcaption>{_esc(caption)}</figcaption></figure>')
+        self._offload, self._figures = None, {}
+
+    def close(self) -> None:
+        """End the children, if any (a report that failed while being built)."""
+        if self._offload is not None:
+            self._offload.close()
+            self._offload = None
 
     def table(self, tid: str, title: str, header: Sequence[str], rows: Sequence[Sequence[Any]],
               cell_class: Any = None, caption: str = "", digits: int = SIGNIFICANT_DIGITS
@@ -195,6 +227,7 @@ class _Doc:
         return "".join(out)
 
     def body(self) -> str:
+        self._draw_figures()
         return "".join(self.parts) + ("</section>" if self.sections else "")
 
 
@@ -278,10 +311,22 @@ def _campaign_line(d: ReportData) -> str:
 
 # -- the report ----------------------------------------------------------------------------------
 
-def build_html(d: ReportData) -> tuple[str, list[str], list[str]]:
+def build_html(d: ReportData, *, children: int | None = None
+               ) -> tuple[str, list[str], list[str]]:
     """(html, figure ids, table ids).  The adapted-convention ΔE00 is the comparison's own
-    (`ComparisonResult.delta_e00_adapted`, computed once by `compare`), not recomputed here."""
-    doc = _Doc()
+    (`ComparisonResult.delta_e00_adapted`, computed once by `compare`), not recomputed here.
+    `children`: child processes that draw figures (default `offload.idle_children()`; the
+    page is the same bytes with any number)."""
+    from normbox_lab.analyze.offload import idle_children
+
+    doc = _Doc(idle_children() if children is None else children)
+    try:
+        return _build(doc, d)
+    finally:
+        doc.close()
+
+
+def _build(doc: _Doc, d: ReportData) -> tuple[str, list[str], list[str]]:
     c = d.comparison
     adapted = _adapted(c)
     hl = headline(c, adapted) if c is not None and adapted is not None else None

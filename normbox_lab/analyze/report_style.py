@@ -101,3 +101,16 @@ def svg_data_uri(fig: Any) -> tuple[str, float, float]:
     w_in, h_in = fig.get_size_inches()
     uri = "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
     return uri, float(w_in) * 96.0, float(h_in) * 96.0
+
+
+def svg_job(payload: tuple[Any, dict[str, Any]]) -> str:
+    """``(figure, numpy print options)`` → the figure's SVG data URI (`svg_data_uri`): the
+    `offload` job of the report's figures.  The SVG's clip-path ids hash the clip boxes'
+    text, which numpy's print options shape (colour-science sets ``legacy="1.13"`` when it is
+    imported): a child draws under the options of the process that made the figure, so the
+    bytes are the ones that process would write."""
+    import numpy as np
+
+    fig, print_options = payload
+    with np.printoptions(**print_options):
+        return svg_data_uri(fig)[0]

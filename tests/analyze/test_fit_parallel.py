@@ -1,4 +1,4 @@
-"""`fit_materials` on two processes: the fits this process computes, bit for bit, handed on
+"""`fit_materials` on two processes (this one and a child): the fits this process computes, bit for bit, handed on
 in name order; unfittable data raise after the fits before them, as one after the other."""
 
 import numpy as np
@@ -34,7 +34,7 @@ def test_two_processes_give_the_same_fits_bit_for_bit_in_name_order():
     data = {n: _material(n, a, k) for k, (n, a) in
             enumerate([("wall", 0.4), ("p02", 0.2), ("p01", 0.3), ("p03", 0.6)])}
     seen: list[str] = []
-    fits = fit_materials(data, 2.0, workers=2, on_fit=lambda name, fit: seen.append(name))
+    fits = fit_materials(data, 2.0, children=1, on_fit=lambda name, fit: seen.append(name))
     assert seen == ["p01", "p02", "p03", "wall"]
     for name, d in data.items():
         _same(fits[name], fit_material(d, 2.0))
@@ -47,5 +47,5 @@ def test_unfittable_data_raise_after_the_fits_before_them():
     data["p02"] = bad
     seen: list[str] = []
     with pytest.raises(DataError, match="no valid samples"):
-        fit_materials(data, 2.0, workers=2, on_fit=lambda name, fit: seen.append(name))
+        fit_materials(data, 2.0, children=1, on_fit=lambda name, fit: seen.append(name))
     assert seen == ["p01"]

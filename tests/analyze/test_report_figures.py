@@ -143,7 +143,8 @@ def report_figures(tmp_path_factory):
 
     report_style.svg_data_uri = keep
     try:
-        html, fids, _ = build_html(data)
+        # every figure drawn here (children=0), in the page's order, so `keep` sees each
+        html, fids, _ = build_html(data, children=0)
     finally:
         report_style.svg_data_uri = original
     return html, dict(zip(fids, figures.values(), strict=True))
@@ -206,7 +207,7 @@ def test_the_checks_find_small_and_overlapping_text():
     doc = _Doc()
     doc.section("s", "S")
     doc.figure("fig-bad", "bad", fig, "")
-    assert svg_text_sizes_pt("".join(doc.parts))["fig-bad"] == (6.0, 6.0)
+    assert svg_text_sizes_pt(doc.body())["fig-bad"] == (6.0, 6.0)
     found = overlaps(fig)
     assert "'one label' / 'another label'" in found
     assert any(f.startswith("legend") and "a note" in f for f in found), found
@@ -215,7 +216,7 @@ def test_the_checks_find_small_and_overlapping_text():
     wide.set_size_inches(16.0, 2.0)
     wide.text(0.5, 0.5, "wide", fontsize=10)
     doc.figure("fig-wide", "wide", wide, "")
-    pt, own = svg_text_sizes_pt("".join(doc.parts))["fig-wide"]
+    pt, own = svg_text_sizes_pt(doc.body())["fig-wide"]
     assert own == 10.0 and pt == pytest.approx(10.0 * REPORT_COLUMN_PX / (16.0 * 96.0))
 
 
