@@ -348,3 +348,18 @@ def test_a_run_whose_protocol_file_name_looks_like_markup_is_listed_as_named(lab
             assert app.is_running
     asyncio.run(scenario())
     app.session.close()
+
+
+def test_a_protocol_path_that_looks_like_markup_is_named_as_typed(lab_env):
+    """`tui --protocol 'a[/b].py'` (no such file): the parameter box names the file; shown as
+    markup, the closing tag ended the console with a MarkupError."""
+    app = NormboxConsole(new_session(lab_env), protocol="a[/b].py")
+
+    async def scenario() -> None:
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(pilot, lambda: app.lab_ready, "the lab")
+            await pilot.pause(0.1)
+            assert "protocol file a[/b].py does not exist" in _screen_text(app)
+            assert app.is_running
+    asyncio.run(scenario())
+    app.session.close()

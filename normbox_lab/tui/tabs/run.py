@@ -225,7 +225,7 @@ class RunPane(TabPane):
     def set_protocols(self, names: list[str], current: str) -> None:
         """The protocol list: the Select takes the place of its face (the first call, right
         after the first paint), or gets the new list and value."""
-        options = [(n, n) for n in names]
+        options = [(Content(n), n) for n in names]      # a file's name as named, no markup
         for face in self.query("#protocol-face"):
             self.query_one("#run-top", Horizontal).mount(
                 Select(options, value=current, allow_blank=False, compact=True,
@@ -252,7 +252,7 @@ class RunPane(TabPane):
         self.query_one("#param-error", Static).update("")
         self.query_one("#param-error", Static).display = False
         if isinstance(params, Exception):
-            box.mount(Label(f"[red]{params}[/]"))
+            box.mount(Label(Content.styled(str(params), "red")))    # names a typed path
             return
         width = max((len(k) for k in params), default=8) + 2
         self.defaults = dict(params)
