@@ -200,9 +200,13 @@ def budget_run(store: Store, ref_run: int | str, *, sources: str | None = None,
 
 
 # --- the paper's observations, measured on a campaign ------------------------------------------
-def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str, str]]:
+def paper_observations(store: Store, ref_run: int | str,
+                       brdf_data: tuple[int, dict[str, Any]] | None = None
+                       ) -> list[tuple[str, str, str]]:
     """(observation, the paper's value, ours) for the paper-scenario table of
-    docs/error-budget.md, from a compared reference run (and its gonio run's fits)."""
+    docs/error-budget.md, from a compared reference run (and its gonio run's fits).
+    `brdf_data`: (gonio run id, its `fit.data_from_store_run`) when the caller has read it
+    (the report), used when that run is the latest gonio run (the one this table reads)."""
     from normbox_lab.acquire.queries import latest_fits
     from normbox_lab.analyze.compare import ComparisonResult
 
@@ -210,7 +214,8 @@ def paper_observations(store: Store, ref_run: int | str) -> list[tuple[str, str,
     c = ComparisonResult.from_artifact(store.latest_artifact("comparison", f"ref-run-{run.id}"))
     fits = latest_fits(store)
     return (_nrmse_rows(c) + _correlation_rows(c) + _fit_rows(fits) + _delta_e_rows(c)
-            + _wall_nse_rows(store, c, fits) + _neighbour_rows(c) + _offset_rows(store, run.id))
+            + _wall_nse_rows(store, c, fits, brdf_data) + _neighbour_rows(c)
+            + _offset_rows(store, run.id))
 
 
 def _paper(label: str) -> str:
@@ -280,7 +285,9 @@ def _delta_e_rows(c: Any) -> list[tuple[str, str, str]]:
               f"max {np.max(de):.2f}; > 2: {', '.join(map(str, above2)) or 'none'}"))]
 
 
-def _wall_nse_rows(store: Store, c: Any, fits: dict[str, Any]) -> list[tuple[str, str, str]]:
+def _wall_nse_rows(store: Store, c: Any, fits: dict[str, Any],
+                   brdf_data: tuple[int, dict[str, Any]] | None = None
+                   ) -> list[tuple[str, str, str]]:
     """The NSE at 90° (paper's sign) against the wall's fit error at (−70°, 80°), over λ."""
     from normbox_lab.acquire.queries import latest_run
     from normbox_lab.analyze.fit import data_from_store_run, fit_error_at
@@ -290,7 +297,8 @@ def _wall_nse_rows(store: Store, c: Any, fits: dict[str, Any]) -> list[tuple[str
     brdf = latest_run(store, "brdf-inplane")
     if brdf is None or "wall" not in fits:
         return []
-    data = data_from_store_run(store, brdf.id)
+    data = brdf_data[1] if brdf_data is not None and brdf_data[0] == brdf.id \
+        else data_from_store_run(store, brdf.id)
     if "wall" not in data or not np.any(np.isclose(ang, 90.0)):
         return []
     e = fit_error_at(fits["wall"], data["wall"], -70.0, 80.0)

@@ -165,7 +165,8 @@ def report_data_from_store(store: Store, ref_run: int | str, brdf_run: int | str
     try:
         from normbox_lab.analyze.budget_store import paper_observations
 
-        paper = paper_observations(store, run_id)
+        paper = paper_observations(store, run_id,
+                                   (brdf_id, data) if brdf_id is not None else None)
     except (StoreError, KeyError, ValueError):
         paper = []
     return ReportData(
