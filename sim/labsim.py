@@ -67,7 +67,7 @@ def check_sim_ports(config: Any) -> None:
     with them on a throwaway clock, then dropped), only fault kinds it has, within their
     ranges.  The lab config has read the spec's numbers and the seed
     (`acquire.params.parse_fault_spec`); the kinds are the emulator's table."""
-    from normbox_lab.acquire.params import SEED, ParameterError, read
+    from normbox_lab.acquire.params import SEED, ParameterError, check_emulator_options, read
     from normbox_lab.core.clock import VirtualClock
     from normbox_lab.core.errors import ConfigError
 
@@ -83,6 +83,7 @@ def check_sim_ports(config: Any) -> None:
         spec = options.pop("faults", "")
         try:
             seed = read(options.pop("seed", "0"), SEED, "seed")
+            check_emulator_options(options)
             if device == "qepro":            # on the emulated USB bus (sim.transport)
                 if spec:
                     core.FaultInjector(spec, 0, core.fault_table(device)[device])

@@ -61,7 +61,10 @@ def parse_tcp_endpoint(text: str) -> tuple[str, int]:
     if host not in LOOPBACK_FAMILIES:
         raise EndpointError(f"sim serve listens on loopback only (127.0.0.1, localhost, ::1), "
                             f"not {host!r}")
-    if not port_text.isdigit() or not 0 <= int(port_text) <= 65535:
+    # ASCII digits, at most 5 (str.isdigit() is true for "٣", which int() reads as 3; a
+    # 5000-digit port would hit Python's 4300-digit conversion limit)
+    if not (port_text.isascii() and port_text.isdigit() and len(port_text) <= 5) \
+            or not 0 <= int(port_text) <= 65535:
         raise EndpointError(f"--tcp port must be 0..65535, got {port_text!r}")
     return host, int(port_text)
 

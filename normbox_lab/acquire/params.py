@@ -598,6 +598,24 @@ def check_fault_values(rule: FaultRuleText, field: str = "faults") -> None:
         FAULT_PARAMETER.check(f"{field} {rule.kind}: X", rule.param, {}, None)
 
 
+#: the numeric options of the emulators (``sim://DEVICE?K=V``, ``sim serve --option K=V``):
+#: the emulators convert the text with float()/int(), which read "٣" as 3 and take NaN,
+#: 1e400 or a negative time factor; their text is read here first, as every number typed
+EMULATOR_OPTIONS: dict[str, Limit] = {
+    "baud": Count(1, 10_000_000),
+    "time_factor": Positive(zero=True, maximum=1e6),
+    "max_luminance_cd_m2": Positive("cd/m²", maximum=1e12),
+}
+
+
+def check_emulator_options(options: Mapping[str, str], field: str = "option") -> None:
+    """Every numeric emulator option's text through its kind (`EMULATOR_OPTIONS`); raises
+    `ParameterError` naming it.  Other options are the emulator's to check."""
+    for key, text in options.items():
+        if key in EMULATOR_OPTIONS:
+            read(str(text), EMULATOR_OPTIONS[key], f"{field} {key}")
+
+
 def option(kind: Limit, field: str = "") -> Callable[[str], Any]:
     """An argparse ``type=`` for a numeric option: the text read as `kind` within its
     limits; a refusal becomes argparse's one-line error (the command exits 2)."""
@@ -616,6 +634,7 @@ def option(kind: Limit, field: str = "") -> Callable[[str], Any]:
 
 
 __all__ = [
+    "EMULATOR_OPTIONS",
     "FAULT_AT",
     "FAULT_PARAMETER",
     "LAMP",
@@ -639,6 +658,7 @@ __all__ = [
     "Role",
     "angle_key",
     "angle_limits_deg",
+    "check_emulator_options",
     "check_fault_values",
     "check_parameters",
     "material_key",

@@ -12,6 +12,7 @@ from normbox_lab.acquire.params import (
     WORKERS,
     Number,
     ParameterError,
+    check_emulator_options,
     option,
     parse_fault_spec,
 )
@@ -193,6 +194,7 @@ def _serve(args: argparse.Namespace) -> int:
             return _fail(str(exc))
     try:
         check_fault_spec(args.faults)
+        check_emulator_options(options, "--option")
     except ParameterError as exc:
         return _fail(str(exc))
     try:

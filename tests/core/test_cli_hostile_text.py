@@ -229,7 +229,8 @@ def test_numbers_and_names_the_system_refuses_are_one_line(workdir, monkeypatch)
     """A 5000-digit run reference hit Python's 4300-digit limit; a 5000-character store or
     output name raised ENAMETOOLONG; a NUL byte raised ValueError; a lone surrogate in a
     renderer name failed in SQLite's encoder; `lab discover --timeout-s` was float()
-    (NaN, ٣ and -1 accepted)."""
+    (NaN, ٣ and -1 accepted); `sim serve --tcp` read the port with int(), `--option` its
+    numbers with the emulator's float()."""
     monkeypatch.chdir(workdir)
     for argv, expect in (
             (["qa", "9" * 5000, *S], "no run matches"),
@@ -244,7 +245,20 @@ def test_numbers_and_names_the_system_refuses_are_one_line(workdir, monkeypatch)
             (["lab", "discover", "--no-scan", "--no-usb", "--timeout-s", "NaN"],
              "NaN is not a finite number"),
             (["lab", "discover", "--no-scan", "--no-usb", "--timeout-s", "٣"],
-             "digits of another script")):
+             "digits of another script"),
+            # int() read "٣" as 3: sim serve listened on port 3
+            (["sim", "serve", "cs1000a", "--tcp", "127.0.0.1:٣"], "port must be 0..65535"),
+            (["sim", "serve", "cs1000a", "--tcp", "127.0.0.1:" + "9" * 5000],
+             "port must be 0..65535"),
+            # the emulators' float() took these, and served
+            (["sim", "serve", "cs1000a", "--pty", "--option", "time_factor=NaN"],
+             "--option time_factor: NaN is not a finite number"),
+            (["sim", "serve", "cs1000a", "--pty", "--option", "time_factor=٣"],
+             "--option time_factor: '٣' has digits of another script"),
+            (["sim", "serve", "cs1000a", "--pty", "--option", "time_factor=-1"],
+             "--option time_factor: -1 must be ≥ 0"),
+            (["sim", "serve", "cs1000a", "--pty", "--option", "baud=1e400"],
+             "--option baud: 1e400 is not a finite number")):
         code, err = _run(argv)
         assert code == 2 and expect in err and err.count("\n") == 1, (argv[:3], err[:300])
 
@@ -255,3 +269,17 @@ def test_zz_report_inputs_tried(capsys):
         print(f"\nhostile CLI inputs tried: {TRIED['default']} (default), {TRIED['slow']} "
               "(slow)")
     assert TRIED["default"] > 0
+
+
+def test_a_lab_configs_emulator_option_goes_through_the_one_parser(workdir, monkeypatch):
+    """``sim://cs1000a?time_factor=٣`` in the lab config ran the radiometer at ×3."""
+    monkeypatch.chdir(workdir)
+    text = (workdir / "lab.toml").read_text()
+    for value, expect in (("٣", "'٣' has digits of another script"),
+                          ("NaN", "NaN is not a finite number"), ("-2", "-2 must be ≥ 0")):
+        bad = workdir / "emulator-option.toml"
+        bad.write_text(text.replace('"sim://cs1000a"', f'"sim://cs1000a?time_factor={value}"'))
+        code, err = _run(["run", "reference-sweep", "--dry-run", "--lab", str(bad), *S])
+        assert code == 2 and err.count("\n") == 1, err
+        assert err.startswith(f"normbox-lab: error: {bad}:") and "radiometer.port: " in err
+        assert f"option time_factor: {expect}" in err, err
