@@ -148,6 +148,50 @@ def check_fault_spec(spec: str) -> None:
     parse_fault_spec(spec, "--faults")
 
 
+def _one_of(field: str, value: Any, allowed: Any) -> None:
+    from normbox_lab.acquire.params import show
+
+    if not isinstance(value, str) or value not in allowed:
+        raise ParameterError(f"{field}: {show(value)} is not one of {', '.join(allowed)}")
+
+
+def check_replay_scenario(scenario: Any) -> None:
+    """A replayed scenario's fields as a campaign draws them (JSON gives any type: params
+    "x" failed in `describe` with a traceback): whole numbers, a shipped protocol with its
+    own parameters within their limits, the lab's devices, world, policy and quality;
+    `ParameterError`, one line."""
+    from normbox_lab.acquire.params import check_parameters, show
+    from normbox_lab.acquire.plan import PROTOCOL_NAMES, load_protocol
+    from normbox_lab.sim.core import devices_for
+
+    for field, value, kind in (("seed", scenario.seed, SEED),
+                               ("index", scenario.index, Number(0, 10**9, whole=True))):
+        if not isinstance(value, int) or isinstance(value, bool):
+            raise ParameterError(f"{field}: {show(value)} is not a whole number")
+        kind.check(field, value, {}, None)
+    _one_of("protocol", scenario.protocol, [p for p in PROTOCOL_NAMES if p != "lab-check"])
+    _one_of("world", scenario.world, ("analytic", "normbox", "none"))
+    _one_of("radiometer", scenario.radiometer, devices_for("radiometer"))
+    _one_of("rotator", scenario.rotator, devices_for("rotator"))
+    _one_of("policy", scenario.policy, ("retry", "skip", "abort"))
+    _one_of("quality", scenario.quality, ("quick", "default", "high"))
+    _one_of("radiometer_format", scenario.radiometer_format, ("ascii", "binary", "hex"))
+    if not isinstance(scenario.params, dict) or not isinstance(scenario.extra, dict):
+        raise ParameterError("params and extra: expected JSON objects")
+    module = load_protocol(scenario.protocol)
+    unknown = [k for k in scenario.params if k not in module.PARAMETERS]
+    if unknown:
+        raise ParameterError(f"params: {show(unknown[0])} is no parameter of "
+                             f"{scenario.protocol}")
+    check_parameters(vars(module).get("LIMITS") or {}, scenario.params)
+    for action in scenario.actions:
+        if not (isinstance(action.what, str) and isinstance(action.event, str)
+                and isinstance(action.nth, int) and not isinstance(action.nth, bool)
+                and 1 <= action.nth <= 10**6):
+            raise ParameterError(f"action {show(action.what)}: what and event are names, "
+                                 "nth a whole number from 1")
+
+
 def check_replay_faults(scenario: Any) -> None:
     """A replayed scenario's faults (JSON numbers: NaN, 1e400 and a huge count parse) through
     the same kinds as a ``--faults`` spec, then the device's own table (kinds and ranges):
@@ -239,9 +283,10 @@ def _campaign(args: argparse.Namespace) -> int:
 
         try:
             scenario = Scenario.from_json(args.replay)
-        except (ValueError, TypeError, KeyError) as exc:
+        except (ValueError, TypeError, KeyError, RecursionError) as exc:   # [[[[…: too deep
             return _fail(f"--replay wants a scenario as printed by a campaign: {exc}")
         try:
+            check_replay_scenario(scenario)
             check_replay_faults(scenario)
         except ParameterError as exc:
             return _fail(f"--replay: {exc}")

@@ -283,3 +283,35 @@ def test_a_lab_configs_emulator_option_goes_through_the_one_parser(workdir, monk
         assert code == 2 and err.count("\n") == 1, err
         assert err.startswith(f"normbox-lab: error: {bad}:") and "radiometer.port: " in err
         assert f"option time_factor: {expect}" in err, err
+
+
+@pytest.mark.parametrize("replay, expect", [
+    ("[" * 100_000, "maximum recursion depth exceeded"),
+    ('{"seed": "x", "index": 0, "protocol": "reference-sweep", "params": {}}',
+     "seed: 'x' is not a whole number"),
+    ('{"seed": 0, "index": 0, "protocol": "../x.py", "params": {}}',
+     "protocol: '../x.py' is not one of reference-sweep"),
+    ('{"seed": 0, "index": 0, "protocol": "reference-sweep", "params": "x"}',
+     "params and extra: expected JSON objects"),
+    (('{"seed": 0, "index": 0, "protocol": "reference-sweep", "params": {"angles_deg": '
+     '[1e400]}}'), "angles_deg: Infinity is not a finite number"),
+    ('{"seed": 0, "index": 0, "protocol": "reference-sweep", "params": {}, "world": 5}',
+     "world: 5 is not one of analytic"),
+])
+def test_a_replayed_scenario_of_any_shape_is_one_line(replay, expect):
+    """A replay is JSON a person pastes: nested 100 000 deep it was a RecursionError
+    traceback; params "x" a traceback in `describe`; a seed "x", a protocol path or NaN
+    angles ran as a scenario."""
+    code, err = _run(["sim", "campaign", "--replay", replay, "--scenarios", "1"])
+    assert code == 2 and err.count("\n") == 1 and expect in err, err
+
+
+def test_every_drawn_scenario_passes_the_replay_check():
+    """What a campaign prints, it replays: 300 drawn scenarios pass the shape check."""
+    from normbox_lab.campaign.scenario import Scenario, draw
+    from normbox_lab.commands.sim import check_replay_faults, check_replay_scenario
+
+    for index in range(300):
+        scenario = Scenario.from_json(draw(7, index, normbox_share=0.2).to_json())
+        check_replay_scenario(scenario)
+        check_replay_faults(scenario)
