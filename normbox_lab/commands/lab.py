@@ -52,7 +52,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     c.add_argument("--lab", metavar="LAB.toml", default="lab.toml",
                    help="lab config (default ./lab.toml)")
     add_store_argument(c)
-    c.add_argument("--roles", default="", metavar="R1,R2",
+    c.add_argument("--roles", default=None, metavar="R1,R2",
                    help="check only these instruments (default: every one configured)")
     c.add_argument("--param", action="append", default=[], metavar="K=V",
                    help="a lab-check parameter (e.g. sphere_level_percent=50)")
@@ -92,14 +92,30 @@ def _discover(args: argparse.Namespace) -> int:
     return 0 if found else 1
 
 
+def _roles(text: str) -> list[str]:
+    """--roles R1,R2 as the one parser reads a list (an empty item, ``radiometer,,rotator``,
+    is refused as ``30,,60`` is), each role once, at least one; which roles the lab has is
+    the protocol's check."""
+    from normbox_lab.acquire.params import ParameterError, parse_items, show
+
+    roles = parse_items(text, "--roles")
+    if not roles:
+        raise ParameterError("--roles: empty; name at least one instrument (or leave the "
+                             "option out: every one configured)")
+    for k, role in enumerate(roles):
+        if role in roles[:k]:
+            raise ParameterError(f"--roles: {show(role)} is given twice")
+    return roles
+
+
 def _check(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.config import load_config
     from normbox_lab.commands.run import _parse_overrides
 
     config = load_config(args.lab)
     overrides = _parse_overrides("lab-check", args.param)
-    if args.roles:
-        overrides["roles"] = [r.strip() for r in args.roles.split(",") if r.strip()]
+    if args.roles is not None:
+        overrides["roles"] = _roles(args.roles)
     overrides["strict"] = bool(args.strict)
     from normbox_lab.protocols import lab_check
     from normbox_lab.sim.labsim import build_lab

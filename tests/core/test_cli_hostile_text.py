@@ -258,7 +258,13 @@ def test_numbers_and_names_the_system_refuses_are_one_line(workdir, monkeypatch)
             (["sim", "serve", "cs1000a", "--pty", "--option", "time_factor=-1"],
              "--option time_factor: -1 must be ≥ 0"),
             (["sim", "serve", "cs1000a", "--pty", "--option", "baud=1e400"],
-             "--option baud: 1e400 is not a finite number")):
+             "--option baud: 1e400 is not a finite number"),
+            # lab check --roles was split on commas: an empty item dropped, "" meant every one
+            (["lab", "check", "--lab", "lab.toml", "--roles", "radiometer,,rotator", *S],
+             "--roles: 'radiometer,,rotator' has an empty item"),
+            (["lab", "check", "--lab", "lab.toml", "--roles", "rotator,rotator", *S],
+             "--roles: 'rotator' is given twice"),
+            (["lab", "check", "--lab", "lab.toml", "--roles", "", *S], "--roles: empty")):
         code, err = _run(argv)
         assert code == 2 and expect in err and err.count("\n") == 1, (argv[:3], err[:300])
 
