@@ -111,7 +111,7 @@ def _spectral(patch, wall, angle_deg):
     from normbox_lab.predict.render import Quality, render_view
 
     return render_view(patch=patch, wall=wall, angle_deg=angle_deg, cache=False, seed=5,
-                       quality=Quality("triplet-test", spp=1024, batches=10))
+                       quality=Quality("triplet-test", spp=1024, batches=30))
 
 
 def test_triplets_agree_with_stock_spectral_render(red_patch_30):
