@@ -205,8 +205,8 @@ def stock_to_target(render: Callable[[int, int, int], Any], colour: Colour,
                  noise(pilot.batches, colour, of_mean=True).items()}
     out = {}
     for qi, q in enumerate(QUANTITIES):
-        # the largest spp that still needs ≥ 16 batches (fewest calls; the stratified sampler
-        # gains with spp), else 16 spp × 16 batches
+        # the largest spp that still needs ≥ 16 batches (fewest calls), else 16 spp × 16
+        # batches
         spp, batches = STOCK_SPP[0], STOCK_MIN_BATCHES
         for s in STOCK_SPP:
             need = (per_batch[q] * math.sqrt(pilot_spp / s) / targets[q]) ** 2
