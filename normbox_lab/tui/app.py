@@ -22,7 +22,7 @@ from textual.widget import Widget
 from textual.widgets import Footer, Input, Select, Static, TabbedContent
 
 from normbox_lab.core.clock import Clock, RealClock
-from normbox_lab.core.errors import ConfigError
+from normbox_lab.core.errors import BadPath, ConfigError
 from normbox_lab.tui.controller import Session, fault_text
 from normbox_lab.tui.screens import HIDDEN, DrillScreen, PromptScreen, ResumeScreen, prompt_text
 from normbox_lab.tui.tabs import (
@@ -120,9 +120,9 @@ class NormboxConsole(App):
         self.events_seen: list[str] = []
         self.toasts_shown: list[str] = []
         self.lab_error = ""                   # why the lab could not be assembled
-        #: a lab config the console cannot use (read after the first paint): the console
-        #: ends and the command line says it in one line, exit 2
-        self.startup_error: ConfigError | None = None
+        #: a lab config or a store the console cannot use (read after the first paint): the
+        #: console ends and the command line says it in one line, exit 2
+        self.startup_error: ConfigError | BadPath | None = None
         self.dry: Any = None                  # the latest dry run
         self._paint_tries = 0                 # refreshes waited for the footer's keys
         self._status_text = ""                # the top line's lab part
@@ -210,7 +210,11 @@ class NormboxConsole(App):
     def _load(self) -> None:
         s = self.session
         try:
-            s.open_store()
+            try:
+                s.open_store()
+            except BadPath as exc:       # --store names no store (a directory, another file)
+                self.call_from_thread(self._end_with, exc)
+                return
             runs = s.unfinished_runs()
             if runs and not self.prefill:
                 self.call_from_thread(self._show_run_parameters, runs[-1])
@@ -223,6 +227,12 @@ class NormboxConsole(App):
             self.post_message(LabReady())
         except Exception as exc:  # noqa: BLE001 - shown to the operator, the console stays up
             self.post_message(LabReady(f"{type(exc).__name__}: {exc}"))
+
+    def _end_with(self, error: BadPath) -> None:
+        """A refusal of what was typed, found after the first paint: the console ends, and
+        the command line says it in one line (exit 2)."""
+        self.startup_error = error
+        self.exit(return_code=2)
 
     def on_lab_ready(self, message: LabReady) -> None:
         if message.error:

@@ -207,8 +207,9 @@ def test_quit_while_paused_then_resume_offered_at_start(lab_env):
 
     async def second() -> None:
         async with app2.run_test(size=(80, 24)) as pilot:
-            await until(pilot, lambda: isinstance(app2.screen, ResumeScreen), "the offer")
-            assert "1 interrupted run" in str(app2.screen.query_one("Label").render())
+            await until(pilot, lambda: isinstance(app2.screen, ResumeScreen)
+                        and bool(app2.screen.query("Label")), "the offer, composed")
+            assert "1 interrupted run" in str(app2.screen.query("Label").first().render())
             await pilot.press("enter")
             # the first missing reading is a30/p09: a fresh process knows nothing of the
             # physical state, so it asks for that patch again, and never for a committed one
@@ -296,6 +297,26 @@ def test_a_lab_config_the_console_cannot_use_ends_it_with_one_line(lab_env, monk
     assert "instruments.radiometer.port: faults 'garble@٣'" in err
     assert main(["tui", "--lab", str(lab_env / "none.toml")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_a_store_the_console_cannot_use_ends_it_with_one_line(lab_env, monkeypatch, capsys):
+    """Opened after the first paint, a --store that names no store (a directory, a text
+    file, a device) ended nothing: the console stayed up on "lab not ready".  It ends with
+    one line, exit 2, as `runs --store` refuses it."""
+    from textual.app import App
+
+    from normbox_lab.cli import main
+
+    text = lab_env / "notes.txt"
+    text.write_text("not a store\n" * 20)
+    monkeypatch.setattr(NormboxConsole, "run", lambda self: App.run(self, headless=True))
+    for store, expect in ((str(text), "not a normbox-lab store"),
+                          (str(lab_env), "not a file"), ("/dev/zero", "not a file")):
+        capsys.readouterr()
+        assert main(["tui", "--store", store, "--world", "analytic"]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"normbox-lab: error: {store}") and expect in err, err
+        assert err.count("\n") == 1, err
 
 
 def test_quit_while_measuring_pauses_after_the_current_reading(lab_env):
