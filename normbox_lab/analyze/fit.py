@@ -59,6 +59,9 @@ DEFAULT_STARTS: tuple[tuple[float, float, float], ...] = (
 _INV_PI = 1.0 / np.pi
 #: the wavelength step (nm) of the coarse outer fit (see the module docstring)
 OUTER_STEP_NM = 10.0
+#: inner optima a `FitProblem` keeps (an outer evaluation's Jacobian, the polish's start and
+#: the final solve at the optimum find theirs there)
+_SOLVED_KEPT = 64
 
 
 @dataclass
@@ -152,7 +155,8 @@ class FitProblem:
         self.g_hat = np.log1p(self.mu * self.y)
         # weights of the linearised problem, μ/(1 + μy)
         self.s_lin = self.m * self.mu / (1.0 + self.mu * self.y)
-        self._cache: tuple[tuple[float, ...], np.ndarray, np.ndarray] | None = None
+        #: (α, η, c) → the inner optimum (kd, ks), the last `_SOLVED_KEPT` solved
+        self._solved_at: dict[tuple[float, ...], tuple[np.ndarray, np.ndarray]] = {}
 
     # -- model pieces ----------------------------------------------------------------------
     def basis(self, alpha: float, eta: float) -> np.ndarray:
@@ -258,9 +262,13 @@ class FitProblem:
 
     def _solved(self, p: Sequence[float]) -> tuple[np.ndarray, np.ndarray]:
         key = tuple(float(v) for v in p)
-        if self._cache is None or self._cache[0] != key:
-            self._cache = (key, *self.inner(*key))
-        return self._cache[1], self._cache[2]
+        found = self._solved_at.pop(key, None)
+        if found is None:
+            found = self.inner(*key)
+            if len(self._solved_at) >= _SOLVED_KEPT:
+                del self._solved_at[next(iter(self._solved_at))]
+        self._solved_at[key] = found          # the most recent last
+        return found
 
     def projected_residuals(self, p: Sequence[float]) -> np.ndarray:
         """Residuals at the inner optimum for (α, η, c): the outer least-squares function."""
@@ -340,10 +348,10 @@ def fit_material(data: BrdfData, w: float = 2.0, *,
     if full is not coarse:
         polish = _outer(full, x, lo, hi)
         nfev += polish.nfev
-        if 2.0 * polish.cost <= full.cost(*full.inner(*x), *x):
+        if 2.0 * polish.cost <= full.cost(*full._solved(x), *x):
             x, final = polish.x, polish
     alpha, eta, c = (float(v) for v in x)
-    kd, ks = full.inner(alpha, eta, c)
+    kd, ks = full._solved((alpha, eta, c))  # the polish solved it (kept): not again
     kd, c = canonical_c(kd, c, float(lo[2]))
     fit = MaterialFit(data.name, data.wavelength_nm, kd, ks, alpha, eta, c, 0.0, float(w),
                       cost=full.cost(kd, ks, alpha, eta, c), tilt_deg=data.tilt_deg,
