@@ -285,8 +285,8 @@ def test_agrees_with_stock_mitsuba_within_mc_error(truth, patch_no, angle_deg):
     fast = FastNormbox().render_view(patch=patch, wall=wall, angle_deg=angle_deg,
                                      n_paths=1 << 16, seed=2)
     stock = render_view(patch=patch, wall=wall, angle_deg=angle_deg,
-                        quality=Quality("test", spp=32, batches=16), cache=False, seed=9)
-    z = _agreement(fast, stock)
+                        quality=Quality("test", spp=8, batches=64), cache=False, seed=9)
+    z = _agreement(fast, stock)             # 64 batches: z close to a unit normal
     assert np.sum(np.abs(z) > 3.0) <= 4, z
     assert abs(np.mean(z)) < 0.8, z
 
