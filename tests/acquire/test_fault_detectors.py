@@ -182,7 +182,7 @@ def test_small_negative_values_are_refused_or_flagged(tmp_path, model):
 # --- QE Pro ----------------------------------------------------------------------------------
 
 def _qepro(faults: str):
-    from test_qepro import FlatWorld
+    from worlds import FlatWorld
 
     from normbox_lab.drivers.qepro import QEPro
     from normbox_lab.sim import qepro as simq

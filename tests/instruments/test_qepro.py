@@ -8,20 +8,13 @@ import sys
 
 import numpy as np
 import pytest
+from worlds import FlatWorld
 
 from normbox_lab.core.clock import VirtualClock
 from normbox_lab.core.errors import DeviceError, InstrumentError
 from normbox_lab.drivers.qepro import QEPro
 from normbox_lab.sim import core
 from normbox_lab.sim import qepro as sim
-
-
-class FlatWorld:
-    def __init__(self, brdf_per_sr: float) -> None:
-        self.f = brdf_per_sr
-
-    def brdf_truth(self, theta_i_deg, theta_o_deg, tilt_deg, wavelength_nm):
-        return np.full(np.shape(wavelength_nm), self.f)
 
 
 def open_sim(brdf_per_sr: float = 0.5 / np.pi, query: str = "") -> tuple[QEPro, sim.SimulatedQEProDevice]:
