@@ -30,8 +30,12 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _import_brdf(args: argparse.Namespace) -> int:
     from normbox_lab.acquire.importers import load_brdf_json, store_brdf
     from normbox_lab.acquire.store import Store
+    from normbox_lab.core.errors import BadInputFile, DataError
 
-    data = load_brdf_json(input_path(args.file, "FILE"), args.material)
+    try:
+        data = load_brdf_json(input_path(args.file, "FILE"), args.material)
+    except DataError as exc:        # the file named is no BRDF JSON: a refusal, exit 2
+        raise BadInputFile(exc.file, exc.location, exc.message) from None
     with Store(args.store) as store:
         run_id = store_brdf(store, data, tilt_deg=args.tilt_deg)
     print(f"imported {len(data.theta_i_deg)} geometries × {len(data.wavelength_nm)} wavelengths "

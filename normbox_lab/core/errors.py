@@ -92,7 +92,15 @@ class DataError(NormboxError):
     def __init__(self, file: str, location: str, message: str) -> None:
         self.file = str(file)
         self.location = location
+        self.message = message
         super().__init__(f"{self.file}: {location}: {message}")
+
+
+class BadInputFile(DataError):
+    """A file a person named for import that is not what the command reads (malformed, of
+    another kind): a refusal of what was given, exit 2 (as `import prediction`'s file)."""
+
+    exit_code = 2
 
 
 class StoreError(NormboxError):

@@ -60,8 +60,9 @@ def test_init_runs_export_import(tmp_path, capsys, monkeypatch):
 def test_bad_import_reports_place(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     (tmp_path / "bad.json").write_text('[{"wavelengths": [400]}, {"thetaIn": 0}]')
-    assert main(["import", "brdf-json", "bad.json"]) == 1
-    assert "bad.json: element 1: missing field 'phiIn'" in capsys.readouterr().err
+    assert main(["import", "brdf-json", "bad.json"]) == 2      # a refusal of the file named
+    err = capsys.readouterr().err
+    assert "bad.json: element 1: missing field 'phiIn'" in err and err.count("\n") == 1
 
 
 @pytest.mark.parametrize("params, expect", [

@@ -64,6 +64,7 @@ COMMANDS: list[list[str]] = [
     ["import", "prediction", "{X}", "--ref-run", "1", "--renderer", "r", *S],
     ["import", "prediction", "pred.csv", "--ref-run", "{X}", "--renderer", "r", *S],
     ["import", "prediction", "pred.csv", "--ref-run", "1", "--renderer", "{X}", *S],
+    ["import", "brdf-json", "{X}", *S],
     ["import", "brdf-json", "brdf.json", "--tilt-deg", "{X}", BAD],
     ["fit", "{X}", *S], ["fit", "1", "-w", "{X}", BAD],
     ["predict", "{X}", *S], ["predict", "1", "--target-se", "{X}", BAD],
@@ -97,7 +98,7 @@ COMMANDS: list[list[str]] = [
 #: what a command finds in the store, not a refusal of what was typed: exit 1 (the run
 #: named is a reference sweep without BRDFs, fits, prediction or comparison; or done)
 FOUND = ("no BRDF readings to fit", "no fits for", "no artifact", "has no prediction",
-         "is already done; nothing to resume", "top level: must be a non-empty JSON array")
+         "is already done; nothing to resume")
 
 TRIED = {"default": 0, "slow": 0}
 
