@@ -263,7 +263,8 @@ def run_demo(opts: DemoOptions, on_progress: Callable[[str, int, int], None] | N
     prewarm = start_prewarm(opts, config_path)
     world, render = stages.timed("set-up", lambda: make_world(config, opts, quality))
     lab = build_lab(config, world=world)
-    store = Store(store_path)
+    # simulated readings: a commit survives a crash (kill -9), not a power cut (no fsync each)
+    store = Store(store_path, durable="crash")
     try:
         done = _campaign(stages, _Scene(lab, store, config, world, render, quality, out),
                          opts, progress)

@@ -23,6 +23,15 @@ def test_pragmas_and_schema(store):
     assert store.integrity_check() == "ok"
 
 
+def test_a_store_for_crashes_only_commits_without_an_fsync_each(tmp_path):
+    with Store(tmp_path / "s.sqlite", durable="crash") as s:
+        s.create_run("light-map")
+        assert s._db.execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+        assert s._db.execute("PRAGMA synchronous").fetchone()[0] == 1     # NORMAL
+    with pytest.raises(ValueError, match="durable='fast'"):
+        Store(tmp_path / "t.sqlite", durable="fast")
+
+
 def test_spectral_round_trip_is_exact(store):
     run = store.create_run("reference-sweep", parameters={"angles_deg": [30, 35]},
                            lab_config="[lab]\n", seeds={"noise": 3}, planned=2)
