@@ -197,46 +197,6 @@ def test_a_cache_that_cannot_be_written_renders_and_keeps_nothing(tmp_path):
     assert calls == [1, 1] and blocker.read_text() == "x"
 
 
-def test_the_launches_work_unit_size_changes_no_bit():
-    """`mitsuba_setup.LLVM_BLOCK_SIZE` splits a 16 384-path launch over the cores; Dr.Jit's
-    default (16 384: one work unit) gives the same bits, for the radiometer view (plain tracer,
-    all patches per path) and the camera."""
-    from normbox_lab.images import normbox_view
-    from normbox_lab.predict import materials as mats
-    from normbox_lab.predict.mitsuba_setup import LLVM_BLOCK_SIZE, apply_llvm_block_size
-
-    patch, wall = _model_materials()
-    dispersive = mats.truth_patch(13, "default")
-    box = FastNormbox()
-    nc = normbox_view.normbox_camera_renderer()
-
-    def renders() -> list[np.ndarray]:
-        views = [box.render_view(patch=p, wall=wall, angle_deg=60.0, n_paths=1 << 14, seed=3)
-                 for p in (patch, dispersive)]
-        image = nc.render(patch=patch, wall=wall, angle_deg=60.0, width=32, height=24, spp=4,
-                          seed=3)
-        return [v.radiance for v in views] + [image.radiance, image.diffuse]
-
-    import ctypes
-
-    from normbox_lab.predict.mitsuba_setup import _drjit_core
-
-    in_force = _drjit_core()._Z19jit_llvm_block_sizev
-    in_force.restype = ctypes.c_uint32
-    try:
-        apply_llvm_block_size(16384)
-        assert in_force() == 16384
-        default = renders()
-        apply_llvm_block_size(LLVM_BLOCK_SIZE)
-        assert in_force() == LLVM_BLOCK_SIZE
-        split = renders()
-    finally:
-        apply_llvm_block_size(LLVM_BLOCK_SIZE)
-    assert LLVM_BLOCK_SIZE < 16384
-    for a, b in zip(default, split, strict=True):
-        np.testing.assert_array_equal(a, b)
-
-
 def test_seeded_results_are_reproducible_and_angle_moves_are_exact():
     patch, wall = _model_materials()
     moved = FastNormbox()
