@@ -16,7 +16,9 @@ talk bytes to the emulators, the store keeps every reading, the pipeline reads t
 
 Rendering: by default both the world (truth materials, `sim.fast_world.FastVirtualNormbox`) and
 the prediction (fitted materials) use the band-vector renderer `fastrender.FastNormbox` with
-per-configuration seeds from independent streams, one scene per process; `--renderer stock`
+seeds from independent streams, one scene per process: the truth one render per configuration
+(its materials are dispersive), the prediction every patch of an angle from one set of paths
+(`PredictionRender.angle`); `--renderer stock`
 uses Mitsuba's own spectral path tracer (`render.render_view`, cached on disk), slower.  `--quick` is the reduced version for tests: 4 patches × 3 angles,
 coarse renders.
 """
@@ -151,22 +153,50 @@ def make_world(config: Any, opts: DemoOptions, quality: str, *,
 
     if opts.renderer == "stock":
         return VirtualNormbox(config=config), None
-    from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox, config_seed
-    from normbox_lab.sim.fast_world import PREDICTION_SEED, FastVirtualNormbox
+    from normbox_lab.predict.fastrender import FAST_TARGET_REL_SE, FastNormbox
+    from normbox_lab.sim.fast_world import FastVirtualNormbox
 
     target = prediction_rel_se if prediction_rel_se is not None else FAST_TARGET_REL_SE[quality]
     world = FastVirtualNormbox(config=config, target_rel_se=truth_rel_se)
     # the truth geometry (perturbed by the `geometry`/`homogeneity` error sources, if on)
     fast = world.fast if world.geometry == config.geometry else FastNormbox(config.geometry)
+    return world, PredictionRender(fast, target, world.cache_dir)
 
-    def render(geometry, *, patch, wall, holder, angle_deg, lamp=None, quality=None,
-               direct_only=False):
-        return fast.render_view(patch=patch, wall=wall, holder=holder, angle_deg=angle_deg,
-                                lamp=lamp, target_rel_se=target, direct_only=direct_only,
-                                seed=config_seed(PREDICTION_SEED,
-                                                 f"{config_name(patch.name)}@{float(angle_deg):g}"),
-                                cache_dir=world.cache_dir)
-    return world, render
+
+@dataclass
+class PredictionRender:
+    """The demo's prediction renders (fitted materials, nominal geometry, `PREDICTION_SEED`'s
+    stream), kept in the render cache.  Called for one configuration (the light shares, or
+    `predict_run` without `render_angle`); `angle` renders every patch of an angle from one set
+    of paths (all patches per path: the patches' estimates are correlated with one another,
+    each is unbiased with its own standard error, none shares the truth's random numbers)."""
+
+    fast: Any
+    target_rel_se: float
+    cache_dir: str | None
+
+    def __call__(self, geometry: Any, *, patch: Any, wall: Any, holder: Any,
+                 angle_deg: float, lamp: Any = None, quality: str | None = None,
+                 direct_only: bool = False) -> Any:
+        from normbox_lab.predict.fastrender import config_seed
+        from normbox_lab.sim.fast_world import PREDICTION_SEED
+
+        return self.fast.render_view(
+            patch=patch, wall=wall, holder=holder, angle_deg=angle_deg, lamp=lamp,
+            target_rel_se=self.target_rel_se, direct_only=direct_only,
+            seed=config_seed(PREDICTION_SEED, f"{config_name(patch.name)}@{float(angle_deg):g}"),
+            cache_dir=self.cache_dir)
+
+    def angle(self, geometry: Any, *, patches: list[Any], wall: Any, holder: Any,
+              angle_deg: float, lamp: Any = None, quality: str | None = None) -> list[Any]:
+        from normbox_lab.predict.fastrender import config_seed
+        from normbox_lab.sim.fast_world import PREDICTION_SEED
+
+        return self.fast.render_patches(
+            patches=patches, wall=wall, holder=holder, angle_deg=angle_deg, lamp=lamp,
+            target_rel_se=self.target_rel_se,
+            seed=config_seed(PREDICTION_SEED, f"all patches@{float(angle_deg):g}"),
+            cache_dir=self.cache_dir)
 
 
 def config_name(fit_name: str) -> str:
@@ -364,6 +394,7 @@ def _campaign(stages: _Stages, sc: _Scene, opts: DemoOptions,
     lamp = lamp_from_light_map(store, light.run_id)
     timed("predict", lambda: predict_run(store, ref.run_id, geometry=sc.config.geometry,
                                          quality=sc.quality, lamp=lamp, render=sc.render,
+                                         render_angle=sc.render.angle if sc.render is not None else None,
                                          progress=progress, accept_flagged=True))
     comparison = timed("compare", lambda: compare_run(store, ref.run_id, brdf.run_id,
                                                       accept_flagged=True))

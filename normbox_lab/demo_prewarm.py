@@ -13,8 +13,8 @@ materials of the same families:
 
 - the truth's radiometer view (`FastNormbox.render_view` with the truth materials: the sweep
   and the white reference);
-- the prediction's (the fit model's family: all patches per path with one patch), and its
-  direct light alone (the light shares);
+- the prediction's (the fit model's family: all patches per path, with one patch and with the
+  sweep's patch count, `--patches`), and its direct light alone (the light shares);
 - the camera with and without layers (one set for truth and prediction: `CameraTracer`'s
   general materials).
 
@@ -47,11 +47,13 @@ ANGLE_DEG = 45.0
 PATCH = 7
 
 
-def prewarm_kernels(truth: str = "default", *, camera: bool = True,
+def prewarm_kernels(truth: str = "default", *, camera: bool = True, n_patches: int = 24,
                     on_step: Callable[[str, float], None] | None = None
                     ) -> list[tuple[str, float]]:
     """Render every kernel path of the campaign at a token size; (path, seconds) each
-    (`on_step` is told after each one: the demo may end this process at any time)."""
+    (`on_step` is told after each one: the demo may end this process at any time).
+    `n_patches`: the sweep's patch count, which the prediction renders per path (all
+    patches per path compiles kernels per count)."""
     from normbox_lab.images.normbox_view import normbox_camera_renderer
     from normbox_lab.predict import materials as mats
 
@@ -71,6 +73,9 @@ def prewarm_kernels(truth: str = "default", *, camera: bool = True,
         patch=truth_patch, wall=truth_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=1))
     step("prediction radiometer view", lambda: box.render_view(
         patch=fit_patch, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=2))
+    step(f"prediction, {n_patches} patches per path", lambda: box.render_patches(
+        patches=[fit_patch] * n_patches, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048,
+        seed=2))
     step("prediction, direct light only", lambda: box.render_view(
         patch=fit_patch, wall=fit_wall, angle_deg=ANGLE_DEG, n_paths=2048, seed=3,
         direct_only=True))
@@ -145,7 +150,8 @@ def main(argv: list[str] | None = None) -> int:
                 "launches": stats.launches, "ir_ops_max": stats.ir_ops_max}))
             tmp.replace(args.stats_json)          # whole, even if the demo ends us now
 
-    prewarm_kernels(args.truth, camera=not args.no_camera, on_step=report)
+    prewarm_kernels(args.truth, camera=not args.no_camera,
+                    n_patches=len(args.patches) or 24, on_step=report)
     if args.ahead:
         render_truth_ahead(args.ahead, [int(p) for p in args.patches], args.angles,
                            on_step=report)

@@ -87,7 +87,7 @@ def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None
                 target_se: float | None = None, renderer: str = "fast", lamp: Any = None,
                 render: Callable[..., Any] | None = None,
                 progress: ProgressFn = _noop, accept_flagged: bool = False,
-                executor: Any = None) -> int:
+                executor: Any = None, render_angle: Callable[..., Any] | None = None) -> int:
     """Render every patch × angle of the reference run with the fitted materials.  Error
     flags on the reference run or on the (stored) fits used are refused unless
     `accept_flagged`.
@@ -98,7 +98,10 @@ def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None
     all configurations as independent jobs on `executor`: in process by default, or a dask
     cluster; the results do not depend on the executor) or "mitsuba" (the stock renderer,
     one configuration after the other, in process).  `render`: a render function used for
-    every configuration instead (a simulated lab's, a test's), called with `quality`."""
+    every configuration instead (a simulated lab's, a test's), called with `quality`; with
+    `render_angle` (every patch of one angle in one call: `patches=[...]`, a result per patch
+    in order; the demo's all patches per path), the sweep goes through that and `render`
+    renders the light shares."""
     from normbox_lab.analyze import qa
     from normbox_lab.predict.materials import Material, holder_material
     from normbox_lab.predict.precision import RENDERERS
@@ -126,7 +129,13 @@ def predict_run(store: Store, ref_run: int | str, *, fits: dict[str, Any] | None
     holder = holder_material()
     materials = {fit_key(p): Material.from_fit(fits[fit_key(p)]) for p in ref.patches}
     t0 = time.perf_counter()
-    if render is not None:
+    if render_angle is not None and render is None:
+        raise ValueError("render_angle renders the sweep; give `render` for the light shares")
+    if render_angle is not None:
+        out, err, used = _predict_by_angle(render_angle, ref, materials, wall, holder, geometry,
+                                           lamp, quality, progress)
+        direct_render = render
+    elif render is not None:
         out, err, used = _predict_with(render, ref, materials, wall, holder, geometry, lamp,
                                        quality, progress)
         direct_render = render
@@ -178,6 +187,26 @@ def _predict_with(render: Callable[..., Any], ref: Any, materials: dict[str, Any
             err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
             used = str(r.info.get("renderer", "mitsuba"))
             done += 1
+    return out, err, used
+
+
+def _predict_by_angle(render_angle: Callable[..., Any], ref: Any, materials: dict[str, Any],
+                      wall: Any, holder: Any, geometry: Any, lamp: Any, quality: str,
+                      progress: ProgressFn) -> tuple[np.ndarray, np.ndarray, str]:
+    """Every angle's patches through one `render_angle` call each; (radiance, SE, renderer)."""
+    n_p, n_a = len(ref.patches), ref.angle_deg.size
+    out = np.zeros((n_p, n_a, ref.wavelength_nm.size))
+    err = np.zeros_like(out)
+    used, total = "mitsuba", n_p * n_a + n_a
+    for ai, a in enumerate(ref.angle_deg):
+        progress("predict", ai * n_p, total)
+        results = render_angle(geometry, patches=[materials[fit_key(p)] for p in ref.patches],
+                               wall=wall, holder=holder, angle_deg=float(a), lamp=lamp,
+                               quality=quality)
+        for pi, r in enumerate(results):
+            out[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.radiance)
+            err[pi, ai] = np.interp(ref.wavelength_nm, r.wavelength_nm, r.std_error)
+            used = str(r.info.get("renderer", "mitsuba"))
     return out, err, used
 
 

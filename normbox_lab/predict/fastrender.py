@@ -259,7 +259,8 @@ class FastNormbox:
         a changed kernel never returns an old result)."""
         from normbox_lab.predict.render import RENDER_VERSION
 
-        payload = {k: (v.digest() if k in ROLES else v.key() if k == "lamp" else v)
+        payload = {k: (v.digest() if k in ROLES else v.key() if k == "lamp" else
+                       [m.digest() for m in v] if k == "patches" else v)
                    for k, v in args.items()}
         payload.update(renderer="fastrender", v=RENDER_VERSION, variant=self.variant,
                        geometry=repr(self.geometry), max_depth=self.max_depth,
@@ -299,15 +300,32 @@ class FastNormbox:
     def render_patches(self, *, patches: Sequence[Any], wall: Any, angle_deg: float,
                        holder: Any = None, lamp: Any = None,
                        target_rel_se: float | None = DEFAULT_TARGET_SE, n_paths: int | None = None,
-                       seed: int = 0, max_paths: int = 1 << 23) -> list[Any]:
+                       seed: int = 0, max_paths: int = 1 << 23,
+                       cache_dir: str | Path | None = None) -> list[Any]:
         """`render_view` for every patch at one angle from one set of paths
         (`patchset.PatchSetTracer.render_patches`): a `RenderResult` per patch, in order.
-        The estimates are correlated across patches; each one's standard error is its own."""
+        The estimates are correlated across patches; each one's standard error is its own.
+        `cache_dir`: kept there and read back as `render_view`'s."""
         from normbox_lab.predict.materials import holder_material
-        from normbox_lab.predict.render import LAMP_GRID_NM, Lamp, RenderResult
+        from normbox_lab.predict.render import Lamp, cached_render
 
         holder = holder if holder is not None else holder_material()
         lamp = lamp if lamp is not None else Lamp()
+        args = {"patches": list(patches), "wall": wall, "holder": holder,
+                "angle_deg": float(angle_deg), "lamp": lamp, "target_rel_se": target_rel_se,
+                "n_paths": n_paths, "seed": int(seed), "max_paths": int(max_paths)}
+        if cache_dir is None:
+            return self._render_patches(**args)
+        key = self.view_key(**args)
+        return cached_render(Path(cache_dir) / f"fast-patches-{key}.npz",
+                             lambda: self._render_patches(**args), _load_results,
+                             _save_results)
+
+    def _render_patches(self, *, patches: list[Any], wall: Any, holder: Any, angle_deg: float,
+                        lamp: Any, target_rel_se: float | None, n_paths: int | None, seed: int,
+                        max_paths: int) -> list[Any]:
+        from normbox_lab.predict.render import LAMP_GRID_NM, RenderResult
+
         tr = self.tracer(angle_deg)
         ests = tr.render_patches(list(patches), {"wall": wall, "holder": holder}, LAMP_GRID_NM,
                                  lamp.radiance(LAMP_GRID_NM), n_paths=n_paths,
@@ -338,6 +356,44 @@ class FastNormbox:
                                       holder=holder, lamp=lamp, target_rel_se=target_rel_se,
                                       n_paths=n_paths, seed=config_seed(seed, c.name))
         return out
+
+
+def _save_results(path: Path, results: list[Any]) -> None:
+    """A list of `RenderResult`s of one band grid as one .npz (whole or not at all; a cache
+    that cannot be written only costs rendering again)."""
+    import os
+    import tempfile
+
+    try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
+    except OSError:
+        return
+    try:
+        with os.fdopen(fd, "wb") as f:
+            np.savez(f, wavelength_nm=results[0].wavelength_nm,
+                     radiance=np.stack([r.radiance for r in results]),
+                     std_error=np.stack([r.std_error for r in results]),
+                     time_s=np.array([r.render_time_s for r in results]),
+                     variant=results[0].variant, key=results[0].key,
+                     info=json.dumps([r.info for r in results]))
+        os.replace(tmp, path)
+    except OSError:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _load_results(path: Path) -> list[Any] | None:
+    """What `_save_results` wrote, or None."""
+    from normbox_lab.predict.render import RenderResult
+
+    try:
+        with np.load(path, allow_pickle=False) as z:
+            infos = json.loads(str(z["info"]))
+            return [RenderResult(z["wavelength_nm"], z["radiance"][i], z["std_error"][i],
+                                 z["radiance"][i][None, :].copy(), float(z["time_s"][i]),
+                                 str(z["variant"]), str(z["key"]), cached=True, info=info)
+                    for i, info in enumerate(infos)]
+    except (OSError, KeyError, ValueError, IndexError):
+        return None
 
 
 def dr_size(x: Any) -> int:

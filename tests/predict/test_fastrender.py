@@ -197,6 +197,31 @@ def test_a_cache_that_cannot_be_written_renders_and_keeps_nothing(tmp_path):
     assert calls == [1, 1] and blocker.read_text() == "x"
 
 
+def test_kept_patches_of_an_angle_are_read_back_and_another_patch_list_renders_again(
+        tmp_path, monkeypatch):
+    """render_patches(cache_dir=...): every patch's result comes back bit for bit, in order,
+    without tracing; another list of patches is another key."""
+    from normbox_lab.predict import materials as mats
+
+    box = FastNormbox()
+    wall = mats.truth_wall("model")
+    patches = [mats.truth_patch(p, "model") for p in (19, 13, 24)]
+    args = {"wall": wall, "angle_deg": 60.0, "n_paths": 2048, "seed": 5, "cache_dir": tmp_path}
+    first = box.render_patches(patches=patches, **args)
+    assert [r.info["patch"] for r in first] == [p.name for p in patches]
+    traced = []
+    render = box._render_patches
+    monkeypatch.setattr(box, "_render_patches", lambda **kw: traced.append(kw) or render(**kw))
+    again = box.render_patches(patches=patches, **args)
+    assert traced == [] and all(r.cached for r in again)
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a.radiance, b.radiance)
+        np.testing.assert_array_equal(a.std_error, b.std_error)
+        assert a.info == b.info
+    box.render_patches(patches=patches[:2], **args)
+    assert len(traced) == 1
+
+
 def test_seeded_results_are_reproducible_and_angle_moves_are_exact():
     patch, wall = _model_materials()
     moved = FastNormbox()
