@@ -261,13 +261,13 @@ def preflight(path: Path, newest: int) -> bool:
 
     if not stat.S_ISREG(st.st_mode):
         raise BadPath(f"{path}: not a file")
-    if st.st_size == 0:
-        return False
     try:
         with open(path, "rb") as fh:
             header = fh.read(100)
     except OSError as exc:
         raise StoreError(f"{path}: cannot read ({exc})") from None
+    if not header:                   # empty (a size of 0 is not enough: /proc's files say 0)
+        return False
     if len(header) < 100 or not header.startswith(_SQLITE_MAGIC):
         raise BadPath(f"{path}: not a normbox-lab store (not an SQLite file); refusing to "
                       "touch it (the file was not changed)")

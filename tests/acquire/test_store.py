@@ -346,3 +346,14 @@ def test_running_means_a_live_process_holds_the_run_lock(tmp_path):
         stale = lock.path
         stale.write_text("12345")
         assert s.shown_status(s.get_run(alive.id)) == "interrupted"
+
+
+@pytest.mark.skipif(not Path("/proc/version").exists(), reason="no procfs here")
+def test_a_file_that_says_size_0_but_has_content_is_not_taken_for_a_new_store():
+    """procfs files report a size of 0 and have content: a store is new only when reading
+    finds nothing (`runs --store /proc/version` listed no runs, exit 0)."""
+    from normbox_lab.core.errors import BadPath
+
+    assert Path("/proc/version").stat().st_size == 0
+    with pytest.raises(BadPath, match="not a normbox-lab store"):
+        Store("/proc/version")
