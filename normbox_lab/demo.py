@@ -144,7 +144,8 @@ def demo_config(opts: DemoOptions, quality: str, cache_dir: Path) -> Any:
 def make_world(config: Any, opts: DemoOptions, quality: str, *,
                truth_rel_se: float | None = None,
                prediction_rel_se: float | None = None) -> tuple[Any, Callable | None]:
-    """The virtual Normbox, and the render function the prediction should use.
+    """The virtual Normbox, and the prediction's renders (`PredictionRender`; None for the
+    stock renderer).
 
     Fast renderer: the world renders the truth with its own random numbers
     (`sim.world.TRUTH_RENDER_SEED`), the prediction with `PREDICTION_SEED`: the

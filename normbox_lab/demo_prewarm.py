@@ -28,8 +28,8 @@ renders from its start and the child from its end; they meet in between.  Each r
 traced once: the cache's per-render lock (`render.cached_render`) makes the one that comes
 second wait and read what the other saved, and both compute the same thing (the same world,
 the same per-configuration seeds), so the campaign's numbers do not depend on which process
-traced a configuration.  The sweep's renders are small and mostly single-threaded, and the
-BRDF runs and the fits keep one core only: the child fills the other.
+traced a configuration.  The BRDF runs and the fits keep one core only: the child fills the
+other (in the sweep itself both processes share the cores).
 """
 
 from __future__ import annotations
