@@ -208,6 +208,7 @@ def view_key(nc: Any, mats: Mapping[str, Any], *, layers: bool, seeds: tuple[int
                "view": {k: v for k, v in kw.items() if k != "lamp"},
                "lamp": lamp.key() if lamp is not None else None,
                "geometry": repr(box.geometry), "variant": box.variant,
+               "grid": [box.grid.start_nm, box.grid.stop_nm, box.grid.step_nm],
                "max_depth": box.max_depth, "rr_depth": box.rr_depth,
                "chunk_paths": nc.chunk_paths, "source": source.hexdigest()}
     return hashlib.sha256(json.dumps(payload, sort_keys=True).encode()).hexdigest()[:32]
