@@ -150,3 +150,39 @@ def test_predict_on_an_executor_closes_within_its_noise(tmp_path):
     assert np.all(pred_rms <= FAST_TARGET_REL_SE["quick"])
     combined = np.hypot(pred_rms, FAST_TARGET_REL_SE["quick"])
     assert np.all(c.nrmse <= 0.005 + 3.0 * combined), (c.nrmse, combined)
+
+
+def test_predict_by_angle_stores_each_patch_of_its_angles_one_render(tmp_path):
+    """predict_run(render_angle=...): one call per angle with every patch in the run's order,
+    and what it returns is what is stored (the demo's all patches per path); the light shares
+    still need the per-configuration `render`."""
+    from normbox_lab.analyze.pipeline import latest_fits
+    from normbox_lab.predict.materials import Material
+
+    world, render = _world("model")
+    calls: list[tuple[float, list[str]]] = []
+
+    def by_angle(geometry, *, patches, angle_deg, **kw):
+        calls.append((angle_deg, [p.name for p in patches]))
+        return render.angle(geometry, patches=patches, angle_deg=angle_deg, **kw)
+
+    with Store(tmp_path / "s.sqlite") as store:
+        brdf = _gonio_run(store, "model")
+        ref = _reference_run(store, world)
+        fit_run(store, brdf)
+        with pytest.raises(ValueError, match="render_angle"):
+            predict_run(store, ref, quality="quick", render_angle=by_angle)
+        predict_run(store, ref, quality="quick", render=render, render_angle=by_angle)
+        pred = store.latest_artifact("prediction", f"ref-run-{store.get_run(ref).id}").arrays
+        fits = latest_fits(store)
+        data = reference_data(store, ref)
+    names = [Material.from_fit(fits[f"p{p:02d}"]).name for p in data.patches]
+    assert calls == [(a, names) for a in ANGLES]
+    wall = Material.from_fit(fits["wall"])
+    again = render.angle(None, patches=[Material.from_fit(fits[f"p{p:02d}"]) for p in data.patches],
+                         wall=wall, holder=None, angle_deg=60.0)
+    ai = list(data.angle_deg).index(60.0)
+    for pi, r in enumerate(again):
+        np.testing.assert_allclose(pred["radiance"][pi, ai],
+                                   np.interp(data.wavelength_nm, r.wavelength_nm, r.radiance),
+                                   rtol=0, atol=0)
