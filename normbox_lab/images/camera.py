@@ -164,23 +164,15 @@ class SpectralImage:
         """Write the image, and `extra` arrays, to `path` (.npz, uncompressed float32: a
         320×240 image with its layers is about 200 MB), whole or not at all."""
         import json
-        import os
-        import tempfile
         from dataclasses import asdict
+
+        from normbox_lab.core.npzfile import write_npz
 
         meta = {"slot_names": list(self.slot_names), "camera": asdict(self.camera),
                 "spp": int(self.spp), "time_s": float(self.time_s), "info": self.info}
         arrays = {k: getattr(self, k) for k in self.ARRAYS if getattr(self, k) is not None}
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, meta=json.dumps(meta), **arrays, **{f"extra_{k}": v
-                                                                for k, v in extra.items()})
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        write_npz(path, meta=json.dumps(meta), **arrays,
+                  **{f"extra_{k}": v for k, v in extra.items()})
 
     @classmethod
     def load(cls, path: Path) -> tuple[SpectralImage, dict[str, np.ndarray]] | None:

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import functools
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -454,14 +453,9 @@ def _default_database(step_nm: int) -> MetamerDatabase:
         arrays = None
     if arrays is None:
         arrays = _build_database_arrays(wavelength_nm)
-        try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **arrays)
-            os.replace(tmp, path)
-        except OSError:
-            pass  # a read-only cache only costs the rebuild next time
+        from normbox_lab.core.npzfile import keep_npz
+
+        keep_npz(path, **arrays)      # a read-only cache only costs the rebuild next time
     return MetamerDatabase(arrays["wavelength_nm"], arrays["spectra"], arrays["XYZ"],
                            tuple(str(n) for n in arrays["names"]), arrays["xyz_weights"])
 

@@ -361,24 +361,14 @@ class FastNormbox:
 def _save_results(path: Path, results: list[Any]) -> None:
     """A list of `RenderResult`s of one band grid as one .npz (whole or not at all; a cache
     that cannot be written only costs rendering again)."""
-    import os
-    import tempfile
+    from normbox_lab.core.npzfile import keep_npz
 
-    try:
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
-    except OSError:
-        return
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, wavelength_nm=results[0].wavelength_nm,
-                     radiance=np.stack([r.radiance for r in results]),
-                     std_error=np.stack([r.std_error for r in results]),
-                     time_s=np.array([r.render_time_s for r in results]),
-                     variant=results[0].variant, key=results[0].key,
-                     info=json.dumps([r.info for r in results]))
-        os.replace(tmp, path)
-    except OSError:
-        Path(tmp).unlink(missing_ok=True)
+    keep_npz(path, wavelength_nm=results[0].wavelength_nm,
+             radiance=np.stack([r.radiance for r in results]),
+             std_error=np.stack([r.std_error for r in results]),
+             time_s=np.array([r.render_time_s for r in results]),
+             variant=results[0].variant, key=results[0].key,
+             info=json.dumps([r.info for r in results]))
 
 
 def _load_results(path: Path) -> list[Any] | None:

@@ -28,7 +28,6 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import tempfile
 import threading
 import time
 from dataclasses import asdict, dataclass, field, replace
@@ -252,20 +251,11 @@ def cached_render(path: Path, compute: Any, load: Any = None, save: Any = None) 
 
 
 def _save_cached(path: Path, r: RenderResult) -> None:
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npz")
-    except OSError:
-        return                                # a read-only cache: render again next time
-    try:
-        with os.fdopen(fd, "wb") as f:
-            np.savez(f, wavelength_nm=r.wavelength_nm, radiance=r.radiance,
-                     std_error=r.std_error, batches=r.batches,
-                     render_time_s=r.render_time_s, variant=r.variant, key=r.key,
-                     info=json.dumps(r.info))
-        os.replace(tmp, path)
-    except OSError:                           # a full disk: no partial file is left
-        Path(tmp).unlink(missing_ok=True)
+    from normbox_lab.core.npzfile import keep_npz
+
+    keep_npz(path, wavelength_nm=r.wavelength_nm, radiance=r.radiance, std_error=r.std_error,
+             batches=r.batches, render_time_s=r.render_time_s, variant=r.variant, key=r.key,
+             info=json.dumps(r.info))
 
 
 # --- rendering ----------------------------------------------------------------------------------
